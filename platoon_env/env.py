@@ -1,0 +1,468 @@
+"""The PettingZoo ``ParallelEnv`` of the platoon (DESIGN §6).
+
+The class coordinates; the physics, sensing, safety and reward live in their own modules and
+one compiled call (:func:`platoon_env.simulator.step_kernel`) does the whole step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from pettingzoo import ParallelEnv
+
+from platoon_env.geometry.sensing import (
+    SENSE_BETA,
+    SENSE_CLEARANCE,
+    SENSE_D,
+    SENSE_D_SIGHT_LEFT,
+    SENSE_D_SIGHT_RIGHT,
+    SENSE_D_WALL_LEFT,
+    SENSE_D_WALL_RIGHT,
+    SENSE_SIZE,
+    SENSE_VISIBLE,
+)
+from platoon_env.observation import ACT_SIZE, OBS_SIZE, action_space, observation_space
+from platoon_env.reward import REWARD_TERMS, reward_terms_into, reward_weights
+from platoon_env.safety import causes_to_mask, first_cause, mask_to_causes
+from platoon_env.scenarios.loader import ScenarioLike, load_config, load_scenario
+from platoon_env.scenarios.scenario import Scenario, build_scenario, initial_violations
+from platoon_env.scenarios.schema import VIOLATION_CAUSES, ScenarioError
+from platoon_env.simulator import (
+    L_ARRIVED,
+    L_PROGRESS,
+    L_SIZE,
+    P_BETA_CON,
+    P_D_COL,
+    P_D_CON,
+    P_LEADER_SPEED,
+    P_LEADER_TURN,
+    P_LOOKAHEAD,
+    P_PROXIMITY,
+    P_RADIUS,
+    P_SIZE,
+    P_SUBSTEP,
+    clip_actions,
+    step_kernel,
+)
+
+#: Attempts at drawing a feasible perturbed initial configuration before using the default one.
+_PERTURB_ATTEMPTS = 50
+
+
+def _apply_overrides(scenario: ScenarioLike, overrides: Mapping[str, Any]) -> Scenario:
+    """Load ``scenario`` and apply the keyword overrides of :func:`platoon_env.make`."""
+    if not overrides:
+        return load_scenario(scenario)
+    cfg = load_config(scenario)
+    sim = cfg.simulation
+    sim_changes = {
+        k: overrides[k]
+        for k in ("control_period", "physics_substeps", "max_episode_steps")
+        if overrides.get(k) is not None
+    }
+    if sim_changes:
+        cfg = dataclasses.replace(cfg, simulation=dataclasses.replace(sim, **sim_changes))
+    if overrides.get("terminate_on") is not None:
+        causes = tuple(overrides["terminate_on"])
+        causes_to_mask(causes)  # validates the names
+        cfg = dataclasses.replace(cfg, safety=dataclasses.replace(cfg.safety, terminate_on=causes))
+    if overrides.get("followers") is not None:
+        cfg = dataclasses.replace(cfg, followers=int(overrides["followers"]))
+    if overrides.get("perturb") is not None:
+        cfg = dataclasses.replace(
+            cfg, initial=dataclasses.replace(cfg.initial, perturb=bool(overrides["perturb"]))
+        )
+    robot_changes = {k: overrides[k] for k in ("u_max", "omega_max") if overrides.get(k) is not None}
+    if robot_changes:
+        cfg = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, **robot_changes))
+    free_space = scenario.free_space if isinstance(scenario, Scenario) else None
+    return build_scenario(cfg, free_space=free_space)
+
+
+class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
+    """A leader-follower platoon of unicycle robots in a cluttered 2D workspace.
+
+    **Agents**: ``follower_1 .. follower_N``; follower ``i`` tracks robot ``i - 1`` (robot 0 is
+    the scripted leader, which follows ``leader.path`` by pure pursuit).
+
+    **Action space** (per agent): ``Box([-u_max, -omega_max], [u_max, omega_max], float32)``:
+    linear speed ``u`` [m/s] and turn rate ``omega`` [rad/s] of eq. 1. Values outside the box are
+    clipped; NaN or infinite values raise ``ValueError`` and leave the state untouched.
+
+    **Observation space** (per agent): ``Box`` float32 of length 7 — see
+    :mod:`platoon_env.observation`: ``[visible, x~, y~, d_W_l, d_W_r, d_l, d_r]``, only from the
+    follower's own camera and proximity sensor.
+
+    **Rewards**: the named terms of :mod:`platoon_env.reward`; ``info[agent]["reward_terms"]``
+    gives each term.
+
+    **Episode end**: *termination* of all agents when any follower commits a violation whose
+    cause is in ``terminate_on`` (default: all five of ``VIOLATION_CAUSES``), checked after every
+    physics sub-step; *truncation* when the leader has reached its path's end and
+    ``leader.settle_time`` has passed, or after ``max_episode_steps`` steps.
+
+    **Info** (per agent): ``violation`` (the cause, or None), ``violations`` (all causes this
+    step), ``cost`` (0/1, as in Safety-Gymnasium), ground-truth diagnostics ``d``, ``beta``,
+    ``e_d``, ``e_beta``, ``d_W_l``, ``d_W_r``, ``d_l``, ``d_r``, ``clearance``, ``visible``,
+    and ``reward_terms``.
+
+    **Ground truth** (for tests and plots, not policies): :attr:`poses`, :attr:`scenario`
+    (``scenario.free_space`` is a shapely polygon), :attr:`sim_time`.
+
+    **Arguments**: see :func:`platoon_env.make`.
+
+    **Version history**: v0 — initial release.
+    """
+
+    metadata = {
+        "name": "platoon_v0",
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": 25,
+        "is_parallelizable": True,
+    }
+
+    def __init__(
+        self,
+        scenario: ScenarioLike = "study_c",
+        *,
+        control_period: float | None = None,
+        physics_substeps: int | None = None,
+        max_episode_steps: int | None = None,
+        terminate_on: Iterable[str] | None = None,
+        render_mode: str | None = None,
+        followers: int | None = None,
+        perturb: bool | None = None,
+        u_max: float | None = None,
+        omega_max: float | None = None,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or None, "
+                f"got {render_mode!r}"
+            )
+        overrides = {
+            "control_period": control_period,
+            "physics_substeps": physics_substeps,
+            "max_episode_steps": max_episode_steps,
+            "terminate_on": None if terminate_on is None else tuple(terminate_on),
+            "followers": followers,
+            "perturb": perturb,
+            "u_max": u_max,
+            "omega_max": omega_max,
+        }
+        self.scenario: Scenario = _apply_overrides(
+            scenario, {k: v for k, v in overrides.items() if v is not None}
+        )
+        cfg = self.scenario.config
+        self.render_mode = render_mode
+        self.n_followers = cfg.followers
+        self.possible_agents = [f"follower_{i}" for i in range(1, cfg.followers + 1)]
+        self.agents: list[str] = []
+        self.control_period = cfg.simulation.control_period
+        self.physics_substeps = cfg.simulation.physics_substeps
+        self.max_episode_steps = cfg.simulation.max_episode_steps
+        self.terminate_on = frozenset(cfg.safety.terminate_on)
+        self._terminate_mask = causes_to_mask(self.terminate_on)
+        obs_space = observation_space(cfg)
+        act_space = action_space(cfg)
+        self.observation_spaces = {a: obs_space for a in self.possible_agents}
+        self.action_spaces = {a: act_space for a in self.possible_agents}
+        self._act_low = act_space.low.astype(np.float64)
+        self._act_high = act_space.high.astype(np.float64)
+        xmin, ymin, xmax, ymax = self.scenario.workspace.bounds
+        n1 = cfg.followers + 1
+        self.state_space = spaces.Box(
+            low=np.tile(np.array([xmin, ymin, -math.pi], dtype=np.float32), n1),
+            high=np.tile(np.array([xmax, ymax, math.pi], dtype=np.float32), n1),
+            dtype=np.float32,
+        )
+        # Kernel inputs (float64, contiguous) and scratch buffers, allocated once.
+        self._params = np.zeros(P_SIZE)
+        self._params[P_RADIUS] = cfg.robot.radius
+        self._params[P_D_COL] = cfg.safety.d_col
+        self._params[P_D_CON] = cfg.camera.range
+        self._params[P_BETA_CON] = cfg.camera.half_angle
+        self._params[P_PROXIMITY] = cfg.proximity_range
+        self._params[P_LEADER_SPEED] = cfg.leader.speed
+        self._params[P_LOOKAHEAD] = cfg.leader.lookahead
+        self._params[P_LEADER_TURN] = cfg.leader.max_turn_rate
+        self._params[P_SUBSTEP] = self.control_period / self.physics_substeps
+        self._path = np.ascontiguousarray(self.scenario.leader_path)
+        self._cum = np.ascontiguousarray(self.scenario.path_s)
+        self._edges = self.scenario.workspace.edges
+        self._boxes = self.scenario.workspace.boxes
+        n = cfg.followers
+        self._poses = np.array(self.scenario.initial_poses, dtype=np.float64)
+        self._leader = np.zeros(L_SIZE)
+        self._actions = np.zeros((n, ACT_SIZE))
+        self._prev = np.zeros((n + 1, 3))
+        self._sub_mask = np.zeros(n, dtype=np.int64)
+        self._violations = np.zeros(n, dtype=np.int64)
+        self._sensed = np.zeros((n, SENSE_SIZE))
+        self._obs = np.zeros((n, OBS_SIZE), dtype=np.float32)
+        self._terms = np.zeros((n, len(REWARD_TERMS)))
+        self._weights = reward_weights(cfg)
+        self.sim_time = 0.0
+        self.steps = 0
+        self._arrival_time: float | None = None
+        self._renderer: Any = None
+        self.np_random, self._np_random_seed = seeding.np_random(None)
+
+    # ----------------------------------------------------------------------------------------
+    # PettingZoo API
+    # ----------------------------------------------------------------------------------------
+    def observation_space(self, agent: str) -> spaces.Box:
+        """The (shared, cached) observation space of ``agent``."""
+        return self.observation_spaces[agent]
+
+    def action_space(self, agent: str) -> spaces.Box:
+        """The (shared, cached) action space of ``agent``."""
+        return self.action_spaces[agent]
+
+    @property
+    def poses(self) -> np.ndarray:
+        """Ground-truth poses ``(N+1, 3)`` ``[x, y, theta]``, leader first (a copy)."""
+        return self._poses.copy()
+
+    @property
+    def leader_arrived(self) -> bool:
+        """Whether the leader has reached the end of its path."""
+        return bool(self._leader[L_ARRIVED])
+
+    @property
+    def sensed(self) -> np.ndarray:
+        """Ground-truth sensing ``(N, 9)`` of the last step (``SENSE_*`` columns; a copy)."""
+        return self._sensed.copy()
+
+    def state(self) -> np.ndarray:
+        """Global state for centralised critics: all poses with wrapped headings (float32)."""
+        s = self._poses.copy()
+        s[:, 2] = np.mod(s[:, 2] + math.pi, 2 * math.pi) - math.pi
+        return s.astype(np.float32).ravel()
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
+        """Start an episode. ``seed`` reseeds this env's own RNG.
+
+        ``options``: ``{"perturb": bool}`` overrides the scenario's seeded perturbation of the
+        initial configuration; ``{"poses": array (N+1, 3)}`` starts from given poses (they must
+        satisfy every constraint, else ``ScenarioError`` names the follower and constraint).
+        """
+        if seed is not None:
+            self.np_random, self._np_random_seed = seeding.np_random(seed)
+        options = dict(options or {})
+        unknown = set(options) - {"perturb", "poses"}
+        if unknown:
+            raise ValueError(f"unknown reset option(s): {', '.join(sorted(unknown))}")
+        cfg = self.scenario.config
+        if options.get("poses") is not None:
+            poses = np.array(options["poses"], dtype=np.float64)
+            if poses.shape != self._poses.shape or not np.all(np.isfinite(poses)):
+                raise ValueError(f"options['poses'] must be finite with shape {self._poses.shape}")
+            problems = initial_violations(cfg, self.scenario.workspace, poses)
+            if problems:
+                raise ScenarioError("initial poses are infeasible: " + "; ".join(problems))
+        else:
+            perturb = options.get("perturb", cfg.initial.perturb)
+            poses = self._initial_poses(bool(perturb))
+        self._poses[:] = poses
+        self._leader[L_PROGRESS] = self.scenario.initial_progress
+        self._leader[L_ARRIVED] = 0.0
+        self.sim_time = 0.0
+        self.steps = 0
+        self._arrival_time = None
+        self.agents = list(self.possible_agents)
+        self._actions[:] = 0.0
+        # Zero-duration step: sensing of the initial configuration.
+        self._step_kernel(n_substeps=0)
+        obs = self._obs.copy()
+        infos = self._infos([0] * self.n_followers, None)
+        return {a: obs[i] for i, a in enumerate(self.agents)}, infos
+
+    def step(self, actions: Mapping[str, Any]) -> tuple[
+        dict[str, np.ndarray],
+        dict[str, float],
+        dict[str, bool],
+        dict[str, bool],
+        dict[str, dict[str, Any]],
+    ]:
+        """Advance by one control period with every live agent's ``[u, omega]``."""
+        if not self.agents:
+            raise RuntimeError("step() called on a finished episode; call reset() first")
+        act = self._read_actions(actions)
+        self._actions[:] = act
+        done = self._step_kernel(self.physics_substeps)
+        self.sim_time += done * self._params[P_SUBSTEP]
+        self.steps += 1
+        if self._leader[L_ARRIVED] and self._arrival_time is None:
+            self._arrival_time = self.sim_time
+        masks = self._violations.tolist()
+        terminated = any(m & self._terminate_mask for m in masks)
+        truncated = not terminated and (
+            self.steps >= self.max_episode_steps
+            or (
+                self._arrival_time is not None
+                and self.sim_time - self._arrival_time >= self.scenario.config.leader.settle_time
+                - 1e-9
+            )
+        )
+        cfg = self.scenario.config
+        reward_terms_into(
+            self._sensed,
+            cfg.formation.d_des,
+            self._actions,
+            self._violations,
+            self._weights,
+            cfg.camera.range - cfg.formation.d_des,
+            cfg.camera.half_angle,
+            self._terms,
+        )
+        terms = self._terms.tolist()
+        obs = self._obs.copy()
+        agents = self.agents
+        observations = {a: obs[i] for i, a in enumerate(agents)}
+        rewards = {a: sum(terms[i]) for i, a in enumerate(agents)}
+        terminations = {a: terminated for a in agents}
+        truncations = {a: truncated for a in agents}
+        infos = self._infos(masks, terms)
+        if terminated or truncated:
+            self.agents = []
+        if self.render_mode == "human":
+            self.render()
+        return observations, rewards, terminations, truncations, infos
+
+    def render(self) -> np.ndarray | None:
+        """Draw the workspace, robots, fields of view and lines of sight (``render_mode``)."""
+        if self.render_mode is None:
+            import warnings
+
+            warnings.warn("render() called without a render_mode; pass render_mode to make()")
+            return None
+        if self._renderer is None:
+            from platoon_env.rendering import Renderer
+
+            self._renderer = Renderer(self.scenario.free_space, self.scenario.config, self.render_mode)
+        names = [first_cause(int(m)) for m in self._violations]
+        return self._renderer.render(  # type: ignore[no-any-return]
+            self._poses, self._sensed[:, SENSE_VISIBLE] > 0, self.sim_time, names
+        )
+
+    def close(self) -> None:
+        """Release the renderer's resources."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_renderer"] = None  # figures are not picklable; redrawn on demand
+        return state
+
+    # ----------------------------------------------------------------------------------------
+    # Internals
+    # ----------------------------------------------------------------------------------------
+    def _step_kernel(self, n_substeps: int) -> int:
+        return int(
+            step_kernel(
+                self._poses,
+                self._actions,
+                self._leader,
+                self._path,
+                self._cum,
+                self._edges,
+                self._boxes,
+                self._params,
+                n_substeps,
+                self._terminate_mask,
+                self._prev,
+                self._sub_mask,
+                self._violations,
+                self._sensed,
+                self._obs,
+            )
+        )
+
+    def _read_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
+        """Validate and clip the actions; raises before any state changes.
+
+        Every live agent needs an action of shape (2,); NaN or inf raise ``ValueError`` naming
+        the agent; values outside the action space are clipped to it.
+        """
+        if not isinstance(actions, Mapping):
+            raise TypeError(f"actions must be a dict agent -> [u, omega], got {type(actions)}")
+        if len(actions) != len(self.agents) or any(a not in actions for a in self.agents):
+            for agent in actions:
+                if agent not in self.agents:
+                    raise KeyError(
+                        f"unknown or finished agent {agent!r}; live agents: {', '.join(self.agents)}"
+                    )
+            missing = [a for a in self.agents if a not in actions]
+            raise KeyError(f"missing action for agent {missing[0]!r}")
+        try:
+            out = np.array([actions[a] for a in self.agents], dtype=np.float64)
+        except (ValueError, TypeError):
+            out = np.empty(0)
+        if out.shape != (len(self.agents), ACT_SIZE):
+            for agent in self.agents:
+                shape = np.shape(actions[agent])
+                if shape != (ACT_SIZE,):
+                    raise ValueError(
+                        f"action of {agent!r} must have shape ({ACT_SIZE},) [u, omega], "
+                        f"got shape {shape}"
+                    )
+            raise ValueError("actions must be numeric arrays of shape (2,) [u, omega]")
+        bad = clip_actions(out, self._act_low, self._act_high)
+        if bad >= 0:
+            raise ValueError(
+                f"action of {self.agents[bad]!r} contains NaN or inf: {out[bad].tolist()}"
+            )
+        return out
+
+    def _infos(
+        self, masks: list[int], terms: list[list[float]] | None
+    ) -> dict[str, dict[str, Any]]:
+        rows = self._sensed.tolist()
+        d_des = self.scenario.config.formation.d_des
+        infos: dict[str, dict[str, Any]] = {}
+        for i, agent in enumerate(self.agents):
+            row = rows[i]
+            causes = mask_to_causes(masks[i])
+            infos[agent] = {
+                "violation": causes[0] if causes else None,
+                "violations": causes,
+                "cost": 1 if causes else 0,
+                "d": row[SENSE_D],
+                "beta": row[SENSE_BETA],
+                "e_d": row[SENSE_D] - d_des,
+                "e_beta": row[SENSE_BETA],
+                "d_W_l": row[SENSE_D_WALL_LEFT],
+                "d_W_r": row[SENSE_D_WALL_RIGHT],
+                "d_l": row[SENSE_D_SIGHT_LEFT],
+                "d_r": row[SENSE_D_SIGHT_RIGHT],
+                "clearance": row[SENSE_CLEARANCE],
+                "visible": row[SENSE_VISIBLE] > 0.0,
+                "reward_terms": {} if terms is None else dict(zip(REWARD_TERMS, terms[i])),
+            }
+        return infos
+
+    def _initial_poses(self, perturb: bool) -> np.ndarray:
+        """Default initial configuration, optionally with a seeded feasible perturbation."""
+        base = np.array(self.scenario.initial_poses)
+        cfg = self.scenario.config
+        if not perturb or (cfg.initial.position_noise == 0 and cfg.initial.heading_noise == 0):
+            return base
+        n = self.n_followers
+        for _ in range(_PERTURB_ATTEMPTS):
+            cand = base.copy()
+            cand[1:, :2] += self.np_random.uniform(-1, 1, size=(n, 2)) * cfg.initial.position_noise
+            cand[1:, 2] += self.np_random.uniform(-1, 1, size=n) * cfg.initial.heading_noise
+            if not initial_violations(cfg, self.scenario.workspace, cand):
+                return cand
+        return base

@@ -1,0 +1,72 @@
+"""Gymnasium single-agent view: one follower behind the scripted leader.
+
+Registered on ``import platoon_env`` as ``platoon_env/SingleFollower-<Study>-v0`` (see
+:data:`GYM_IDS`). Observation and action are those of the one follower of the parallel env; the
+reward is its reward; ``terminated`` and ``truncated`` follow the parallel env.
+"""
+
+from __future__ import annotations
+
+from typing import Any, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+
+from platoon_env.env import PlatoonParallelEnv
+from platoon_env.scenarios.loader import ScenarioLike
+
+#: Gymnasium id -> shipped scenario the single follower drives in.
+GYM_IDS: dict[str, str] = {
+    "platoon_env/SingleFollower-StudyA-v0": "study_a",
+    "platoon_env/SingleFollower-StudyB-v0": "study_b",
+    "platoon_env/SingleFollower-StudyC-v0": "study_c",
+}
+
+
+class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
+    """One follower (``follower_1``) tracking the scripted leader of ``scenario``.
+
+    Arguments are those of :func:`platoon_env.make`; ``followers`` is forced to 1.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
+
+    def __init__(self, scenario: ScenarioLike = "study_c", **overrides: Any) -> None:
+        overrides["followers"] = 1
+        self.parallel = PlatoonParallelEnv(scenario, **overrides)
+        self.agent = self.parallel.possible_agents[0]
+        self.observation_space = self.parallel.observation_space(self.agent)
+        self.action_space = self.parallel.action_space(self.agent)
+        self.render_mode = self.parallel.render_mode
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        obs, infos = self.parallel.reset(seed=seed, options=options)
+        return obs[self.agent], infos[self.agent]
+
+    def step(
+        self, action: np.ndarray
+    ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        obs, rew, term, trunc, infos = self.parallel.step({self.agent: action})
+        a = self.agent
+        return obs[a], rew[a], term[a], trunc[a], infos[a]
+
+    def render(self) -> np.ndarray | None:  # type: ignore[override]
+        return self.parallel.render()
+
+    def close(self) -> None:
+        self.parallel.close()
+
+
+def register_gym_ids() -> None:
+    """Register :data:`GYM_IDS` with Gymnasium (idempotent)."""
+    for env_id, scenario in GYM_IDS.items():
+        if env_id not in gym.registry:
+            gym.register(
+                id=env_id,
+                entry_point="platoon_env.gym_env:SingleFollowerEnv",
+                kwargs={"scenario": scenario},
+                max_episode_steps=None,
+            )

@@ -1,0 +1,181 @@
+"""A built scenario: the parsed config plus its validated geometry and initial configuration."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from shapely.geometry import Polygon
+
+from platoon_env.dynamics.leader import path_arclength, point_at
+from platoon_env.geometry.sensing import (
+    SENSE_BETA,
+    SENSE_CLEARANCE,
+    SENSE_D,
+    SENSE_OCCLUDED,
+    sense,
+)
+from platoon_env.geometry.workspace import Workspace, build_free_space, check_leader_path
+from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError, check_ranges
+
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    """A scenario ready to simulate (``env.scenario``).
+
+    Attributes:
+        config: the typed scenario (DESIGN §5).
+        workspace: the free space and its boundary-edge arrays.
+        leader_path: ``(M, 2)`` polyline of the leader; ``path_s`` its cumulative arc length.
+        initial_poses: ``(N+1, 3)`` default initial configuration ``[x, y, theta]``, leader first.
+        initial_progress: the leader's arc length along its path in that configuration.
+    """
+
+    config: ScenarioConfig
+    workspace: Workspace
+    leader_path: np.ndarray
+    path_s: np.ndarray
+    initial_poses: np.ndarray
+    initial_progress: float
+
+    @property
+    def name(self) -> str:
+        """The scenario's name."""
+        return self.config.name
+
+    @property
+    def free_space(self) -> Polygon:
+        """The free space ``W_f`` as a shapely polygon (ground truth, for tests and plots)."""
+        return self.workspace.free_space
+
+    @property
+    def n_followers(self) -> int:
+        """Number of followers ``N``."""
+        return self.config.followers
+
+    def with_overrides(self, **changes: Any) -> Scenario:
+        """A copy with top-level config fields replaced (e.g. ``followers=1``), rebuilt."""
+        return build_scenario(replace(self.config, **changes), free_space=self.free_space)
+
+
+def default_initial_poses(cfg: ScenarioConfig, path: np.ndarray, cum: np.ndarray) -> tuple[np.ndarray, float]:
+    """The default initial configuration (DESIGN §5).
+
+    The last follower stands at the path's first point; walking forward along the path, each
+    next robot stands where the chord to the previous one first reaches ``d_des``; the leader is
+    furthest along and faces along the path; each follower faces its predecessor.
+    Returns the poses (leader first) and the leader's arc-length progress.
+    """
+    n = cfg.followers
+    d_des = cfg.formation.d_des
+    total = float(cum[-1])
+    step = min(0.01, d_des / 50.0)
+    s_robot = [0.0]
+    for k in range(n):
+        s0 = s_robot[-1]
+        x0, y0 = point_at(path, cum, s0)
+        s = s0
+        while True:
+            s_next = s + step
+            if s_next > total:
+                raise ScenarioError(
+                    f"scenario.leader.path: too short for the platoon: robot {n - k - 1} "
+                    f"cannot be placed {d_des} m ahead of the next one along the path"
+                )
+            x, y = point_at(path, cum, s_next)
+            if math.hypot(x - x0, y - y0) >= d_des:
+                lo, hi = s, s_next
+                for _ in range(60):
+                    mid = 0.5 * (lo + hi)
+                    xm, ym = point_at(path, cum, mid)
+                    if math.hypot(xm - x0, ym - y0) >= d_des:
+                        hi = mid
+                    else:
+                        lo = mid
+                s_robot.append(hi)
+                break
+            s = s_next
+    s_robot.reverse()  # leader first
+    xy = np.array([point_at(path, cum, s) for s in s_robot])
+    poses = np.zeros((n + 1, 3))
+    poses[:, :2] = xy
+    ahead = np.array(point_at(path, cum, min(total, s_robot[0] + 1e-3)))
+    behind = np.array(point_at(path, cum, max(0.0, s_robot[0] - 1e-3)))
+    tangent = ahead - behind
+    poses[0, 2] = math.atan2(tangent[1], tangent[0])
+    for i in range(1, n + 1):
+        dx, dy = xy[i - 1] - xy[i]
+        poses[i, 2] = math.atan2(dy, dx)
+    return poses, float(s_robot[0])
+
+
+def initial_violations(cfg: ScenarioConfig, workspace: Workspace, poses: np.ndarray) -> list[str]:
+    """Which constraints of the initial configuration (after Problem 1) ``poses`` violates.
+
+    Returns messages naming the follower and the constraint; empty when feasible.
+    """
+    r = cfg.robot.radius
+    d_col, d_con, b_con = cfg.safety.d_col, cfg.camera.range, cfg.camera.half_angle
+    out = sense(poses, workspace.edges, d_con, b_con, cfg.proximity_range)
+    problems: list[str] = []
+    for i in range(1, poses.shape[0]):
+        row = out[i - 1]
+        name = f"follower_{i}"
+        if not row[SENSE_D] > d_col:
+            problems.append(f"{name}: d_{i} = {row[SENSE_D]:.3f} must exceed d_col = {d_col}")
+        if not row[SENSE_D] < d_con:
+            problems.append(f"{name}: d_{i} = {row[SENSE_D]:.3f} must be below d_con = {d_con}")
+        if not abs(row[SENSE_BETA]) < b_con:
+            problems.append(
+                f"{name}: |beta_{i}| = {abs(row[SENSE_BETA]):.3f} must be below beta_con = {b_con}"
+            )
+        if not row[SENSE_CLEARANCE] > r:
+            problems.append(
+                f"{name}: clearance {row[SENSE_CLEARANCE]:.3f} to the obstacles must exceed r = {r}"
+            )
+        if row[SENSE_OCCLUDED] > 0:
+            problems.append(f"{name}: the line of sight to robot {i - 1} crosses an obstacle")
+    leader_clear = workspace.clearance(float(poses[0, 0]), float(poses[0, 1]))
+    if not leader_clear > r:
+        problems.append(f"leader: clearance {leader_clear:.3f} to the obstacles must exceed r = {r}")
+    for j in range(poses.shape[0]):
+        for k in range(j + 1, poses.shape[0]):
+            if np.hypot(*(poses[j, :2] - poses[k, :2])) <= 2 * r:
+                problems.append(f"robots {j} and {k} overlap")
+    return problems
+
+
+def build_scenario(cfg: ScenarioConfig, free_space: Polygon | None = None) -> Scenario:
+    """Validate ``cfg`` and build its geometry and default initial configuration.
+
+    Raises :class:`ScenarioError` for bad geometry, an unsafe leader path, or an infeasible
+    initial configuration (naming the follower and the constraint).
+    """
+    check_ranges(cfg)
+    if free_space is None:
+        free_space = build_free_space(cfg.workspace)
+    workspace = Workspace.from_free_space(free_space)
+    path = np.asarray(cfg.leader.path, dtype=np.float64)
+    check_leader_path(free_space, path, cfg.robot.radius)
+    cum = path_arclength(path)
+    if cum[-1] <= 0.0:
+        raise ScenarioError("scenario.leader.path: the path has zero length")
+    poses, progress = default_initial_poses(cfg, path, cum)
+    problems = initial_violations(cfg, workspace, poses)
+    if problems:
+        raise ScenarioError(
+            "scenario: the default initial configuration is infeasible: " + "; ".join(problems)
+        )
+    path.setflags(write=False)
+    cum.setflags(write=False)
+    poses.setflags(write=False)
+    return Scenario(
+        config=cfg,
+        workspace=workspace,
+        leader_path=path,
+        path_s=cum,
+        initial_poses=poses,
+        initial_progress=progress,
+    )

@@ -1,0 +1,337 @@
+"""Typed, frozen configuration objects for a scenario (DESIGN §5).
+
+A scenario file is YAML; :func:`platoon_env.scenarios.loader.load_scenario` safe-loads it and
+passes the resulting mapping to :func:`parse_scenario`, which builds these dataclasses, rejects
+unknown keys (naming their path, e.g. ``scenario.leader.sped``) and checks every numeric field.
+Geometric validation (polygons, leader-path clearance, feasibility of the initial configuration)
+happens in :mod:`platoon_env.scenarios.validation`, once the workspace geometry is built.
+
+Units are SI throughout: metres, seconds, radians.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import MISSING, dataclass, field, fields
+from typing import Any, TypeVar
+
+Point = tuple[float, float]
+Polygon = tuple[Point, ...]
+
+#: Violation causes, in the order in which a simultaneous violation is reported (DESIGN §3).
+VIOLATION_CAUSES: tuple[str, ...] = (
+    "collision_robot",
+    "collision_obstacle",
+    "occluded",
+    "out_of_range",
+    "out_of_fov",
+)
+
+
+class ScenarioError(ValueError):
+    """A scenario is malformed or infeasible. The message names the offending field."""
+
+
+@dataclass(frozen=True)
+class FreeSpaceConfig:
+    """Free space given directly: an outer polygon with optional holes (obstacles)."""
+
+    exterior: Polygon
+    holes: tuple[Polygon, ...] = ()
+
+
+@dataclass(frozen=True)
+class WorkspaceConfig:
+    """The workspace ``W`` and its static obstacles ``O_j``.
+
+    ``bounds`` (``[xmin, ymin, xmax, ymax]``) and/or ``free_space`` give the outer region;
+    ``obstacles`` (possibly non-convex polygons) are subtracted from it.
+    """
+
+    bounds: tuple[float, float, float, float] | None = None
+    free_space: FreeSpaceConfig | None = None
+    obstacles: tuple[Polygon, ...] = ()
+
+
+@dataclass(frozen=True)
+class LeaderConfig:
+    """The scripted leader ``R_0``: pure pursuit along a polyline at constant speed."""
+
+    path: tuple[Point, ...]
+    speed: float  # [m/s]
+    lookahead: float = 0.5  # [m] pure-pursuit lookahead distance
+    max_turn_rate: float = 1.5  # [rad/s] bound on the leader's |omega|
+    settle_time: float = 2.0  # [s] after the leader stops, the episode is truncated
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """Disk robots ``R_i`` of radius ``r`` and their actuator limits (the action-space bounds).
+
+    The paper imposes no actuator limits; the defaults are generous (above the peaks the PPC
+    law commands on the shipped studies) so that the paper's law runs unclipped.
+    """
+
+    radius: float  # [m] r
+    u_max: float = 10.0  # [m/s] |u| bound of the action space
+    omega_max: float = 10.0  # [rad/s] |omega| bound of the action space
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Forward camera: field of view ``F_i``, a sector of half-angle ``beta_con`` and radius
+    ``d_con``."""
+
+    half_angle: float  # [rad] beta_con
+    range: float  # [m] d_con
+
+
+@dataclass(frozen=True)
+class ProximityConfig:
+    """Proximity sensor (LiDAR) that measures the four clearances; ``range`` defaults to
+    ``d_con`` (the camera range)."""
+
+    range: float | None = None  # [m]
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """Safety limits (eqs. 4-5) and which violation causes end an episode."""
+
+    d_col: float  # [m] minimum inter-robot distance
+    terminate_on: tuple[str, ...] = VIOLATION_CAUSES
+
+
+@dataclass(frozen=True)
+class FormationConfig:
+    """Desired inter-robot distance ``d_des`` (Problem 1)."""
+
+    d_des: float  # [m]
+
+
+@dataclass(frozen=True)
+class PPCConfig:
+    """Parameters of the PPC law (eqs. 12-14); names as in the paper."""
+
+    lambda_: float = field(metadata={"key": "lambda"})  # [1/s] convergence rate
+    rho_d_inf: float  # [m] steady-state bound on e_d
+    rho_beta_inf: float  # [rad] steady-state bound on e_beta
+    k_d: float  # gain of eq. 13
+    k_beta: float  # gain of eq. 14
+    delta: float  # [m] activation distance of S(.; delta)
+    epsilon: float  # projection-operator parameter in (0, 1)
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """Time discretisation and episode length."""
+
+    control_period: float = 0.01  # [s] one env step, one action
+    physics_substeps: int = 2  # exact unicycle arcs per control period
+    max_episode_steps: int = 20_000
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Weights of the named reward terms (see :mod:`platoon_env.reward`)."""
+
+    distance: float = 1.0  # penalty on (e_d / (d_con - d_des))^2
+    bearing: float = 1.0  # penalty on (e_beta / beta_con)^2
+    effort: float = 0.01  # penalty on u^2 + omega^2
+    alive: float = 1.0  # bonus per step without violation
+    violation: float = 100.0  # penalty when a violation occurs
+
+
+@dataclass(frozen=True)
+class InitialConfig:
+    """Seeded perturbation of the default initial configuration on ``reset(seed)``."""
+
+    perturb: bool = True
+    position_noise: float = 0.05  # [m] uniform in [-a, a] per coordinate
+    heading_noise: float = 0.05  # [rad] uniform in [-a, a]
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """A whole scenario as given in the file (DESIGN §5), before geometry is built."""
+
+    name: str
+    workspace: WorkspaceConfig
+    leader: LeaderConfig
+    followers: int
+    robot: RobotConfig
+    camera: CameraConfig
+    safety: SafetyConfig
+    formation: FormationConfig
+    ppc: PPCConfig | None = None
+    proximity: ProximityConfig = ProximityConfig()
+    simulation: SimulationConfig = SimulationConfig()
+    reward: RewardConfig = RewardConfig()
+    initial: InitialConfig = InitialConfig()
+    description: str = ""
+
+    @property
+    def proximity_range(self) -> float:
+        """Range at which the four clearances are capped (``d_con`` unless set)."""
+        return self.camera.range if self.proximity.range is None else self.proximity.range
+
+
+# --------------------------------------------------------------------------------------------
+# Parsing: mapping -> dataclasses, with the path of every offending key in the message.
+# --------------------------------------------------------------------------------------------
+
+T = TypeVar("T")
+
+
+def _key_of(f: Any) -> str:
+    return str(f.metadata.get("key", f.name))
+
+
+def _parse_number(value: Any, path: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ScenarioError(f"{path}: expected a number, got {value!r}")
+    out = float(value)
+    if not math.isfinite(out):
+        raise ScenarioError(f"{path}: must be finite, got {value!r}")
+    return out
+
+
+def _parse_value(tp: Any, value: Any, path: str) -> Any:
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        non_none = [a for a in args if a is not type(None)]
+        if value is None:
+            if len(non_none) < len(args):
+                return None
+            raise ScenarioError(f"{path}: must not be empty")
+        return _parse_value(non_none[0], value, path)
+    if tp is float:
+        return _parse_number(value, path)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ScenarioError(f"{path}: expected an integer, got {value!r}")
+        return int(value)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ScenarioError(f"{path}: expected true or false, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ScenarioError(f"{path}: expected a string, got {value!r}")
+        return value
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ScenarioError(f"{path}: expected a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_parse_value(args[0], v, f"{path}[{k}]") for k, v in enumerate(value))
+        if len(value) != len(args):
+            raise ScenarioError(f"{path}: expected {len(args)} values, got {len(value)}")
+        return tuple(_parse_value(a, v, f"{path}[{k}]") for k, (a, v) in enumerate(zip(args, value)))
+    if isinstance(tp, type) and hasattr(tp, "__dataclass_fields__"):
+        return parse_section(tp, value, path)
+    raise TypeError(f"unsupported field type {tp!r} at {path}")  # pragma: no cover
+
+
+def parse_section(cls: type[T], data: Any, path: str) -> T:
+    """Build dataclass ``cls`` from a mapping, rejecting unknown keys and wrong types.
+
+    ``path`` is the dotted location of ``data`` in the file, used in every error message.
+    """
+    if not isinstance(data, Mapping):
+        raise ScenarioError(f"{path}: expected a mapping, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    known = {_key_of(f): f for f in fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(str(k) for k in data if k not in known)
+    if unknown:
+        raise ScenarioError(
+            f"{path}.{unknown[0]}: unknown key (expected one of {', '.join(sorted(known))})"
+        )
+    kwargs: dict[str, Any] = {}
+    for key, f in known.items():
+        if key in data:
+            kwargs[f.name] = _parse_value(hints[f.name], data[key], f"{path}.{key}")
+        elif f.default is MISSING and f.default_factory is MISSING:
+            raise ScenarioError(f"{path}.{key}: required key is missing")
+    return cls(**kwargs)
+
+
+def parse_scenario(data: Any, path: str = "scenario") -> ScenarioConfig:
+    """Parse and range-check a scenario mapping (DESIGN §5 schema).
+
+    Raises :class:`ScenarioError` naming the field for unknown keys, wrong types and
+    out-of-range parameters (DESIGN §3: ``d_col >= 2r``, ``d_col < d_des < d_con``,
+    ``0 < beta_con < pi/2``).
+    """
+    cfg = parse_section(ScenarioConfig, data, path)
+    check_ranges(cfg, path)
+    return cfg
+
+
+def _require(cond: bool, where: str, message: str) -> None:
+    if not cond:
+        raise ScenarioError(f"{where}: {message}")
+
+
+def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
+    """Check every scalar parameter against the ranges the model needs."""
+    r = cfg.robot.radius
+    _require(cfg.followers >= 1, f"{path}.followers", f"must be >= 1, got {cfg.followers}")
+    _require(r > 0, f"{path}.robot.radius", f"must be > 0, got {r}")
+    _require(cfg.robot.u_max > 0, f"{path}.robot.u_max", "must be > 0")
+    _require(cfg.robot.omega_max > 0, f"{path}.robot.omega_max", "must be > 0")
+    _require(cfg.leader.speed > 0, f"{path}.leader.speed", "must be > 0")
+    _require(cfg.leader.lookahead > 0, f"{path}.leader.lookahead", "must be > 0")
+    _require(cfg.leader.max_turn_rate > 0, f"{path}.leader.max_turn_rate", "must be > 0")
+    _require(cfg.leader.settle_time >= 0, f"{path}.leader.settle_time", "must be >= 0")
+    _require(len(cfg.leader.path) >= 2, f"{path}.leader.path", "needs at least two points")
+    bc, dcon = cfg.camera.half_angle, cfg.camera.range
+    _require(
+        0 < bc < math.pi / 2,
+        f"{path}.camera.half_angle",
+        f"beta_con must satisfy 0 < beta_con < pi/2, got {bc}",
+    )
+    _require(dcon > 0, f"{path}.camera.range", f"d_con must be > 0, got {dcon}")
+    dcol, ddes = cfg.safety.d_col, cfg.formation.d_des
+    _require(
+        dcol >= 2 * r - 1e-12,
+        f"{path}.safety.d_col",
+        f"d_col must be >= r_i + r_(i-1) = {2 * r:g}, got {dcol:g}",
+    )
+    _require(
+        dcol < ddes < dcon,
+        f"{path}.formation.d_des",
+        f"d_des must lie in (d_col, d_con) = ({dcol:g}, {dcon:g}), got {ddes:g}",
+    )
+    for cause in cfg.safety.terminate_on:
+        _require(
+            cause in VIOLATION_CAUSES,
+            f"{path}.safety.terminate_on",
+            f"unknown cause {cause!r} (expected some of {', '.join(VIOLATION_CAUSES)})",
+        )
+    prox = cfg.proximity_range
+    _require(prox > r, f"{path}.proximity.range", f"must exceed the robot radius, got {prox}")
+    sim = cfg.simulation
+    _require(sim.control_period > 0, f"{path}.simulation.control_period", "must be > 0")
+    _require(sim.physics_substeps >= 1, f"{path}.simulation.physics_substeps", "must be >= 1")
+    _require(sim.max_episode_steps >= 1, f"{path}.simulation.max_episode_steps", "must be >= 1")
+    ini = cfg.initial
+    _require(ini.position_noise >= 0, f"{path}.initial.position_noise", "must be >= 0")
+    _require(ini.heading_noise >= 0, f"{path}.initial.heading_noise", "must be >= 0")
+    if cfg.ppc is not None:
+        p = cfg.ppc
+        for name in ("lambda_", "rho_d_inf", "rho_beta_inf", "k_d", "k_beta", "delta"):
+            key = "lambda" if name == "lambda_" else name
+            _require(getattr(p, name) > 0, f"{path}.ppc.{key}", "must be > 0")
+        _require(0 < p.epsilon < 1, f"{path}.ppc.epsilon", "must lie in (0, 1)")
+        _require(
+            2 * p.rho_d_inf < min(ddes - dcol, dcon - ddes),
+            f"{path}.ppc.rho_d_inf",
+            "2 * rho_d_inf must be smaller than both d_des - d_col and d_con - d_des",
+        )
+        _require(
+            2 * p.rho_beta_inf < bc, f"{path}.ppc.rho_beta_inf", "2 * rho_beta_inf must be < beta_con"
+        )
