@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -260,7 +261,12 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         options = dict(options or {})
         unknown = set(options) - {"perturb", "poses"}
         if unknown:
-            raise ValueError(f"unknown reset option(s): {', '.join(sorted(unknown))}")
+            # Gymnasium/PettingZoo envs ignore options they do not know (the official test
+            # kit passes one); say so rather than fail.
+            warnings.warn(
+                f"reset(): ignoring unknown option(s) {', '.join(sorted(map(str, unknown)))}",
+                stacklevel=2,
+            )
         cfg = self.scenario.config
         if options.get("poses") is not None:
             poses = np.array(options["poses"], dtype=np.float64)
@@ -341,14 +347,17 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     def render(self) -> np.ndarray | None:
         """Draw the workspace, robots, fields of view and lines of sight (``render_mode``)."""
         if self.render_mode is None:
-            import warnings
-
             warnings.warn("render() called without a render_mode; pass render_mode to make()")
             return None
         if self._renderer is None:
             from platoon_env.rendering import Renderer
 
-            self._renderer = Renderer(self.scenario.free_space, self.scenario.config, self.render_mode)
+            self._renderer = Renderer(
+                self.scenario.free_space,
+                self.scenario.config,
+                self.render_mode,
+                fps=self.metadata["render_fps"],
+            )
         names = [first_cause(int(m)) for m in self._violations]
         return self._renderer.render(  # type: ignore[no-any-return]
             self._poses, self._sensed[:, SENSE_VISIBLE] > 0, self.sim_time, names

@@ -1,0 +1,318 @@
+"""The ParallelEnv: conformance, safety causes, determinism, pickling, actions, truncation."""
+
+from __future__ import annotations
+
+import copy
+import math
+import pickle
+from typing import Any
+
+import numpy as np
+import pytest
+from pettingzoo.test import api_test, parallel_api_test
+
+import platoon_env
+from platoon_env.observation import OBS_SIZE
+from platoon_env.scenarios.schema import VIOLATION_CAUSES
+
+SCENARIOS = platoon_env.list_scenarios()
+
+
+def _still(env: platoon_env.PlatoonParallelEnv) -> dict[str, np.ndarray]:
+    return {a: np.zeros(2, dtype=np.float32) for a in env.agents}
+
+
+def _run_until_done(
+    env: platoon_env.PlatoonParallelEnv, action: dict[str, Any], max_steps: int = 5000
+) -> dict[str, Any]:
+    for _ in range(max_steps):
+        _, _, term, trunc, infos = env.step(action)
+        if any(term.values()) or any(trunc.values()):
+            return {"term": term, "trunc": trunc, "infos": infos}
+    raise AssertionError("episode did not end")
+
+
+@pytest.mark.parametrize("scenario", [*SCENARIOS, "corridor"])
+def test_parallel_api(scenario: str, corridor: dict[str, Any]) -> None:
+    env = platoon_env.parallel_env(corridor if scenario == "corridor" else scenario)
+    parallel_api_test(env, num_cycles=200)
+
+
+@pytest.mark.parametrize("scenario", [*SCENARIOS, "corridor"])
+def test_aec_api(scenario: str, corridor: dict[str, Any]) -> None:
+    env = platoon_env.env(corridor if scenario == "corridor" else scenario)
+    api_test(env, num_cycles=100)
+
+
+def test_spaces_are_cached_and_bounded(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor)
+    for agent in env.possible_agents:
+        assert env.observation_space(agent) is env.observation_space(agent)
+        space = env.observation_space(agent)
+        assert space.shape == (OBS_SIZE,) and space.dtype == np.float32
+        assert np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))
+        assert env.action_space(agent).dtype == np.float32
+
+
+def test_observation_matches_ground_truth(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor)
+    obs, infos = env.reset(seed=3)
+    poses = env.poses
+    for i, agent in enumerate(env.possible_agents, start=1):
+        rel = poses[i - 1, :2] - poses[i, :2]
+        th = poses[i, 2]
+        body = np.array(
+            [math.cos(th) * rel[0] + math.sin(th) * rel[1], -math.sin(th) * rel[0] + math.cos(th) * rel[1]]
+        )
+        assert obs[agent][0] == 1.0
+        np.testing.assert_allclose(obs[agent][1:3], body, rtol=1e-6, atol=1e-6)
+        assert infos[agent]["d"] == pytest.approx(np.hypot(*rel))
+
+
+# ------------------------------------------------------------------------------------------
+# Each violation cause from a constructed situation
+# ------------------------------------------------------------------------------------------
+
+
+def test_collision_robot(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor, followers=1, perturb=False)
+    env.reset(seed=0)
+    out = _run_until_done(env, {"follower_1": np.array([5.0, 0.0])})
+    info = out["infos"]["follower_1"]
+    assert info["violation"] == "collision_robot" and info["cost"] == 1
+    assert out["term"]["follower_1"] and not env.agents
+    assert info["d"] <= 0.3 + 5.0 * env.control_period / env.physics_substeps
+
+
+def test_out_of_range(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor, followers=1, perturb=False)
+    env.reset(seed=0)
+    out = _run_until_done(env, _still(env))
+    info = out["infos"]["follower_1"]
+    assert info["violation"] == "out_of_range"
+    assert info["d"] >= 1.5 and not info["visible"]
+
+
+def test_out_of_fov(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor, followers=1, perturb=False)
+    env.reset(seed=0)
+    out = _run_until_done(env, {"follower_1": np.array([0.0, 2.0])})
+    info = out["infos"]["follower_1"]
+    assert info["violation"] == "out_of_fov"
+    assert abs(info["beta"]) >= 0.4
+
+
+def test_occluded() -> None:
+    scenario = {
+        "name": "occlusion",
+        "workspace": {
+            "bounds": [-1.0, -1.0, 9.0, 5.0],
+            "obstacles": [[[3.0, 0.5], [5.0, 0.5], [5.0, 2.0], [3.0, 2.0]]],
+        },
+        "leader": {"path": [[0.0, 0.0], [6.0, 0.0], [6.0, 4.0]], "speed": 0.5},
+        "followers": 1,
+        "robot": {"radius": 0.15},
+        "camera": {"half_angle": 1.5, "range": 20.0},
+        "safety": {"d_col": 0.3},
+        "formation": {"d_des": 1.0},
+    }
+    env = platoon_env.make(scenario, perturb=False)
+    env.reset(seed=0)
+    out = _run_until_done(env, _still(env))
+    info = out["infos"]["follower_1"]
+    assert info["violation"] == "occluded"
+    assert info["d_l"] == 0.0 and info["d_r"] == 0.0 and not info["visible"]
+    leader = env.poses[0]
+    assert leader[0] > 5.0 and leader[1] > 0.4  # the leader has gone round the box's corner
+
+
+def test_collision_obstacle(corridor: dict[str, Any]) -> None:
+    scenario = copy.deepcopy(corridor)
+    scenario["leader"]["path"] = [[1.0, -1.5], [20.0, -1.5]]
+    scenario["camera"] = {"half_angle": 1.5, "range": 20.0}
+    env = platoon_env.make(scenario, followers=1, perturb=False, terminate_on=["collision_obstacle"])
+    env.reset(seed=0)
+    out = _run_until_done(env, {"follower_1": np.array([1.0, -2.0])})
+    info = out["infos"]["follower_1"]
+    assert "collision_obstacle" in info["violations"]
+    assert info["clearance"] <= 0.15 + 1.0 * env.control_period
+    assert out["term"]["follower_1"]
+
+
+def test_terminate_on_subset_keeps_running(corridor: dict[str, Any]) -> None:
+    """With collisions only, losing sight is reported but does not end the episode."""
+    env = platoon_env.make(
+        corridor, followers=1, perturb=False, terminate_on=["collision_robot", "collision_obstacle"]
+    )
+    env.reset(seed=0)
+    seen = set()
+    for _ in range(500):
+        _, _, term, trunc, infos = env.step(_still(env))
+        assert not term["follower_1"]
+        seen.update(infos["follower_1"]["violations"])
+    assert "out_of_range" in seen
+
+
+def test_unknown_cause_rejected(corridor: dict[str, Any]) -> None:
+    with pytest.raises(ValueError, match="unknown"):
+        platoon_env.make(corridor, terminate_on=["bumped"])
+
+
+def test_truncation_after_leader_arrives(corridor: dict[str, Any]) -> None:
+    scenario = copy.deepcopy(corridor)
+    scenario["leader"] = {"path": [[0.5, 0.0], [3.0, 0.0]], "speed": 0.5, "settle_time": 1.0}
+    env = platoon_env.make(scenario, followers=1, perturb=False, terminate_on=[])
+    env.reset(seed=0)
+    out = _run_until_done(env, _still(env))
+    assert out["trunc"]["follower_1"] and not out["term"]["follower_1"]
+    assert env.leader_arrived
+    np.testing.assert_allclose(env.poses[0, :2], [3.0, 0.0], atol=1e-3)
+
+
+def test_max_episode_steps(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor, max_episode_steps=7, terminate_on=[])
+    env.reset(seed=0)
+    for k in range(7):
+        _, _, _, trunc, _ = env.step(_still(env))
+    assert all(trunc.values()) and env.steps == 7
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step({})
+
+
+# ------------------------------------------------------------------------------------------
+# Determinism, seeding, pickling
+# ------------------------------------------------------------------------------------------
+
+
+def _rollout(env: platoon_env.PlatoonParallelEnv, seed: int, steps: int) -> list[Any]:
+    rng = np.random.default_rng(1234)
+    obs, _ = env.reset(seed=seed)
+    trace: list[Any] = [obs]
+    for _ in range(steps):
+        if not env.agents:
+            obs, _ = env.reset()
+            trace.append(obs)
+        actions = {a: rng.uniform([-0.2, -0.5], [0.6, 0.5]).astype(np.float32) for a in env.agents}
+        trace.append(env.step(actions))
+        trace.append(env.poses)
+    return trace
+
+
+def _assert_same(a: Any, b: Any) -> None:
+    if isinstance(a, dict):
+        assert a.keys() == b.keys()
+        for k in a:
+            _assert_same(a[k], b[k])
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            _assert_same(x, y)
+    elif isinstance(a, np.ndarray):
+        np.testing.assert_array_equal(a, b)
+    else:
+        assert a == b
+
+
+@pytest.mark.parametrize("scenario", [*SCENARIOS, "corridor"])
+def test_determinism_two_envs(scenario: str, corridor: dict[str, Any]) -> None:
+    """Same seed and actions → bit-identical observations, rewards, flags, infos, poses."""
+    spec = corridor if scenario == "corridor" else scenario
+    a = _rollout(platoon_env.make(spec, terminate_on=["collision_robot"]), seed=7, steps=300)
+    b = _rollout(platoon_env.make(spec, terminate_on=["collision_robot"]), seed=7, steps=300)
+    _assert_same(a, b)
+
+
+def test_seed_changes_initial_configuration(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor)
+    env.reset(seed=1)
+    p1 = env.poses
+    env.reset(seed=2)
+    p2 = env.poses
+    env.reset(seed=1)
+    assert not np.array_equal(p1, p2)
+    np.testing.assert_array_equal(p1, env.poses)
+    env.reset(seed=1, options={"perturb": False})
+    np.testing.assert_array_equal(env.poses, env.scenario.initial_poses)
+
+
+def test_pickle_mid_episode(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor, terminate_on=[])
+    env.reset(seed=5)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        env.step({a: rng.uniform(-0.5, 0.5, 2) for a in env.agents})
+    clone = pickle.loads(pickle.dumps(env))
+    for _ in range(100):
+        act = {a: rng.uniform(-0.5, 0.5, 2) for a in env.agents}
+        _assert_same(env.step(act), clone.step(act))
+    np.testing.assert_array_equal(env.poses, clone.poses)
+    assert env.sim_time == clone.sim_time
+
+
+# ------------------------------------------------------------------------------------------
+# Actions
+# ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "bad,error,match",
+    [
+        (np.array([np.nan, 0.0]), ValueError, "NaN or inf"),
+        (np.array([0.0, np.inf]), ValueError, "NaN or inf"),
+        (np.array([0.0, 0.0, 0.0]), ValueError, "shape"),
+        (np.array([[0.0, 0.0]]), ValueError, "shape"),
+    ],
+)
+def test_bad_actions_raise_and_change_nothing(
+    corridor: dict[str, Any], bad: np.ndarray, error: type, match: str
+) -> None:
+    env = platoon_env.make(corridor)
+    env.reset(seed=0)
+    before = (env.poses, env.sim_time, env.steps)
+    actions = _still(env)
+    actions["follower_2"] = bad
+    with pytest.raises(error, match=match) as exc:
+        env.step(actions)
+    if match == "NaN or inf":
+        assert "follower_2" in str(exc.value)
+    np.testing.assert_array_equal(before[0], env.poses)
+    assert (env.sim_time, env.steps) == before[1:]
+
+
+def test_unknown_and_missing_agents(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor)
+    env.reset(seed=0)
+    actions = _still(env)
+    actions["follower_9"] = np.zeros(2)
+    with pytest.raises(KeyError, match="follower_9"):
+        env.step(actions)
+    with pytest.raises(KeyError, match="follower_2"):
+        env.step({"follower_1": np.zeros(2)})
+
+
+def test_out_of_bounds_actions_are_clipped(corridor: dict[str, Any]) -> None:
+    a = platoon_env.make(corridor, u_max=0.5, omega_max=0.2, terminate_on=[])
+    b = platoon_env.make(corridor, u_max=0.5, omega_max=0.2, terminate_on=[])
+    a.reset(seed=0)
+    b.reset(seed=0)
+    for _ in range(20):
+        a.step({ag: np.array([9.0, -9.0]) for ag in a.agents})
+        space = b.action_space("follower_1")
+        b.step({ag: np.array([space.high[0], space.low[1]]) for ag in b.agents})
+    np.testing.assert_array_equal(a.poses, b.poses)
+
+
+def test_render_rgb_array(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor, render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame is not None and frame.dtype == np.uint8 and frame.ndim == 3
+    env.close()
+
+
+def test_info_has_every_cause_name(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor)
+    _, infos = env.reset(seed=0)
+    for info in infos.values():
+        assert info["violation"] is None and info["cost"] == 0
+        assert set(VIOLATION_CAUSES) >= set(info["violations"])
