@@ -161,6 +161,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
             scenario, {k: v for k, v in overrides.items() if v is not None}
         )
         cfg = self.scenario.config
+        self._renderer: Any = None
         self.render_mode = render_mode
         self.n_followers = cfg.followers
         self.possible_agents = [f"follower_{i}" for i in range(1, cfg.followers + 1)]
@@ -177,6 +178,10 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self._act_low = act_space.low.astype(np.float64)
         self._act_high = act_space.high.astype(np.float64)
         xmin, ymin, xmax, ymax = self.scenario.workspace.bounds
+        if cfg.generator is not None:
+            from platoon_env.scenarios.procedural import LAYOUT_BOUNDS
+
+            xmin, ymin, xmax, ymax = LAYOUT_BOUNDS
         n1 = cfg.followers + 1
         self.state_space = spaces.Box(
             low=np.tile(np.array([xmin, ymin, -math.pi], dtype=np.float32), n1),
@@ -194,10 +199,10 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self._params[P_LOOKAHEAD] = cfg.leader.lookahead
         self._params[P_LEADER_TURN] = cfg.leader.max_turn_rate
         self._params[P_SUBSTEP] = self.control_period / self.physics_substeps
-        self._path = np.ascontiguousarray(self.scenario.leader_path)
-        self._cum = np.ascontiguousarray(self.scenario.path_s)
-        self._edges = self.scenario.workspace.edges
-        self._boxes = self.scenario.workspace.boxes
+        #: The procedural template (None for a fixed workspace) and the current layout number.
+        self._template = cfg if cfg.generator is not None else None
+        self.layout_index: int | None = 0 if cfg.generator is not None else None
+        self._use_scenario(self.scenario)
         n = cfg.followers
         self._poses = np.array(self.scenario.initial_poses, dtype=np.float64)
         self._leader = np.zeros(L_SIZE)
@@ -212,7 +217,6 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self.sim_time = 0.0
         self.steps = 0
         self._arrival_time: float | None = None
-        self._renderer: Any = None
         self.np_random, self._np_random_seed = seeding.np_random(None)
 
     # ----------------------------------------------------------------------------------------
@@ -259,6 +263,11 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         if seed is not None:
             self.np_random, self._np_random_seed = seeding.np_random(seed)
         options = dict(options or {})
+        if self._template is not None:
+            from platoon_env.scenarios.procedural import LAYOUTS_PER_SPLIT, generate_scenario
+
+            self.layout_index = int(self.np_random.integers(LAYOUTS_PER_SPLIT))
+            self._use_scenario(generate_scenario(self._template, self.layout_index))
         unknown = set(options) - {"perturb", "poses"}
         if unknown:
             # Gymnasium/PettingZoo envs ignore options they do not know (the official test
@@ -377,6 +386,16 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     # ----------------------------------------------------------------------------------------
     # Internals
     # ----------------------------------------------------------------------------------------
+    def _use_scenario(self, scenario: Scenario) -> None:
+        """Point the kernel at ``scenario``'s path and edges (same N and parameters)."""
+        self.scenario = scenario
+        self._path = np.ascontiguousarray(scenario.leader_path)
+        self._cum = np.ascontiguousarray(scenario.path_s)
+        self._edges = scenario.workspace.edges
+        self._boxes = scenario.workspace.boxes
+        if self._renderer is not None:  # the map changed: redraw from scratch
+            self.close()
+
     def _step_kernel(self, n_substeps: int) -> int:
         return int(
             step_kernel(

@@ -151,9 +151,14 @@ def build_scenario(cfg: ScenarioConfig, free_space: Polygon | None = None) -> Sc
     """Validate ``cfg`` and build its geometry and default initial configuration.
 
     Raises :class:`ScenarioError` for bad geometry, an unsafe leader path, or an infeasible
-    initial configuration (naming the follower and the constraint).
+    initial configuration (naming the follower and the constraint). A procedural scenario
+    (``generator`` block, no path yet) is built from its layout number 0.
     """
     check_ranges(cfg)
+    if cfg.generator is not None and not cfg.leader.path:
+        from platoon_env.scenarios.procedural import generate_scenario
+
+        return generate_scenario(cfg, 0)
     if free_space is None:
         free_space = build_free_space(cfg.workspace)
     workspace = Workspace.from_free_space(free_space)

@@ -58,10 +58,13 @@ class WorkspaceConfig:
 
 @dataclass(frozen=True)
 class LeaderConfig:
-    """The scripted leader ``R_0``: pure pursuit along a polyline at constant speed."""
+    """The scripted leader ``R_0``: pure pursuit along a polyline at constant speed.
 
-    path: tuple[Point, ...]
+    ``path`` may be omitted only in a procedural scenario (one with a ``generator`` block).
+    """
+
     speed: float  # [m/s]
+    path: tuple[Point, ...] = ()
     lookahead: float = 0.5  # [m] pure-pursuit lookahead distance
     max_turn_rate: float = 1.5  # [rad/s] bound on the leader's |omega|
     settle_time: float = 2.0  # [s] after the leader stops, the episode is truncated
@@ -154,18 +157,37 @@ class InitialConfig:
     heading_noise: float = 0.05  # [rad] uniform in [-a, a]
 
 
+#: Kinds of procedural workspace (see :mod:`platoon_env.scenarios.procedural`).
+GENERATOR_KINDS: tuple[str, ...] = ("corridor", "rooms", "mixed")
+#: Disjoint families of procedural workspaces: train on one, evaluate on the other.
+GENERATOR_SPLITS: tuple[str, ...] = ("train", "test")
+
+
+@dataclass(frozen=True)
+class GeneratorConfig:
+    """A procedural scenario: a new workspace and leader path is sampled on every reset.
+
+    The ``split`` selects a disjoint range of layout seeds, so evaluation on ``test`` uses
+    workspaces never seen in training on ``train``.
+    """
+
+    kind: str = "mixed"
+    split: str = "train"
+
+
 @dataclass(frozen=True)
 class ScenarioConfig:
     """A whole scenario as given in the file (DESIGN §5), before geometry is built."""
 
     name: str
-    workspace: WorkspaceConfig
     leader: LeaderConfig
     followers: int
     robot: RobotConfig
     camera: CameraConfig
     safety: SafetyConfig
     formation: FormationConfig
+    workspace: WorkspaceConfig = WorkspaceConfig()
+    generator: GeneratorConfig | None = None
     ppc: PPCConfig | None = None
     proximity: ProximityConfig = ProximityConfig()
     simulation: SimulationConfig = SimulationConfig()
@@ -287,7 +309,20 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
     _require(cfg.leader.lookahead > 0, f"{path}.leader.lookahead", "must be > 0")
     _require(cfg.leader.max_turn_rate > 0, f"{path}.leader.max_turn_rate", "must be > 0")
     _require(cfg.leader.settle_time >= 0, f"{path}.leader.settle_time", "must be >= 0")
-    _require(len(cfg.leader.path) >= 2, f"{path}.leader.path", "needs at least two points")
+    if cfg.generator is None:
+        _require(len(cfg.leader.path) >= 2, f"{path}.leader.path", "needs at least two points")
+    else:
+        gen = cfg.generator
+        _require(
+            gen.kind in GENERATOR_KINDS,
+            f"{path}.generator.kind",
+            f"expected one of {', '.join(GENERATOR_KINDS)}, got {gen.kind!r}",
+        )
+        _require(
+            gen.split in GENERATOR_SPLITS,
+            f"{path}.generator.split",
+            f"expected one of {', '.join(GENERATOR_SPLITS)}, got {gen.split!r}",
+        )
     bc, dcon = cfg.camera.half_angle, cfg.camera.range
     _require(
         0 < bc < math.pi / 2,
