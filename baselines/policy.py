@@ -1,0 +1,30 @@
+"""The interface every policy shares (DESIGN §6).
+
+A policy acts for all followers at once: it receives the PettingZoo ``ParallelEnv`` observation
+dict (agent name -> float32 observation vector, see :mod:`platoon_env.observation`) and returns
+an action dict (agent name -> float32 ``[u, omega]``) for every agent it was given. Stateful
+policies (the PPC law keeps its performance functions) restore their initial state in
+:meth:`Policy.reset`, which is called once per episode, after ``env.reset``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["Policy"]
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """A multi-follower policy: ``reset(seed=None)`` and ``act(observations) -> actions``."""
+
+    def reset(self, seed: int | None = None) -> None:
+        """Restore the policy's initial internal state (and reseed it, if it is stochastic)."""
+        ...
+
+    def act(self, observations: dict[str, NDArray[Any]]) -> dict[str, NDArray[np.float32]]:
+        """Map ``{agent: observation}`` to ``{agent: np.array([u, omega], dtype=float32)}``."""
+        ...
