@@ -241,6 +241,11 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         return bool(self._leader[L_ARRIVED])
 
     @property
+    def violation_masks(self) -> np.ndarray:
+        """Violation bit masks (N,) of the last step: bit k is ``VIOLATION_CAUSES[k]``."""
+        return self._violations.copy()
+
+    @property
     def sensed(self) -> np.ndarray:
         """Ground-truth sensing ``(N, 9)`` of the last step (``SENSE_*`` columns; a copy)."""
         return self._sensed.copy()

@@ -1,0 +1,211 @@
+"""Run a policy for one episode, record what happened, and measure it (DESIGN §7).
+
+One evaluation path serves every policy: anything with ``reset(seed=None)`` and
+``act(observations) -> actions`` (:class:`baselines.Policy`) — the PPC law, the last-seen
+baseline, a learned model. The metrics are computed from ground truth (poses, the env's
+sensing), never from what the policy saw.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from platoon_env.env import PlatoonParallelEnv
+from platoon_env.geometry.sensing import SENSE_BETA, SENSE_CLEARANCE, SENSE_D, SENSE_VISIBLE
+from platoon_env.safety import first_cause
+
+#: Errors are scored after this initial transient [s] (the funnels start wide, eq. 12).
+DEFAULT_TRANSIENT = 5.0
+
+#: Columns of :func:`episode_metrics`, in the order of ``results.csv``.
+METRIC_NAMES: tuple[str, ...] = (
+    "success",
+    "violation",
+    "time_to_violation",
+    "rms_e_d",
+    "rms_e_beta",
+    "max_abs_e_d",
+    "max_abs_e_beta",
+    "min_inter_robot_distance",
+    "min_obstacle_clearance",
+    "control_effort",
+    "peak_u",
+    "peak_omega",
+    "steps",
+    "sim_time",
+    "leader_arrived",
+    "lost_sight_steps",
+    "funnel_exits",
+)
+
+
+class PolicyLike(Protocol):
+    """The shared policy interface (see :class:`baselines.Policy`)."""
+
+    def reset(self, seed: int | None = None) -> None: ...
+
+    def act(self, observations: dict[str, np.ndarray]) -> dict[str, np.ndarray]: ...
+
+
+@dataclass
+class Episode:
+    """What happened in one episode (ground truth), step by step.
+
+    ``times`` (T+1,), ``poses`` (T+1, N+1, 3), ``sensed`` (T+1, N, 9) with the ``SENSE_*``
+    columns, ``actions`` (T, N, 2) as applied (after clipping), ``violations`` (T, N) masks,
+    ``signals`` the policy's internal signals per step (e.g. PPC's performance functions),
+    stacked to arrays (T, N) per name.
+    """
+
+    scenario: str
+    seed: int | None
+    control_period: float
+    d_des: float
+    times: np.ndarray
+    poses: np.ndarray
+    sensed: np.ndarray
+    actions: np.ndarray
+    violations: np.ndarray
+    terminated: bool
+    truncated: bool
+    leader_arrived: bool
+    first_violation: tuple[int, str, int] | None  # (step, cause, follower index 1..N)
+    signals: dict[str, np.ndarray] = field(default_factory=dict)
+    funnel_exits: int = 0
+
+    @property
+    def steps(self) -> int:
+        """Number of env steps taken."""
+        return int(self.actions.shape[0])
+
+
+def run_episode(
+    env: PlatoonParallelEnv,
+    policy: PolicyLike,
+    seed: int | None = None,
+    *,
+    max_steps: int | None = None,
+    record_signals: bool = True,
+    options: dict[str, Any] | None = None,
+) -> Episode:
+    """Roll ``policy`` out in ``env`` from ``reset(seed)`` until the episode ends.
+
+    Args:
+        max_steps: stop after this many steps even if the episode goes on (None: the env's
+            own truncation rules decide).
+        record_signals: also store ``policy.signals`` (a dict of arrays) after every step.
+    """
+    obs, _ = env.reset(seed=seed, options=options)
+    policy.reset(seed=seed)
+    n = env.n_followers
+    times = [env.sim_time]
+    poses = [env.poses]
+    sensed = [env.sensed]
+    actions: list[np.ndarray] = []
+    masks: list[np.ndarray] = []
+    signals: dict[str, list[np.ndarray]] = {}
+    first: tuple[int, str, int] | None = None
+    terminated = truncated = False
+    limit = max_steps if max_steps is not None else env.max_episode_steps
+    act_low = env.action_space(env.possible_agents[0]).low
+    act_high = env.action_space(env.possible_agents[0]).high
+    for step in range(limit):
+        cmd = policy.act(obs)
+        if record_signals and hasattr(policy, "signals"):
+            for key, value in policy.signals.items():
+                signals.setdefault(key, []).append(np.asarray(value).copy())
+        obs, _, terms, truncs, infos = env.step(cmd)
+        applied = np.array([cmd[a] for a in env.possible_agents], dtype=np.float64)
+        actions.append(np.clip(applied, act_low, act_high))
+        mask = env.violation_masks
+        if first is None and np.any(mask):
+            k = int(np.flatnonzero(mask)[0])
+            first = (step, str(first_cause(int(mask[k]))), k + 1)
+        masks.append(mask)
+        times.append(env.sim_time)
+        poses.append(env.poses)
+        sensed.append(env.sensed)
+        terminated = any(terms.values())
+        truncated = any(truncs.values())
+        if terminated or truncated:
+            break
+    funnel = getattr(policy, "funnel_exits", None)
+    return Episode(
+        scenario=env.scenario.name,
+        seed=seed,
+        control_period=env.control_period,
+        d_des=env.scenario.config.formation.d_des,
+        times=np.asarray(times),
+        poses=np.asarray(poses),
+        sensed=np.asarray(sensed),
+        actions=np.asarray(actions).reshape(-1, n, 2),
+        violations=np.asarray(masks).reshape(-1, n),
+        terminated=terminated,
+        truncated=truncated,
+        leader_arrived=env.leader_arrived,
+        first_violation=first,
+        signals={k: np.asarray(v) for k, v in signals.items()},
+        funnel_exits=int(np.sum(funnel)) if funnel is not None else 0,
+    )
+
+
+def episode_metrics(ep: Episode, transient: float = DEFAULT_TRANSIENT) -> dict[str, Any]:
+    """The DESIGN §7 metrics of one episode.
+
+    * ``success``: the leader reached its path's end and no violation occurred;
+    * ``violation``: the first violation's cause ("" if none); ``time_to_violation`` [s]
+      (``inf`` if none);
+    * ``rms_e_d``, ``rms_e_beta``, ``max_abs_e_d``, ``max_abs_e_beta``: over followers and the
+      steps after ``transient`` seconds (the whole episode if it is shorter), while visible;
+    * ``min_inter_robot_distance`` (any two robots), ``min_obstacle_clearance`` (followers);
+    * ``control_effort``: mean over followers of the time integral of ``u² + omega²``;
+      ``peak_u``, ``peak_omega``: the largest ``|u|``, ``|omega|`` commanded;
+    * ``lost_sight_steps``: follower-steps without visibility; ``funnel_exits`` (PPC only).
+    """
+    dt = ep.control_period
+    sensed = ep.sensed[1:]  # after each step
+    times = ep.times[1:]
+    after = times >= min(transient, times[-1] if times.size else 0.0)
+    visible = sensed[:, :, SENSE_VISIBLE] > 0
+    sel = after[:, None] & visible
+    e_d = sensed[:, :, SENSE_D] - ep.d_des
+    e_b = sensed[:, :, SENSE_BETA]
+    if np.any(sel):
+        rms_e_d = float(np.sqrt(np.mean(e_d[sel] ** 2)))
+        rms_e_b = float(np.sqrt(np.mean(e_b[sel] ** 2)))
+        max_e_d = float(np.max(np.abs(e_d[sel])))
+        max_e_b = float(np.max(np.abs(e_b[sel])))
+    else:
+        rms_e_d = rms_e_b = max_e_d = max_e_b = math.inf
+    xy = ep.poses[:, :, :2]
+    diff = xy[:, :, None, :] - xy[:, None, :, :]
+    dist = np.hypot(diff[..., 0], diff[..., 1])
+    iu = np.triu_indices(xy.shape[1], k=1)
+    min_pair = float(np.min(dist[:, iu[0], iu[1]]))
+    u = ep.actions[:, :, 0]
+    w = ep.actions[:, :, 1]
+    first = ep.first_violation
+    return {
+        "success": bool(ep.leader_arrived and first is None),
+        "violation": "" if first is None else first[1],
+        "time_to_violation": math.inf if first is None else float(ep.times[first[0] + 1]),
+        "rms_e_d": rms_e_d,
+        "rms_e_beta": rms_e_b,
+        "max_abs_e_d": max_e_d,
+        "max_abs_e_beta": max_e_b,
+        "min_inter_robot_distance": min_pair,
+        "min_obstacle_clearance": float(np.min(ep.sensed[:, :, SENSE_CLEARANCE])),
+        "control_effort": float(np.mean(np.sum(u**2 + w**2, axis=0) * dt)) if u.size else 0.0,
+        "peak_u": float(np.max(np.abs(u))) if u.size else 0.0,
+        "peak_omega": float(np.max(np.abs(w))) if w.size else 0.0,
+        "steps": ep.steps,
+        "sim_time": float(ep.times[-1]),
+        "leader_arrived": bool(ep.leader_arrived),
+        "lost_sight_steps": int(np.sum(~visible)),
+        "funnel_exits": ep.funnel_exits,
+    }
+
