@@ -168,7 +168,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self.agents: list[str] = []
         self.control_period = cfg.simulation.control_period
         self.physics_substeps = cfg.simulation.physics_substeps
-        self.max_episode_steps = cfg.simulation.max_episode_steps
+        self.max_episode_steps = self.scenario.max_episode_steps
         self.terminate_on = frozenset(cfg.safety.terminate_on)
         self._terminate_mask = causes_to_mask(self.terminate_on)
         obs_space = observation_space(cfg)
@@ -398,6 +398,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self._cum = np.ascontiguousarray(scenario.path_s)
         self._edges = scenario.workspace.edges
         self._boxes = scenario.workspace.boxes
+        self.max_episode_steps = scenario.max_episode_steps
         if self._renderer is not None:  # the map changed: redraw from scratch
             self.close()
 

@@ -114,24 +114,38 @@ def sense_follower(
             t = sa / (sa - sb)
             mx = ax + t * (bx - ax)
             my = ay + t * (by - ay)
-        # Left part: the closed half-plane cross >= 0.
-        if sa >= 0.0 or sb >= 0.0:
-            if sa >= 0.0 and sb >= 0.0:
-                cx, cy, ex, ey = ax, ay, bx, by
-            elif sa > 0.0:
-                cx, cy, ex, ey = ax, ay, mx, my
-            else:
-                cx, cy, ex, ey = mx, my, bx, by
+        # Left part: the edge's points in the closed half-plane cross >= 0.
+        has_left = True
+        if sa >= 0.0 and sb >= 0.0:
+            cx, cy, ex, ey = ax, ay, bx, by
+        elif sa > 0.0:  # sb < 0: straddles
+            cx, cy, ex, ey = ax, ay, mx, my
+        elif sb > 0.0:  # sa < 0: straddles
+            cx, cy, ex, ey = mx, my, bx, by
+        elif sa == 0.0:  # sb < 0: only the endpoint a lies on the line
+            cx, cy, ex, ey = ax, ay, ax, ay
+        elif sb == 0.0:  # sa < 0: only b
+            cx, cy, ex, ey = bx, by, bx, by
+        else:
+            has_left = False
+        if has_left:
             wall_l = min(wall_l, point_segment_distance(px, py, cx, cy, ex, ey))
             sight_l = min(sight_l, segment_segment_distance(px, py, qx, qy, cx, cy, ex, ey))
         # Right part: the closed half-plane cross <= 0.
-        if sa <= 0.0 or sb <= 0.0:
-            if sa <= 0.0 and sb <= 0.0:
-                cx, cy, ex, ey = ax, ay, bx, by
-            elif sa < 0.0:
-                cx, cy, ex, ey = ax, ay, mx, my
-            else:
-                cx, cy, ex, ey = mx, my, bx, by
+        has_right = True
+        if sa <= 0.0 and sb <= 0.0:
+            cx, cy, ex, ey = ax, ay, bx, by
+        elif sa < 0.0:  # sb > 0: straddles
+            cx, cy, ex, ey = ax, ay, mx, my
+        elif sb < 0.0:  # sa > 0: straddles
+            cx, cy, ex, ey = mx, my, bx, by
+        elif sa == 0.0:  # sb > 0
+            cx, cy, ex, ey = ax, ay, ax, ay
+        elif sb == 0.0:  # sa > 0
+            cx, cy, ex, ey = bx, by, bx, by
+        else:
+            has_right = False
+        if has_right:
             wall_r = min(wall_r, point_segment_distance(px, py, cx, cy, ex, ey))
             sight_r = min(sight_r, segment_segment_distance(px, py, qx, qy, cx, cy, ex, ey))
     if occluded:

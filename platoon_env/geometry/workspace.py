@@ -113,7 +113,7 @@ class Workspace:
         return float(xmin), float(ymin), float(xmax), float(ymax)
 
     def clearance(self, x: float, y: float) -> float:
-        """Distance from ``(x, y)`` to the boundary (negative outside ``W_f``). Slow; not for steps."""
+        """Distance from ``(x, y)`` to ∂W_f, negative outside ``W_f`` (shapely; not for steps)."""
         pt = Point(x, y)
         dist = float(self.free_space.boundary.distance(pt))
         return dist if self.free_space.covers(pt) else -dist

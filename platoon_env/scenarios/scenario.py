@@ -51,6 +51,14 @@ class Scenario:
         return self.workspace.free_space
 
     @property
+    def max_episode_steps(self) -> int:
+        """The step limit: ``simulation.max_episode_steps``, or :func:`default_max_steps`."""
+        sim = self.config.simulation
+        if sim.max_episode_steps is not None:
+            return sim.max_episode_steps
+        return default_max_steps(self.config, float(self.path_s[-1]))
+
+    @property
     def n_followers(self) -> int:
         """Number of followers ``N``."""
         return self.config.followers
@@ -58,6 +66,12 @@ class Scenario:
     def with_overrides(self, **changes: Any) -> Scenario:
         """A copy with top-level config fields replaced (e.g. ``followers=1``), rebuilt."""
         return build_scenario(replace(self.config, **changes), free_space=self.free_space)
+
+
+def default_max_steps(cfg: ScenarioConfig, path_length: float) -> int:
+    """Steps for twice the leader's driving time, its settle time and 10 s more."""
+    seconds = 2.0 * path_length / cfg.leader.speed + cfg.leader.settle_time + 10.0
+    return math.ceil(seconds / cfg.simulation.control_period)
 
 
 def default_initial_poses(cfg: ScenarioConfig, path: np.ndarray, cum: np.ndarray) -> tuple[np.ndarray, float]:

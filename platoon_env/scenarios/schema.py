@@ -134,7 +134,9 @@ class SimulationConfig:
 
     control_period: float = 0.01  # [s] one env step, one action
     physics_substeps: int = 2  # exact unicycle arcs per control period
-    max_episode_steps: int = 20_000
+    #: None: enough for the leader to drive its path twice over, plus its settle time and 10 s
+    #: (see :func:`platoon_env.scenarios.scenario.default_max_steps`).
+    max_episode_steps: int | None = None
 
 
 @dataclass(frozen=True)
@@ -352,7 +354,11 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
     sim = cfg.simulation
     _require(sim.control_period > 0, f"{path}.simulation.control_period", "must be > 0")
     _require(sim.physics_substeps >= 1, f"{path}.simulation.physics_substeps", "must be >= 1")
-    _require(sim.max_episode_steps >= 1, f"{path}.simulation.max_episode_steps", "must be >= 1")
+    _require(
+        sim.max_episode_steps is None or sim.max_episode_steps >= 1,
+        f"{path}.simulation.max_episode_steps",
+        "must be >= 1",
+    )
     ini = cfg.initial
     _require(ini.position_noise >= 0, f"{path}.initial.position_noise", "must be >= 0")
     _require(ini.heading_noise >= 0, f"{path}.initial.heading_noise", "must be >= 0")
