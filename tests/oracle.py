@@ -1,0 +1,265 @@
+"""A slow, independent shapely reference for the sensing model (DESIGN §2).
+
+This is the test oracle for :func:`platoon_env.geometry.sensing.sense`. It shares no code with
+the kernel: it works on the free space ``W_f`` as a shapely geometry and answers every question
+with shapely operations (``intersects``, ``intersection``, ``distance``), so that an agreement
+between the two on random states is evidence that both implement the spec, not the same bug.
+
+The sensing model, for follower ``i`` at ``p_i`` with heading ``theta_i`` behind ``p_{i-1}``:
+
+- ``d_i = |p_{i-1} - p_i|`` (eq. 2) and ``beta_i = wrap(atan2(y~, x~) - theta_i)`` in
+  ``(-pi, pi]`` (eq. 3), with ``(x~, y~) = p_{i-1} - p_i`` in the world frame;
+- the line of sight ``L_i = [p_i, p_{i-1}]`` is *occluded* iff it intersects the boundary
+  ``dW_f`` (touching counts);
+- *visible* iff ``d_i < d_con``, ``|beta_i| < beta_con`` and not occluded;
+- a boundary point ``b`` is on the left of ``L_i`` when ``cross(p_{i-1} - p_i, b - p_i) >= 0``
+  and on the right when ``<= 0`` (closed half-planes: points on the line belong to both);
+- ``d_W_l`` / ``d_W_r``: distance from ``p_i`` to the boundary in the left / right half-plane,
+  ``d_l`` / ``d_r``: distance from the segment ``L_i`` to it; all four capped at the proximity
+  range, which is also their value when a side holds no boundary at all;
+- ``clearance``: distance from ``p_i`` to ``dW_f``, uncapped (the collision check is
+  ``clearance <= r``);
+- if ``d_i == 0`` the follower's heading replaces ``p_{i-1} - p_i`` for left and right.
+
+The half-planes are big polygons: the line through ``L_i`` splits a box much larger than the
+workspace. Their shared side runs through ``p_i`` and ``p_{i-1}`` themselves (exact input
+coordinates), so that boundary points lying exactly on ``L_i`` land in both halves under GEOS's
+robust predicates.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+import shapely
+from numpy.typing import NDArray
+from shapely.geometry import LineString, Point, Polygon
+from shapely.geometry.base import BaseGeometry
+
+#: Column order of the result, identical to the kernel's ``SENSE_*`` constants.
+COLUMNS: tuple[str, ...] = (
+    "d",
+    "beta",
+    "visible",
+    "occluded",
+    "d_W_l",
+    "d_W_r",
+    "d_l",
+    "d_r",
+    "clearance",
+)
+COL_D = 0
+COL_BETA = 1
+COL_VISIBLE = 2
+COL_OCCLUDED = 3
+COL_D_WALL_LEFT = 4
+COL_D_WALL_RIGHT = 5
+COL_D_SIGHT_LEFT = 6
+COL_D_SIGHT_RIGHT = 7
+COL_CLEARANCE = 8
+N_COLUMNS = 9
+
+#: Absolute tolerance on distances [m] (relative beyond 1 m) and on the angle of view [rad].
+DIST_TOL = 1e-9
+ANGLE_TOL = 1e-12
+
+#: A sensing function: (free space, poses, d_con, beta_con, proximity range) -> (N, 9) array.
+SenseFn = Callable[[BaseGeometry, NDArray[np.float64], float, float, float], NDArray[np.float64]]
+
+
+def wrap_angle(angle: float) -> float:
+    """Wrap an angle into ``(-pi, pi]``; an angle already in range is returned untouched."""
+    if -math.pi < angle <= math.pi:
+        return angle
+    wrapped = math.remainder(angle, 2.0 * math.pi)  # in [-pi, pi]
+    return math.pi if wrapped <= -math.pi else wrapped
+
+
+def _half_plane(
+    origin: tuple[float, float],
+    ahead: tuple[float, float],
+    direction: tuple[float, float],
+    side: float,
+    reach: float,
+) -> Polygon:
+    """The closed half-plane left (``side=+1``) or right (``side=-1``) of a line, as a polygon.
+
+    The line passes through ``origin`` and ``ahead`` (``ahead - origin`` is parallel to
+    ``direction``; they coincide when there is no predecessor to look at). The polygon's side on
+    the line runs through both points exactly and extends ``reach`` beyond them; its far side is
+    ``reach`` away from the line.
+    """
+    ox, oy = origin
+    ax, ay = ahead
+    dx, dy = direction
+    length = math.hypot(dx, dy)
+    # A power of two keeps k * direction exact, so lattice inputs give lattice vertices.
+    k = 2.0 ** math.ceil(math.log2(reach / length))
+    ex, ey = k * dx, k * dy  # along the line
+    nx, ny = -side * ey, side * ex  # towards the requested side
+    back = (ox - ex, oy - ey)
+    front = (ax + ex, ay + ey)
+    chain = [back, (ox, oy)]
+    if (ax, ay) != (ox, oy):
+        chain.append((ax, ay))
+    chain.append(front)
+    far = [(front[0] + nx, front[1] + ny), (back[0] + nx, back[1] + ny)]
+    polygon = Polygon(chain + far)
+    if not polygon.is_valid:  # pragma: no cover - a guard on the oracle itself
+        raise AssertionError(f"oracle built an invalid half-plane polygon: {polygon.wkt}")
+    return polygon
+
+
+def _capped_distance(geometry: BaseGeometry, side_boundary: BaseGeometry, cap: float) -> float:
+    """``min(distance(geometry, side_boundary), cap)``; ``cap`` when the side holds no boundary."""
+    if side_boundary.is_empty:
+        return cap
+    return min(float(geometry.distance(side_boundary)), cap)
+
+
+def oracle_sense_follower(
+    boundary: BaseGeometry,
+    follower: NDArray[np.float64],
+    predecessor: NDArray[np.float64],
+    d_con: float,
+    beta_con: float,
+    proximity_range: float,
+    reach: float,
+) -> NDArray[np.float64]:
+    """The nine sensed quantities of one follower, as a length-9 float64 array.
+
+    ``boundary`` is ``dW_f`` (a shapely line geometry), ``follower`` is ``[x, y, theta]`` and
+    ``predecessor`` is ``[x, y, ...]``. ``reach`` is a length beyond which no boundary lies
+    from the follower (it sizes the half-plane polygons).
+    """
+    px, py, theta = float(follower[0]), float(follower[1]), float(follower[2])
+    qx, qy = float(predecessor[0]), float(predecessor[1])
+    rel_x, rel_y = qx - px, qy - py
+    d = math.hypot(rel_x, rel_y)
+    beta = wrap_angle(math.atan2(rel_y, rel_x) - theta)
+
+    p = Point(px, py)
+    if d == 0.0:
+        # Degenerate (the robots collided): L_i is a point, the heading orients left/right.
+        line_of_sight: BaseGeometry = p
+        direction = (math.cos(theta), math.sin(theta))
+    else:
+        line_of_sight = LineString([(px, py), (qx, qy)])
+        direction = (rel_x, rel_y)
+
+    occluded = bool(line_of_sight.intersects(boundary))
+    visible = d < d_con and abs(beta) < beta_con and not occluded
+
+    sides = []
+    for side in (1.0, -1.0):
+        half_plane = _half_plane((px, py), (qx, qy), direction, side, reach)
+        side_boundary = boundary.intersection(half_plane)
+        sides.append(side_boundary)
+    left, right = sides
+
+    out = np.empty(N_COLUMNS, dtype=np.float64)
+    out[COL_D] = d
+    out[COL_BETA] = beta
+    out[COL_VISIBLE] = 1.0 if visible else 0.0
+    out[COL_OCCLUDED] = 1.0 if occluded else 0.0
+    out[COL_D_WALL_LEFT] = _capped_distance(p, left, proximity_range)
+    out[COL_D_WALL_RIGHT] = _capped_distance(p, right, proximity_range)
+    out[COL_D_SIGHT_LEFT] = _capped_distance(line_of_sight, left, proximity_range)
+    out[COL_D_SIGHT_RIGHT] = _capped_distance(line_of_sight, right, proximity_range)
+    out[COL_CLEARANCE] = float(p.distance(boundary))
+    return out
+
+
+def oracle_sense(
+    free_space: BaseGeometry,
+    poses: NDArray[np.float64],
+    d_con: float,
+    beta_con: float,
+    proximity_range: float,
+) -> NDArray[np.float64]:
+    """Reference sensing of every follower: an ``(N, 9)`` float64 array.
+
+    Args:
+        free_space: ``W_f`` as a shapely ``Polygon`` or ``MultiPolygon``; its boundary (every
+            exterior and interior ring) is ``dW_f``.
+        poses: ``(N + 1, 3)`` array of ``[x, y, theta]``, the leader ``R_0`` first; row ``i``
+            (``i >= 1``) is follower ``i``, whose predecessor is row ``i - 1``.
+        d_con: camera range; visibility needs ``d_i < d_con``.
+        beta_con: camera half-angle; visibility needs ``|beta_i| < beta_con``.
+        proximity_range: cap of ``d_W_l, d_W_r, d_l, d_r``.
+
+    Returns:
+        Row ``i - 1`` holds follower ``i``'s ``[d, beta, visible, occluded, d_W_l, d_W_r, d_l,
+        d_r, clearance]`` (``visible`` and ``occluded`` as 0.0 / 1.0), in the column order of
+        :data:`COLUMNS`.
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 3 or poses.shape[0] < 1:
+        raise ValueError(f"poses must have shape (N + 1, 3), got {poses.shape}")
+    boundary = free_space.boundary
+    xmin, ymin, xmax, ymax = free_space.bounds
+    # Any length exceeding every distance between a pose and the boundary will do.
+    extent = max(
+        xmax - xmin,
+        ymax - ymin,
+        float(np.max(np.abs(poses[:, :2] - [xmin, ymin]))),
+        float(np.max(np.abs(poses[:, :2] - [xmax, ymax]))),
+        1.0,
+    )
+    reach = 8.0 * extent
+    rows = [
+        oracle_sense_follower(
+            boundary, poses[i], poses[i - 1], d_con, beta_con, proximity_range, reach
+        )
+        for i in range(1, poses.shape[0])
+    ]
+    if not rows:
+        return np.zeros((0, N_COLUMNS), dtype=np.float64)
+    return np.vstack(rows)
+
+
+def mirror_geometry(geometry: BaseGeometry) -> BaseGeometry:
+    """Reflect a geometry in the x-axis (``y -> -y``), exactly (a sign flip per coordinate)."""
+    return shapely.transform(geometry, lambda xy: xy * np.array([1.0, -1.0]))
+
+
+def mirror_poses(poses: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Reflect poses in the x-axis: ``(x, y, theta) -> (x, -y, -theta)``."""
+    return np.asarray(poses, dtype=np.float64) * np.array([1.0, -1.0, -1.0])
+
+
+# --------------------------------------------------------------------------------------------
+# Comparing a sensing function with the oracle
+
+
+def angle_difference(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``|a - b|`` on the circle (so that ``pi`` and ``-pi`` are 0 apart)."""
+    diff = np.remainder(np.asarray(a) - np.asarray(b) + math.pi, 2.0 * math.pi) - math.pi
+    return np.abs(diff)
+
+
+def disagreements(
+    kernel: NDArray[np.float64], reference: NDArray[np.float64]
+) -> list[tuple[int, str, float, float]]:
+    """Every ``(row, column name, kernel value, reference value)`` outside tolerance."""
+    found: list[tuple[int, str, float, float]] = []
+    for col, name in enumerate(COLUMNS):
+        k, r = kernel[:, col], reference[:, col]
+        if col in (COL_VISIBLE, COL_OCCLUDED):
+            bad = k != r
+        elif col == COL_BETA:
+            bad = ~(angle_difference(k, r) <= ANGLE_TOL)
+        else:
+            bad = ~(np.abs(k - r) <= DIST_TOL * max(1.0, float(np.max(np.abs(r)))))
+        found.extend((int(row), name, float(k[row]), float(r[row])) for row in np.flatnonzero(bad))
+    return found
+
+
+def assert_agree(kernel: NDArray[np.float64], reference: NDArray[np.float64], context: str) -> None:
+    """Assert kernel and reference agree in every column, naming the disagreements."""
+    assert kernel.shape == reference.shape, f"{context}: shape {kernel.shape} != {reference.shape}"
+    assert kernel.dtype == np.float64, f"{context}: dtype {kernel.dtype}"
+    found = disagreements(kernel, reference)
+    assert not found, f"{context}: (follower row, column, kernel, oracle) = {found}"

@@ -1,0 +1,689 @@
+"""The sensing model (DESIGN §2) against closed forms and against the shapely oracle.
+
+Three layers, as STYLE principle 6 asks:
+
+1. the oracle (:mod:`oracle`) against closed forms: distances to a unit square, a follower in
+   a straight corridor, wrapping of the angle of view;
+2. the compiled kernel :func:`platoon_env.geometry.sensing.sense` against the oracle on
+   thousands of random platoon states over five workspaces (every column asserted), including
+   lattice states where lines of sight pass exactly through vertices and along edges;
+3. both against hand-computed values on constructed degenerate cases: a line of sight through a
+   vertex, an edge crossing the line through ``L_i`` beyond the segment, a line of sight along a
+   wall, a follower touching a wall, a predecessor exactly on the edge of the field of view.
+
+The kernel is imported inside a fixture, so the oracle's own checks run without it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from types import ModuleType
+
+import numpy as np
+import pytest
+import shapely
+from numpy.typing import NDArray
+from oracle import (
+    ANGLE_TOL,
+    COL_BETA,
+    COL_CLEARANCE,
+    COL_D,
+    COL_D_SIGHT_LEFT,
+    COL_D_SIGHT_RIGHT,
+    COL_D_WALL_LEFT,
+    COL_D_WALL_RIGHT,
+    COL_OCCLUDED,
+    COL_VISIBLE,
+    COLUMNS,
+    N_COLUMNS,
+    SenseFn,
+    angle_difference,
+    assert_agree,
+    oracle_sense,
+    wrap_angle,
+)
+from shapely.geometry import MultiPolygon, Polygon, box
+from shapely.geometry.base import BaseGeometry
+from workspaces import (
+    Workspace,
+    all_workspaces,
+    collinear_holes,
+    sample_lattice_platoon,
+    sample_platoon,
+    two_rooms,
+)
+
+# --------------------------------------------------------------------------------------------
+# Helpers
+
+
+@pytest.fixture(scope="module")
+def kernel_sense() -> SenseFn:
+    """The kernel under test, wrapped to take a shapely free space like the oracle does."""
+    from platoon_env.geometry.sensing import sense
+    from platoon_env.geometry.workspace import boundary_edges
+
+    def run(
+        free_space: BaseGeometry,
+        poses: NDArray[np.float64],
+        d_con: float,
+        beta_con: float,
+        proximity_range: float,
+    ) -> NDArray[np.float64]:
+        edges = boundary_edges(free_space)
+        return np.asarray(sense(poses, edges, d_con, beta_con, proximity_range))
+
+    return run
+
+
+@pytest.fixture(scope="module")
+def sensing_module() -> ModuleType:
+    """The kernel's module, for its column constants."""
+    import platoon_env.geometry.sensing as sensing
+
+    return sensing
+
+
+def corridor(half_width: float, length: float = 40.0) -> Polygon:
+    """A straight corridor ``[0, length] x [-half_width, half_width]``."""
+    return box(0.0, -half_width, length, half_width)
+
+
+def unit_square_world() -> Polygon:
+    """A big room (100 m square) with the unit square ``[0, 1]^2`` as its only obstacle."""
+    return box(-50.0, -50.0, 50.0, 50.0).difference(box(0.0, 0.0, 1.0, 1.0))
+
+
+# --------------------------------------------------------------------------------------------
+# 1. The oracle against closed forms
+
+
+@pytest.mark.parametrize(
+    ("point", "distance"),
+    [
+        ((2.0, 0.5), 1.0),
+        ((0.5, -3.0), 3.0),
+        ((2.0, 3.0), math.sqrt(5.0)),
+        ((-1.0, -1.0), math.sqrt(2.0)),
+        ((1.5, 0.5), 0.5),
+        ((0.5, 1.25), 0.25),
+        ((-0.75, 0.3), 0.75),
+    ],
+)
+@pytest.mark.parametrize("square_on_left", [True, False])
+def test_oracle_distance_to_unit_square(
+    point: tuple[float, float], distance: float, square_on_left: bool
+) -> None:
+    """A follower outside the unit square, looking past it: the square is all on one side.
+
+    The predecessor is 1 m away, perpendicular to the direction of the square's centre, so the
+    whole square lies on one side of ``L_i``; the far walls (>= 48 m) lie beyond the proximity
+    range, so the other side reads the range.
+    """
+    proximity = 5.0
+    px, py = point
+    to_centre = np.array([0.5 - px, 0.5 - py])
+    # Left normal of v is (-v_y, v_x); choose v so that it points at the square (or away).
+    v = np.array([to_centre[1], -to_centre[0]]) / np.linalg.norm(to_centre)
+    if not square_on_left:
+        v = -v
+    corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float) - [px, py]
+    cross = v[0] * corners[:, 1] - v[1] * corners[:, 0]
+    assert np.all(cross > 0) if square_on_left else np.all(cross < 0)
+    poses = np.array([[px + v[0], py + v[1], 0.0], [px, py, math.atan2(v[1], v[0])]])
+    out = oracle_sense(unit_square_world(), poses, 4.0, 0.5, proximity)[0]
+    near, far = (COL_D_WALL_LEFT, COL_D_WALL_RIGHT)[:: 1 if square_on_left else -1]
+    assert out[near] == pytest.approx(distance, abs=1e-12)
+    assert out[far] == proximity
+    assert out[COL_CLEARANCE] == pytest.approx(distance, abs=1e-12)
+    assert out[COL_D] == pytest.approx(1.0, abs=1e-12)
+    assert out[COL_BETA] == pytest.approx(0.0, abs=1e-12)
+    assert out[COL_OCCLUDED] == 0.0
+    assert out[COL_VISIBLE] == 1.0
+
+
+def test_oracle_sight_parallel_to_square_side() -> None:
+    """Line of sight parallel to the square's right side at 1 m: ``d_l = 1``, ``d_r`` capped."""
+    poses = np.array([[2.0, 2.5, 0.0], [2.0, -0.5, math.pi / 2]])
+    out = oracle_sense(unit_square_world(), poses, 4.0, 0.5, 5.0)[0]
+    assert out[COL_D_SIGHT_LEFT] == pytest.approx(1.0, abs=1e-12)
+    assert out[COL_D_SIGHT_RIGHT] == 5.0
+    assert out[COL_D_WALL_LEFT] == pytest.approx(math.hypot(1.0, 0.5), abs=1e-12)
+    assert out[COL_CLEARANCE] == pytest.approx(math.hypot(1.0, 0.5), abs=1e-12)
+
+
+@pytest.mark.parametrize("offset", [-0.6, -0.1, 0.0, 0.35, 0.7])
+@pytest.mark.parametrize("rise", [-0.15, 0.0, 0.1])
+@pytest.mark.parametrize("heading_error", [0.0, 0.3])
+@pytest.mark.parametrize("proximity", [5.0, 0.5])
+def test_oracle_straight_corridor(
+    offset: float, rise: float, heading_error: float, proximity: float
+) -> None:
+    """A follower in a corridor of half-width ``w``, looking along it at ``(2, rise)`` ahead.
+
+    Left is the ``+y`` wall: ``d_W_l = w - y``, ``d_W_r = w + y``; the line of sight's
+    clearances are set by its higher / lower end. All four are capped at the proximity range.
+    """
+    w = 1.0
+    y0, y1 = offset, offset + rise
+    poses = np.array([[22.0, y1, 0.0], [20.0, y0, heading_error]])
+    out = oracle_sense(corridor(w), poses, 3.0, 0.5, proximity)[0]
+    assert out[COL_D_WALL_LEFT] == pytest.approx(min(w - y0, proximity), abs=1e-12)
+    assert out[COL_D_WALL_RIGHT] == pytest.approx(min(w + y0, proximity), abs=1e-12)
+    assert out[COL_D_SIGHT_LEFT] == pytest.approx(min(w - max(y0, y1), proximity), abs=1e-12)
+    assert out[COL_D_SIGHT_RIGHT] == pytest.approx(min(w + min(y0, y1), proximity), abs=1e-12)
+    assert out[COL_CLEARANCE] == pytest.approx(w - abs(y0), abs=1e-12)
+    assert out[COL_D] == pytest.approx(math.hypot(2.0, rise), abs=1e-12)
+    assert out[COL_BETA] == pytest.approx(math.atan2(rise, 2.0) - heading_error, abs=1e-12)
+    assert out[COL_OCCLUDED] == 0.0
+    assert out[COL_VISIBLE] == 1.0
+
+
+def test_oracle_corridor_looking_back_swaps_sides() -> None:
+    """Facing ``-x`` in the corridor, left is the ``-y`` wall."""
+    poses = np.array([[18.0, 0.25, math.pi], [20.0, 0.25, math.pi]])
+    out = oracle_sense(corridor(1.0), poses, 3.0, 0.5, 5.0)[0]
+    assert out[COL_D_WALL_LEFT] == pytest.approx(1.25, abs=1e-12)
+    assert out[COL_D_WALL_RIGHT] == pytest.approx(0.75, abs=1e-12)
+    assert out[COL_D_SIGHT_LEFT] == pytest.approx(1.25, abs=1e-12)
+    assert out[COL_D_SIGHT_RIGHT] == pytest.approx(0.75, abs=1e-12)
+    assert out[COL_BETA] == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("direction", "heading", "beta"),
+    [
+        (0.0, math.pi / 2, -math.pi / 2),
+        (-3 * math.pi / 4, 3 * math.pi / 4, math.pi / 2),
+        (3 * math.pi / 4, -3 * math.pi / 4, -math.pi / 2),
+        (-math.pi / 2, math.pi / 2, math.pi),  # exactly -pi before wrapping: reported as +pi
+        (0.1, 0.1 + 2 * math.pi, 0.0),
+    ],
+)
+def test_oracle_angle_of_view_wraps(direction: float, heading: float, beta: float) -> None:
+    """``beta = wrap(atan2(y~, x~) - theta)`` lies in ``(-pi, pi]`` (eq. 3)."""
+    follower = np.array([20.0, 0.0])
+    ahead = follower + 0.5 * np.array([math.cos(direction), math.sin(direction)])
+    poses = np.array([[ahead[0], ahead[1], 0.0], [follower[0], follower[1], heading]])
+    out = oracle_sense(corridor(1.0), poses, 3.0, 0.5, 5.0)[0]
+    assert out[COL_BETA] == pytest.approx(beta, abs=1e-12)
+    assert -math.pi < out[COL_BETA] <= math.pi
+
+
+def test_wrap_angle() -> None:
+    """``wrap_angle`` maps onto ``(-pi, pi]`` and keeps in-range angles bit for bit."""
+    assert wrap_angle(-math.pi) == math.pi
+    assert wrap_angle(math.pi) == math.pi
+    assert wrap_angle(3 * math.pi) == pytest.approx(math.pi)
+    assert wrap_angle(0.3) == 0.3
+    assert wrap_angle(0.3 - 4 * math.pi) == pytest.approx(0.3)
+
+
+def test_oracle_thin_wall_occludes() -> None:
+    """A wall between follower and predecessor: occluded, not visible, ``d_l = d_r = 0``."""
+    free = box(0.0, 0.0, 10.0, 10.0).difference(box(4.9, 3.0, 5.1, 7.0))
+    poses = np.array([[6.0, 5.0, 0.0], [4.0, 5.0, 0.0]])
+    out = oracle_sense(free, poses, 4.0, 0.5, 4.0)[0]
+    assert out[COL_OCCLUDED] == 1.0
+    assert out[COL_VISIBLE] == 0.0
+    assert out[COL_D_SIGHT_LEFT] == 0.0
+    assert out[COL_D_SIGHT_RIGHT] == 0.0
+    assert out[COL_D_WALL_LEFT] == pytest.approx(0.9, abs=1e-12)
+    assert out[COL_D_WALL_RIGHT] == pytest.approx(0.9, abs=1e-12)
+
+
+def test_oracle_rejects_bad_shape() -> None:
+    """Poses must be ``(N + 1, 3)``."""
+    with pytest.raises(ValueError, match="shape"):
+        oracle_sense(corridor(1.0), np.zeros((3, 2)), 3.0, 0.5, 3.0)
+
+
+# --------------------------------------------------------------------------------------------
+# 2. The kernel against the oracle
+
+
+def test_kernel_column_constants(sensing_module: ModuleType) -> None:
+    """The kernel's ``SENSE_*`` column indices are the documented order."""
+    expected = {
+        "SENSE_D": COL_D,
+        "SENSE_BETA": COL_BETA,
+        "SENSE_VISIBLE": COL_VISIBLE,
+        "SENSE_OCCLUDED": COL_OCCLUDED,
+        "SENSE_D_WALL_LEFT": COL_D_WALL_LEFT,
+        "SENSE_D_WALL_RIGHT": COL_D_WALL_RIGHT,
+        "SENSE_D_SIGHT_LEFT": COL_D_SIGHT_LEFT,
+        "SENSE_D_SIGHT_RIGHT": COL_D_SIGHT_RIGHT,
+        "SENSE_CLEARANCE": COL_CLEARANCE,
+    }
+    assert {name: getattr(sensing_module, name) for name in expected} == expected
+
+
+@pytest.mark.parametrize("workspace", all_workspaces(), ids=lambda w: w.name)
+def test_boundary_edges_cover_every_ring(workspace: Workspace) -> None:
+    """``boundary_edges`` lists each ring's edges once: they rebuild ``dW_f`` exactly."""
+    from platoon_env.geometry.workspace import boundary_edges
+
+    edges = boundary_edges(workspace.free_space)
+    assert edges.dtype == np.float64 and edges.ndim == 2 and edges.shape[1] == 4
+    boundary = workspace.free_space.boundary
+    n_segments = sum(len(ring.coords) - 1 for ring in shapely.get_parts(boundary))
+    assert edges.shape[0] == n_segments
+    rebuilt = shapely.union_all(shapely.linestrings(edges.reshape(-1, 2, 2)))
+    assert rebuilt.equals(boundary)
+    assert math.isclose(
+        float(np.sum(np.hypot(edges[:, 2] - edges[:, 0], edges[:, 3] - edges[:, 1]))),
+        boundary.length,
+        rel_tol=1e-12,
+    )
+
+
+RANDOM_STATES_PER_WORKSPACE = 700
+LATTICE_STATES_PER_WORKSPACE = 400
+N_FOLLOWERS = 3
+
+
+def _proximity_range(workspace: Workspace, k: int) -> float:
+    """Cycle the proximity range: the camera range (default), short (often capped), huge."""
+    return (workspace.d_con, 0.6, 100.0)[k % 3]
+
+
+@pytest.mark.parametrize("workspace", all_workspaces(), ids=lambda w: w.name)
+def test_kernel_matches_oracle_random_states(kernel_sense: SenseFn, workspace: Workspace) -> None:
+    """Random platoons (N = 3, a quarter of the robots near walls): every column agrees."""
+    rng = np.random.default_rng(sum(map(ord, workspace.name)))
+    for k in range(RANDOM_STATES_PER_WORKSPACE):
+        poses = sample_platoon(
+            workspace.free_space, rng, N_FOLLOWERS, workspace.d_con, workspace.beta_con
+        )
+        prox = _proximity_range(workspace, k)
+        args = (poses, workspace.d_con, workspace.beta_con, prox)
+        assert_agree(
+            kernel_sense(workspace.free_space, *args),
+            oracle_sense(workspace.free_space, *args),
+            f"{workspace.name} state {k}, prox={prox}, poses={poses.tolist()}",
+        )
+
+
+@pytest.mark.parametrize(
+    "workspace", [collinear_holes(), two_rooms(), all_workspaces()[1]], ids=lambda w: w.name
+)
+def test_kernel_matches_oracle_lattice_states(kernel_sense: SenseFn, workspace: Workspace) -> None:
+    """Poses on the workspace's own 0.5 m lattice: exact collinear and touching configurations.
+
+    Lines of sight run exactly through vertices and along edges, robots sit exactly on walls
+    and occasionally on each other; the closed half-planes must agree with the oracle's.
+    """
+    rng = np.random.default_rng(7 + sum(map(ord, workspace.name)))
+    for k in range(LATTICE_STATES_PER_WORKSPACE):
+        poses = sample_lattice_platoon(workspace.free_space, rng, N_FOLLOWERS)
+        prox = _proximity_range(workspace, k)
+        args = (poses, workspace.d_con, workspace.beta_con, prox)
+        assert_agree(
+            kernel_sense(workspace.free_space, *args),
+            oracle_sense(workspace.free_space, *args),
+            f"{workspace.name} lattice state {k}, prox={prox}, poses={poses.tolist()}",
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# 3. Constructed cases, checked against hand-computed values (oracle and kernel)
+
+
+@dataclass(frozen=True)
+class Case:
+    """One follower behind its predecessor in a small world, with its expected readings."""
+
+    name: str
+    free_space: Polygon | MultiPolygon
+    predecessor: tuple[float, float]
+    follower: tuple[float, float, float]  # x, y, theta
+    d_con: float
+    beta_con: float
+    proximity_range: float
+    expected: dict[int, float] = field(default_factory=dict)
+
+    def poses(self) -> NDArray[np.float64]:
+        """The ``(2, 3)`` poses array: predecessor (as leader), then the follower."""
+        return np.array([[*self.predecessor, 0.0], list(self.follower)], dtype=np.float64)
+
+
+def _room_with(obstacle: Polygon, bounds: tuple[float, float, float, float]) -> Polygon:
+    """A rectangular room minus one obstacle."""
+    return box(*bounds).difference(obstacle)
+
+
+CASES: list[Case] = [
+    Case(
+        # The line x + y = 8 touches the square [4, 6]^2 only at its vertex (4, 4). The vertex
+        # is on the line, so it belongs to both sides: d_W_r is |(3, 5) - (4, 4)| = sqrt 2.
+        "sight_through_vertex",
+        _room_with(box(4.0, 4.0, 6.0, 6.0), (0.0, 0.0, 10.0, 10.0)),
+        predecessor=(5.0, 3.0),
+        follower=(3.0, 5.0, -math.pi / 4),
+        d_con=4.0,
+        beta_con=0.5,
+        proximity_range=4.0,
+        expected={
+            COL_D: 2 * math.sqrt(2.0),
+            COL_BETA: 0.0,
+            COL_VISIBLE: 0.0,
+            COL_OCCLUDED: 1.0,
+            COL_D_WALL_LEFT: 1.0,
+            COL_D_WALL_RIGHT: math.sqrt(2.0),
+            COL_D_SIGHT_LEFT: 0.0,
+            COL_D_SIGHT_RIGHT: 0.0,
+            COL_CLEARANCE: 1.0,
+        },
+    ),
+    Case(
+        # The sight line y = 5 meets the triangle's edge (4, 7)-(6, 3) at (5, 5), beyond L_i.
+        # Split there: its left part is nearest at (4.6, 5.8) / (4.4, 6.2), its right part
+        # only at the split point (5, 5).
+        "edge_crosses_line_beyond_segment",
+        _room_with(Polygon([(4.0, 7.0), (6.0, 3.0), (7.0, 3.0)]), (-10.0, -10.0, 20.0, 20.0)),
+        predecessor=(3.0, 5.0),
+        follower=(2.0, 5.0, 0.0),
+        d_con=4.0,
+        beta_con=0.5,
+        proximity_range=4.0,
+        expected={
+            COL_D: 1.0,
+            COL_BETA: 0.0,
+            COL_VISIBLE: 1.0,
+            COL_OCCLUDED: 0.0,
+            COL_D_WALL_LEFT: math.sqrt(7.2),
+            COL_D_WALL_RIGHT: 3.0,
+            COL_D_SIGHT_LEFT: math.sqrt(3.2),
+            COL_D_SIGHT_RIGHT: 2.0,
+            COL_CLEARANCE: math.sqrt(7.2),
+        },
+    ),
+    Case(
+        # Same, but the follower looks the other way: the sides swap.
+        "edge_crosses_line_behind_follower",
+        _room_with(Polygon([(4.0, 7.0), (6.0, 3.0), (7.0, 3.0)]), (-10.0, -10.0, 20.0, 20.0)),
+        predecessor=(1.0, 5.0),
+        follower=(2.0, 5.0, math.pi),
+        d_con=4.0,
+        beta_con=0.5,
+        proximity_range=4.0,
+        expected={
+            COL_D: 1.0,
+            COL_VISIBLE: 1.0,
+            COL_OCCLUDED: 0.0,
+            COL_D_WALL_LEFT: 3.0,
+            COL_D_WALL_RIGHT: math.sqrt(7.2),
+            COL_D_SIGHT_LEFT: 3.0,
+            COL_D_SIGHT_RIGHT: math.sqrt(7.2),
+            COL_CLEARANCE: math.sqrt(7.2),
+        },
+    ),
+    Case(
+        # The hole's bottom edge (5, 5)-(7, 5) lies on the line through L_i, beyond it: on both
+        # sides, not an occlusion.
+        "edge_on_line_beyond_segment",
+        _room_with(box(5.0, 5.0, 7.0, 6.0), (-10.0, -10.0, 20.0, 20.0)),
+        predecessor=(3.0, 5.0),
+        follower=(2.0, 5.0, 0.0),
+        d_con=4.0,
+        beta_con=0.5,
+        proximity_range=4.0,
+        expected={
+            COL_VISIBLE: 1.0,
+            COL_OCCLUDED: 0.0,
+            COL_D_WALL_LEFT: 3.0,
+            COL_D_WALL_RIGHT: 3.0,
+            COL_D_SIGHT_LEFT: 2.0,
+            COL_D_SIGHT_RIGHT: 2.0,
+            COL_CLEARANCE: 3.0,
+        },
+    ),
+    Case(
+        # Both robots on the corridor's lower wall: L_i lies along it, which is touching.
+        "sight_along_wall",
+        corridor(1.0),
+        predecessor=(12.0, -1.0),
+        follower=(10.0, -1.0, 0.0),
+        d_con=3.0,
+        beta_con=0.5,
+        proximity_range=3.0,
+        expected={
+            COL_D: 2.0,
+            COL_BETA: 0.0,
+            COL_VISIBLE: 0.0,
+            COL_OCCLUDED: 1.0,
+            COL_D_WALL_LEFT: 0.0,
+            COL_D_WALL_RIGHT: 0.0,
+            COL_D_SIGHT_LEFT: 0.0,
+            COL_D_SIGHT_RIGHT: 0.0,
+            COL_CLEARANCE: 0.0,
+        },
+    ),
+    Case(
+        # Parallel to the lower wall, 0.25 m above it.
+        "sight_parallel_to_wall",
+        corridor(1.0),
+        predecessor=(12.0, -0.75),
+        follower=(10.0, -0.75, 0.1),
+        d_con=3.0,
+        beta_con=0.5,
+        proximity_range=3.0,
+        expected={
+            COL_D: 2.0,
+            COL_BETA: -0.1,
+            COL_VISIBLE: 1.0,
+            COL_OCCLUDED: 0.0,
+            COL_D_WALL_LEFT: 1.75,
+            COL_D_WALL_RIGHT: 0.25,
+            COL_D_SIGHT_LEFT: 1.75,
+            COL_D_SIGHT_RIGHT: 0.25,
+            COL_CLEARANCE: 0.25,
+        },
+    ),
+    Case(
+        # A robot of radius r = 0.25 touching the upper wall: clearance == r exactly.
+        "follower_touching_wall",
+        corridor(1.0),
+        predecessor=(11.5, 0.75),
+        follower=(10.0, 0.75, 0.0),
+        d_con=3.0,
+        beta_con=0.5,
+        proximity_range=3.0,
+        expected={
+            COL_OCCLUDED: 0.0,
+            COL_VISIBLE: 1.0,
+            COL_D_WALL_LEFT: 0.25,
+            COL_D_WALL_RIGHT: 1.75,
+            COL_D_SIGHT_LEFT: 0.25,
+            COL_D_SIGHT_RIGHT: 1.75,
+            COL_CLEARANCE: 0.25,
+        },
+    ),
+    Case(
+        # atan2(1, 1) - 0 == pi/4 == beta_con exactly: on the edge of the field of view.
+        "predecessor_on_fov_edge_left",
+        box(0.0, 0.0, 10.0, 10.0),
+        predecessor=(6.0, 6.0),
+        follower=(5.0, 5.0, 0.0),
+        d_con=3.0,
+        beta_con=math.pi / 4,
+        proximity_range=3.0,
+        expected={COL_BETA: math.pi / 4, COL_VISIBLE: 0.0, COL_OCCLUDED: 0.0},
+    ),
+    Case(
+        "predecessor_on_fov_edge_right",
+        box(0.0, 0.0, 10.0, 10.0),
+        predecessor=(6.0, 4.0),
+        follower=(5.0, 5.0, 0.0),
+        d_con=3.0,
+        beta_con=math.pi / 4,
+        proximity_range=3.0,
+        expected={COL_BETA: -math.pi / 4, COL_VISIBLE: 0.0, COL_OCCLUDED: 0.0},
+    ),
+    Case(
+        "predecessor_just_inside_fov",
+        box(0.0, 0.0, 10.0, 10.0),
+        predecessor=(6.0, 6.0 - 1e-9),
+        follower=(5.0, 5.0, 0.0),
+        d_con=3.0,
+        beta_con=math.pi / 4,
+        proximity_range=3.0,
+        expected={COL_VISIBLE: 1.0, COL_OCCLUDED: 0.0},
+    ),
+    Case(
+        # |(3, 4)| == 5 == d_con exactly: out of range.
+        "predecessor_on_range_edge",
+        box(0.0, 0.0, 10.0, 10.0),
+        predecessor=(5.0, 6.0),
+        follower=(2.0, 2.0, math.atan2(4.0, 3.0)),
+        d_con=5.0,
+        beta_con=0.5,
+        proximity_range=3.0,
+        expected={COL_D: 5.0, COL_VISIBLE: 0.0, COL_OCCLUDED: 0.0},
+    ),
+    Case(
+        "predecessor_just_inside_range",
+        box(0.0, 0.0, 10.0, 10.0),
+        predecessor=(5.0, 6.0 - 1e-9),
+        follower=(2.0, 2.0, math.atan2(4.0, 3.0)),
+        d_con=5.0,
+        beta_con=0.5,
+        proximity_range=3.0,
+        expected={COL_VISIBLE: 1.0, COL_OCCLUDED: 0.0},
+    ),
+    Case(
+        # atan2(-1, 0) - pi/2 == -pi exactly, which wraps to +pi.
+        "predecessor_right_behind",
+        box(0.0, 0.0, 10.0, 10.0),
+        predecessor=(5.0, 4.0),
+        follower=(5.0, 5.0, math.pi / 2),
+        d_con=3.0,
+        beta_con=0.5,
+        proximity_range=3.0,
+        expected={COL_D: 1.0, COL_BETA: math.pi, COL_VISIBLE: 0.0, COL_OCCLUDED: 0.0},
+    ),
+    Case(
+        # Robots on top of each other: the heading (+x) orients left (+y) and right.
+        "coincident_robots_facing_east",
+        corridor(1.0),
+        predecessor=(20.0, 0.25),
+        follower=(20.0, 0.25, 0.0),
+        d_con=3.0,
+        beta_con=0.5,
+        proximity_range=3.0,
+        expected={
+            COL_D: 0.0,
+            COL_BETA: 0.0,
+            COL_VISIBLE: 1.0,
+            COL_OCCLUDED: 0.0,
+            COL_D_WALL_LEFT: 0.75,
+            COL_D_WALL_RIGHT: 1.25,
+            COL_D_SIGHT_LEFT: 0.75,
+            COL_D_SIGHT_RIGHT: 1.25,
+            COL_CLEARANCE: 0.75,
+        },
+    ),
+    Case(
+        "coincident_robots_facing_west",
+        corridor(1.0),
+        predecessor=(20.0, 0.25),
+        follower=(20.0, 0.25, math.pi),
+        d_con=3.0,
+        beta_con=0.5,
+        proximity_range=3.0,
+        expected={
+            COL_D: 0.0,
+            COL_BETA: math.pi,
+            COL_VISIBLE: 0.0,
+            COL_OCCLUDED: 0.0,
+            COL_D_WALL_LEFT: 1.25,
+            COL_D_WALL_RIGHT: 0.75,
+            COL_D_SIGHT_LEFT: 1.25,
+            COL_D_SIGHT_RIGHT: 0.75,
+            COL_CLEARANCE: 0.75,
+        },
+    ),
+    Case(
+        # Predecessor in the other room of a two-room free space.
+        "predecessor_in_other_room",
+        two_rooms().free_space,
+        predecessor=(5.5, 1.0),
+        follower=(3.5, 1.0, 0.0),
+        d_con=3.0,
+        beta_con=0.5,
+        proximity_range=3.0,
+        expected={
+            COL_VISIBLE: 0.0,
+            COL_OCCLUDED: 1.0,
+            COL_D_SIGHT_LEFT: 0.0,
+            COL_D_SIGHT_RIGHT: 0.0,
+            COL_CLEARANCE: 0.5,
+        },
+    ),
+    Case(
+        # Out of contract (the follower is outside W_f), but defined: nothing lies on the
+        # right of the line x = 100 looking north, so the right side reads the range.
+        "empty_side_reads_range",
+        box(0.0, 0.0, 10.0, 10.0),
+        predecessor=(100.0, 2.0),
+        follower=(100.0, 1.0, math.pi / 2),
+        d_con=3.0,
+        beta_con=0.5,
+        proximity_range=3.0,
+        expected={
+            COL_OCCLUDED: 0.0,
+            COL_D_WALL_LEFT: 3.0,
+            COL_D_WALL_RIGHT: 3.0,
+            COL_D_SIGHT_LEFT: 3.0,
+            COL_D_SIGHT_RIGHT: 3.0,
+            COL_CLEARANCE: 90.0,
+        },
+    ),
+]
+
+
+def _check_expected(out: NDArray[np.float64], case: Case, who: str) -> None:
+    """Assert one follower's readings match the case's hand-computed values."""
+    for col, value in case.expected.items():
+        got = float(out[col])
+        if col in (COL_VISIBLE, COL_OCCLUDED):
+            assert got == value, f"{who}, {case.name}: {COLUMNS[col]} = {got}, expected {value}"
+        elif col == COL_BETA:
+            assert angle_difference(np.array(got), np.array(value)) <= ANGLE_TOL, (
+                f"{who}, {case.name}: beta = {got!r}, expected {value!r}"
+            )
+            assert -math.pi < got <= math.pi, f"{who}, {case.name}: beta = {got!r} not wrapped"
+        else:
+            assert abs(got - value) <= 1e-12, (
+                f"{who}, {case.name}: {COLUMNS[col]} = {got!r}, expected {value!r}"
+            )
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
+def test_oracle_constructed_case(case: Case) -> None:
+    """The oracle reproduces the hand-computed readings."""
+    out = oracle_sense(
+        case.free_space, case.poses(), case.d_con, case.beta_con, case.proximity_range
+    )
+    assert out.shape == (1, N_COLUMNS)
+    _check_expected(out[0], case, "oracle")
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
+def test_kernel_constructed_case(kernel_sense: SenseFn, case: Case) -> None:
+    """The kernel reproduces the hand-computed readings, and the oracle in every column."""
+    args = (case.poses(), case.d_con, case.beta_con, case.proximity_range)
+    out = kernel_sense(case.free_space, *args)
+    assert out.shape == (1, N_COLUMNS)
+    _check_expected(out[0], case, "kernel")
+    assert_agree(out, oracle_sense(case.free_space, *args), case.name)
+
+
+def test_kernel_touching_wall_is_a_collision(kernel_sense: SenseFn) -> None:
+    """``clearance <= r`` holds for a robot of radius ``r`` exactly touching a wall."""
+    radius = 0.25
+    poses = np.array([[11.5, 0.75, 0.0], [10.0, 0.75, 0.0], [10.0, -0.75, 0.0]])
+    out = kernel_sense(corridor(1.0), poses, 3.0, 0.5, 3.0)
+    assert out[0, COL_CLEARANCE] <= radius
+    assert out[1, COL_CLEARANCE] <= radius
