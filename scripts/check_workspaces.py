@@ -92,9 +92,7 @@ def build_free_space(cfg: ScenarioConfig, report: Report) -> shapely.Geometry:
     region = parts[0] if len(parts) == 1 else parts[0].intersection(parts[1])
     for k, coords in enumerate(ws.obstacles):
         obstacle = Polygon(coords)
-        report.require(
-            obstacle.is_valid, f"obstacles[{k}] invalid: {explain_validity(obstacle)}"
-        )
+        report.require(obstacle.is_valid, f"obstacles[{k}] invalid: {explain_validity(obstacle)}")
         report.require(obstacle.area > 0, f"obstacles[{k}] has zero area")
     if ws.obstacles:
         region = region.difference(unary_union([Polygon(c) for c in ws.obstacles]))
@@ -119,7 +117,7 @@ def resample(path: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Points every ``step`` metres along the polyline and their arc lengths."""
     seg = np.diff(path, axis=0)
     cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
-    s = np.linspace(0.0, cum[-1], max(2, int(math.ceil(cum[-1] / step)) + 1))
+    s = np.linspace(0.0, cum[-1], max(2, math.ceil(cum[-1] / step) + 1))
     pts = np.column_stack([np.interp(s, cum, path[:, 0]), np.interp(s, cum, path[:, 1])])
     return pts, s
 
@@ -210,14 +208,21 @@ def simulate_pure_pursuit(
         alpha = math.atan2(target[1] - pos[1], target[0] - pos[0]) - theta
         alpha = (alpha + math.pi) % (2 * math.pi) - math.pi
         dist = max(np.hypot(*(target - pos)), 1e-6)
-        omega = float(np.clip(2 * lead.speed * math.sin(alpha) / dist, -lead.max_turn_rate,
-                              lead.max_turn_rate))
+        omega = float(
+            np.clip(
+                2 * lead.speed * math.sin(alpha) / dist, -lead.max_turn_rate, lead.max_turn_rate
+            )
+        )
         if abs(omega) < 1e-9:
             pos += lead.speed * dt * np.array([math.cos(theta), math.sin(theta)])
         else:
             rad = lead.speed / omega
-            pos += rad * np.array([math.sin(theta + omega * dt) - math.sin(theta),
-                                   -math.cos(theta + omega * dt) + math.cos(theta)])
+            pos += rad * np.array(
+                [
+                    math.sin(theta + omega * dt) - math.sin(theta),
+                    -math.cos(theta + omega * dt) + math.cos(theta),
+                ]
+            )
         theta += omega * dt
         traj.append(pos.copy())
     return np.array(traj)
@@ -240,8 +245,8 @@ def check(path_yaml: Path, outdir: Path) -> Report:
     beta_con = cfg.camera.half_angle
     delta = cfg.ppc.delta if cfg.ppc is not None else 0.0
 
-    xs, ys = zip(*[xy for ring in _rings(free) for xy in ring.coords])
-    report.add("map size", f"{max(xs) - min(xs):.1f} x {max(ys) - min(ys):.1f} m")
+    xmin, ymin, xmax, ymax = free.bounds
+    report.add("map size", f"{xmax - xmin:.1f} x {ymax - ymin:.1f} m")
 
     raw = np.asarray(cfg.leader.path, dtype=float)
     seg_len = np.hypot(*np.diff(raw, axis=0).T)
@@ -253,7 +258,7 @@ def check(path_yaml: Path, outdir: Path) -> Report:
     # --- clearance of the path itself
     inside = shapely.contains_xy(free, pts[:, 0], pts[:, 1])
     if not inside.all():
-        report.require(False, f"path leaves the free space near {pts[~inside][0]}")
+        report.failures.append(f"path leaves the free space near {pts[~inside][0]}")
     clearance = shapely.distance(boundary, shapely.points(pts))
     k_min = int(np.argmin(clearance))
     report.add(
@@ -290,15 +295,19 @@ def check(path_yaml: Path, outdir: Path) -> Report:
     report.add(
         "max curvature",
         f"{kappa[k_k]:.3f} 1/m (radius {1 / max(kappa[k_k], 1e-9):.2f} m) at "
-        f"({b[k_k, 0]:.2f}, {b[k_k, 1]:.2f})" if len(kappa) else "0 (a single segment)",
+        f"({b[k_k, 0]:.2f}, {b[k_k, 1]:.2f})"
+        if len(kappa)
+        else "0 (a single segment)",
     )
-    vertex_turn = np.degrees(np.abs(np.diff(np.unwrap(np.arctan2(*np.diff(raw, axis=0).T[::-1])))))
-    report.add("max turn at a path vertex", f"{vertex_turn.max():.1f} deg" if len(vertex_turn) else "0")
+    seg_heading = np.unwrap(np.arctan2(*np.diff(raw, axis=0).T[::-1]))
+    vertex_turn = np.degrees(np.abs(np.diff(seg_heading)))
+    report.add(
+        "max turn at a path vertex", f"{vertex_turn.max():.1f} deg" if len(vertex_turn) else "0"
+    )
 
     # --- a chain driving on the path: bearing and line of sight of a follower d_des behind
     partner = chord_partner(pts, d_des)
-    ok = partner >= 0
-    idx = np.nonzero(ok)[0]
+    idx = np.nonzero(partner >= 0)[0]
     chords = pts[partner[idx]] - pts[idx]
     bearing = np.arctan2(chords[:, 1], chords[:, 0]) - np.arctan2(tan[idx, 1], tan[idx, 0])
     bearing = np.abs((bearing + np.pi) % (2 * np.pi) - np.pi)
@@ -346,26 +355,28 @@ def check(path_yaml: Path, outdir: Path) -> Report:
     report.require(pair.min() > cfg.safety.d_col, "two robots start closer than d_col")
     # bearing of follower i if it faced along the path tangent (it faces its predecessor in the
     # env, so this is only a measure of how straight the start stretch is)
-    kk = [int(np.argmin(np.hypot(*(pts - p).T))) for p in robots]
-    start_bearing = [
-        abs(
-            (math.atan2(*(robots[j + 1] - robots[j])[::-1]) - math.atan2(tan[kk[j], 1], tan[kk[j], 0])
-             + math.pi) % (2 * math.pi) - math.pi
-        )
-        for j in range(n_f)
-    ]
-    report.add("start stretch", f"max bearing w.r.t. path tangent {max(start_bearing):.3f} rad, "
-               f"min line-of-sight clearance {los_clear.min():.3f} m")
+    start_bearing = []
+    for j in range(n_f):
+        k = int(np.argmin(np.hypot(*(pts - robots[j]).T)))
+        chord = robots[j + 1] - robots[j]
+        angle = math.atan2(chord[1], chord[0]) - math.atan2(tan[k, 1], tan[k, 0])
+        start_bearing.append(abs((angle + math.pi) % (2 * math.pi) - math.pi))
+    report.add(
+        "start stretch",
+        f"max bearing w.r.t. path tangent {max(start_bearing):.3f} rad, "
+        f"min line-of-sight clearance {los_clear.min():.3f} m",
+    )
     report.require(max(start_bearing) < beta_con, "the start stretch is not straight enough")
 
     # --- pure-pursuit leader
     traj = simulate_pure_pursuit(pts, s, s_leader0, cfg)
     lead_clear = shapely.distance(boundary, shapely.points(traj))
     duration = (len(traj) - 1) * 0.01
+    deviation = shapely.distance(LineString(raw), shapely.points(traj)).max()
     report.add(
         "pure-pursuit leader",
         f"run {duration:.1f} s at {cfg.leader.speed} m/s, min clearance {lead_clear.min():.3f} m, "
-        f"max deviation from path {shapely.distance(LineString(raw), shapely.points(traj)).max():.3f} m",
+        f"max deviation from path {deviation:.3f} m",
     )
     report.require(
         lead_clear.min() >= r + PATH_MARGIN - 0.05,
@@ -395,8 +406,12 @@ def draw(cfg, free, pts, both, robots, traj, clearance, report: Report, out: Pat
     fig, ax = plt.subplots(figsize=(12, max(4.0, 12 * aspect) + 1.2))
     ax.add_patch(
         MplPolygon(
-            [(xmin - pad, ymin - pad), (xmax + pad, ymin - pad), (xmax + pad, ymax + pad),
-             (xmin - pad, ymax + pad)],
+            [
+                (xmin - pad, ymin - pad),
+                (xmax + pad, ymin - pad),
+                (xmax + pad, ymax + pad),
+                (xmin - pad, ymax + pad),
+            ],
             color="0.55",
         )
     )
@@ -413,25 +428,43 @@ def draw(cfg, free, pts, both, robots, traj, clearance, report: Report, out: Pat
                 ax.add_patch(MplPolygon(np.asarray(hole.coords), color="white", lw=0))
     for poly in polys:
         for hole in poly.interiors:
-            ax.add_patch(MplPolygon(np.asarray(hole.coords), facecolor="0.55", edgecolor="k",
-                                    lw=0.6))
+            ax.add_patch(
+                MplPolygon(np.asarray(hole.coords), facecolor="0.55", edgecolor="k", lw=0.6)
+            )
         ax.plot(*poly.exterior.xy, color="k", lw=0.8)
     sc = ax.scatter(pts[:, 0], pts[:, 1], c=clearance, s=3, cmap="viridis", zorder=3)
     fig.colorbar(sc, ax=ax, shrink=0.6, label="path clearance [m]")
     ax.plot(*np.asarray(cfg.leader.path).T, "o", ms=2, color="tab:blue", zorder=4)
-    ax.plot(traj[:, 0], traj[:, 1], "--", color="tab:red", lw=0.8, zorder=4,
-            label="pure-pursuit leader")
+    ax.plot(
+        traj[:, 0], traj[:, 1], "--", color="tab:red", lw=0.8, zorder=4, label="pure-pursuit leader"
+    )
     if both.any():
-        ax.plot(pts[both, 0], pts[both, 1], "s", ms=3, color="orange", zorder=5,
-                label="clearance - r < delta on both sides")
+        ax.plot(
+            pts[both, 0],
+            pts[both, 1],
+            "s",
+            ms=3,
+            color="orange",
+            zorder=5,
+            label="clearance - r < delta on both sides",
+        )
     r, beta, rng = cfg.robot.radius, cfg.camera.half_angle, cfg.camera.range
     for j, p in enumerate(robots):
         leader = j == len(robots) - 1
         ax.add_patch(Circle(p, r, color="tab:blue" if leader else "k", zorder=6))
         if not leader:
             head = math.degrees(math.atan2(*(robots[j + 1] - p)[::-1]))
-            ax.add_patch(Wedge(p, rng, head - math.degrees(beta), head + math.degrees(beta),
-                               color="tab:green", alpha=0.12, zorder=2))
+            ax.add_patch(
+                Wedge(
+                    p,
+                    rng,
+                    head - math.degrees(beta),
+                    head + math.degrees(beta),
+                    color="tab:green",
+                    alpha=0.12,
+                    zorder=2,
+                )
+            )
             ax.plot(*np.stack([p, robots[j + 1]]).T, color="tab:green", lw=0.8, zorder=6)
     ax.annotate("start", pts[0], xytext=(5, -12), textcoords="offset points")
     ax.annotate("end", pts[-1], xytext=(5, 5), textcoords="offset points")
@@ -442,10 +475,12 @@ def draw(cfg, free, pts, both, robots, traj, clearance, report: Report, out: Pat
     ax.set_yticks(np.arange(math.floor(ymin), math.ceil(ymax) + 1, 1.0), minor=True)
     ax.grid(which="both", lw=0.2, color="0.8")
     ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.06), ncol=3, fontsize=8)
-    lines = [f"{cfg.name}: {report.values['path length']}, {report.values['pure-pursuit leader']}",
-             f"min clearance {report.values['min path clearance']}",
-             f"narrowest passage {report.values['narrowest passage']}; "
-             f"max curvature {report.values['max curvature']}"]
+    lines = [
+        f"{cfg.name}: {report.values['path length']}, {report.values['pure-pursuit leader']}",
+        f"min clearance {report.values['min path clearance']}",
+        f"narrowest passage {report.values['narrowest passage']}; "
+        f"max curvature {report.values['max curvature']}",
+    ]
     ax.set_title("\n".join(lines), fontsize=8)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110, bbox_inches="tight")
@@ -455,10 +490,15 @@ def draw(cfg, free, pts, both, robots, traj, clearance, report: Report, out: Pat
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("files", nargs="*", type=Path,
-                        help="scenario files (default: the shipped study_a/b/c.yaml)")
-    parser.add_argument("--outdir", type=Path, default=Path("/tmp/workspaces"),
-                        help="where the PNGs are written (default: /tmp/workspaces)")
+    parser.add_argument(
+        "files", nargs="*", type=Path, help="scenario files (default: the shipped study_a/b/c.yaml)"
+    )
+    parser.add_argument(
+        "--outdir",
+        type=Path,
+        default=Path("/tmp/workspaces"),
+        help="where the PNGs are written (default: /tmp/workspaces)",
+    )
     args = parser.parse_args(argv)
     files = args.files or [DATA_DIR / f"{name}.yaml" for name in STUDIES]
     failed = False
