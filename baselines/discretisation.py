@@ -69,7 +69,11 @@ def main(argv: list[str] | None = None) -> None:
         for k in args.substeps:
             clean_so_far = True
             for p in sorted(args.periods):
-                rs = [r for r in results if r["study"] == s and r["period"] == p and r["substeps"] == k]
+                rs = [
+                    r
+                    for r in results
+                    if r["study"] == s and r["period"] == p and r["substeps"] == k
+                ]
                 causes = sorted({str(r["violation"]) for r in rs if r["violation"]})
                 n_viol = sum(1 for r in rs if r["violation"])
                 exits = sum(int(r["funnel_exits"]) for r in rs)  # type: ignore[call-overload]

@@ -80,7 +80,9 @@ def record(studies: list[str], seeds: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--out", type=Path, default=Path("docs/figures"), help="output folder")
     parser.add_argument("--seeds", type=int, default=5, help="seeds per study for the record")
     parser.add_argument("--study", action="append", choices=STUDIES, help="default: all three")

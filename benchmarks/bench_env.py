@@ -38,7 +38,9 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20_000, help="timed steps per scenario")
     parser.add_argument("--followers", type=int, default=None, help="override N")
     args = parser.parse_args()
-    print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}"
+    )
     print(f"{'scenario':<12} {'N':>3} {'edges':>6} {'env-steps/s':>12} {'agent-steps/s':>14}")
     for scenario in args.scenario or platoon_env.list_scenarios():
         rate, n, edges = measure(scenario, args.steps, args.followers)

@@ -33,7 +33,7 @@ from platoon_env.reward import REWARD_TERMS, reward_terms_into, reward_weights
 from platoon_env.safety import causes_to_mask, first_cause, mask_to_causes
 from platoon_env.scenarios.loader import ScenarioLike, load_config, load_scenario
 from platoon_env.scenarios.scenario import Scenario, build_scenario, initial_violations
-from platoon_env.scenarios.schema import VIOLATION_CAUSES, ScenarioError
+from platoon_env.scenarios.schema import ScenarioError
 from platoon_env.simulator import (
     L_ARRIVED,
     L_PROGRESS,
@@ -79,7 +79,9 @@ def _apply_overrides(scenario: ScenarioLike, overrides: Mapping[str, Any]) -> Sc
         cfg = dataclasses.replace(
             cfg, initial=dataclasses.replace(cfg.initial, perturb=bool(overrides["perturb"]))
         )
-    robot_changes = {k: overrides[k] for k in ("u_max", "omega_max") if overrides.get(k) is not None}
+    robot_changes = {
+        k: overrides[k] for k in ("u_max", "omega_max") if overrides.get(k) is not None
+    }
     if robot_changes:
         cfg = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, **robot_changes))
     free_space = scenario.free_space if isinstance(scenario, Scenario) else None
@@ -121,7 +123,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     **Version history**: v0 — initial release.
     """
 
-    metadata = {
+    metadata: dict[str, Any] = {
         "name": "platoon_v0",
         "render_modes": ["human", "rgb_array"],
         "render_fps": 25,
@@ -306,7 +308,9 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         infos = self._infos([0] * self.n_followers, None)
         return {a: obs[i] for i, a in enumerate(self.agents)}, infos
 
-    def step(self, actions: Mapping[str, Any]) -> tuple[
+    def step(
+        self, actions: Mapping[str, Any]
+    ) -> tuple[
         dict[str, np.ndarray],
         dict[str, float],
         dict[str, bool],
@@ -329,8 +333,8 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
             self.steps >= self.max_episode_steps
             or (
                 self._arrival_time is not None
-                and self.sim_time - self._arrival_time >= self.scenario.config.leader.settle_time
-                - 1e-9
+                and self.sim_time - self._arrival_time
+                >= self.scenario.config.leader.settle_time - 1e-9
             )
         )
         cfg = self.scenario.config
@@ -361,7 +365,9 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     def render(self) -> np.ndarray | None:
         """Draw the workspace, robots, fields of view and lines of sight (``render_mode``)."""
         if self.render_mode is None:
-            warnings.warn("render() called without a render_mode; pass render_mode to make()")
+            warnings.warn(
+                "render() called without a render_mode; pass render_mode to make()", stacklevel=2
+            )
             return None
         if self._renderer is None:
             from platoon_env.rendering import Renderer
@@ -435,7 +441,8 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
             for agent in actions:
                 if agent not in self.agents:
                     raise KeyError(
-                        f"unknown or finished agent {agent!r}; live agents: {', '.join(self.agents)}"
+                        f"unknown or finished agent {agent!r}; "
+                        f"live agents: {', '.join(self.agents)}"
                     )
             missing = [a for a in self.agents if a not in actions]
             raise KeyError(f"missing action for agent {missing[0]!r}")
@@ -465,6 +472,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         rows = self._sensed.tolist()
         d_des = self.scenario.config.formation.d_des
         infos: dict[str, dict[str, Any]] = {}
+        no_terms: list[list[float]] = [[] for _ in self.agents]
         for i, agent in enumerate(self.agents):
             row = rows[i]
             causes = mask_to_causes(masks[i])
@@ -482,7 +490,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 "d_r": row[SENSE_D_SIGHT_RIGHT],
                 "clearance": row[SENSE_CLEARANCE],
                 "visible": row[SENSE_VISIBLE] > 0.0,
-                "reward_terms": {} if terms is None else dict(zip(REWARD_TERMS, terms[i])),
+                "reward_terms": dict(zip(REWARD_TERMS, (terms or no_terms)[i], strict=False)),
             }
         return infos
 

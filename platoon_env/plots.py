@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -26,9 +27,7 @@ try:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 except ImportError as exc:  # pragma: no cover - exercised by the install hint only
-    raise ImportError(
-        "plotting needs matplotlib: pip install 'platoon-env[plot]'"
-    ) from exc
+    raise ImportError("plotting needs matplotlib: pip install 'platoon-env[plot]'") from exc
 
 from platoon_env.geometry.sensing import SENSE_BETA, SENSE_D, SENSE_VISIBLE
 from platoon_env.rendering import draw_scene
@@ -71,8 +70,11 @@ def plot_snapshots(
             trail=ep.poses[: k + 1, :, :2] if j == len(idx) - 1 else None,
             background=j == 0,
         )
-    ax.set_title(title or f"{cfg.name}: snapshots every {ep.times[idx[1]] - ep.times[idx[0]]:.0f} s"
-                 if len(idx) > 1 else cfg.name)
+    ax.set_title(
+        title or f"{cfg.name}: snapshots every {ep.times[idx[1]] - ep.times[idx[0]]:.0f} s"
+        if len(idx) > 1
+        else cfg.name
+    )
 
 
 def plot_errors(
@@ -108,9 +110,17 @@ def plot_errors(
             axes[r, 1].plot(t, e_b[:, i - 1], color=colour, lw=1.0)
             if has_rho:
                 ts = t[: ep.signals["rho_d_lo"].shape[0]]
-                for key, col in (("rho_d_lo", 0), ("rho_d_hi", 0), ("rho_beta_lo", 1), ("rho_beta_hi", 1)):
+                for key, col in (
+                    ("rho_d_lo", 0),
+                    ("rho_d_hi", 0),
+                    ("rho_beta_lo", 1),
+                    ("rho_beta_hi", 1),
+                ):
                     axes[r, col].plot(
-                        ts, ep.signals[key][:, i - 1], color="tab:red", lw=0.8,
+                        ts,
+                        ep.signals[key][:, i - 1],
+                        color="tab:red",
+                        lw=0.8,
                         label="performance functions" if (r == 0 and key == "rho_d_lo") else None,
                     )
         funnel_drawn = funnel_drawn or bool(has_rho)
@@ -145,8 +155,9 @@ def plot_commands(
         label = labels[j] if j < len(labels) else None
         t = ep.times[1:]
         for r, i in enumerate(rows):
-            axes[r, 0].plot(t, ep.actions[:, i - 1, 0], color=colour, lw=0.8,
-                            label=label if r == 0 else None)
+            axes[r, 0].plot(
+                t, ep.actions[:, i - 1, 0], color=colour, lw=0.8, label=label if r == 0 else None
+            )
             axes[r, 1].plot(t, ep.actions[:, i - 1, 1], color=colour, lw=0.8)
     for r, i in enumerate(rows):
         axes[r, 0].set_ylabel(f"$u_{i}$ [m/s]")
@@ -166,7 +177,11 @@ def save_figure(fig: Figure, path: str | Path) -> Path:
 
 
 def save_gif(
-    scenario: Scenario, ep: Episode, path: str | Path, fps: int = 10, frame_every: float = 1.0,
+    scenario: Scenario,
+    ep: Episode,
+    path: str | Path,
+    fps: int = 10,
+    frame_every: float = 1.0,
     size_px: int = 480,
 ) -> Path:
     """An animated GIF of ``ep``: one frame every ``frame_every`` seconds of simulated time."""
@@ -176,10 +191,12 @@ def save_gif(
 
     renderer = Renderer(scenario.free_space, scenario.config, "rgb_array", size_px=size_px)
     stride = max(1, round(frame_every / ep.control_period))
-    frames = []
+    frames: list[Any] = []
     for k in range(0, ep.times.size, stride):
         frame = renderer.render(
-            ep.poses[k], ep.sensed[k, :, SENSE_VISIBLE] > 0, float(ep.times[k]),
+            ep.poses[k],
+            ep.sensed[k, :, SENSE_VISIBLE] > 0,
+            float(ep.times[k]),
             _violations_at(ep, k),
         )
         assert frame is not None

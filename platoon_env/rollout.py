@@ -118,7 +118,7 @@ def run_episode(
         if record_signals and hasattr(policy, "signals"):
             for key, value in policy.signals.items():
                 signals.setdefault(key, []).append(np.asarray(value).copy())
-        obs, _, terms, truncs, infos = env.step(cmd)
+        obs, _, terms, truncs, _infos = env.step(cmd)
         applied = np.array([cmd[a] for a in env.possible_agents], dtype=np.float64)
         actions.append(np.clip(applied, act_low, act_high))
         mask = env.violation_masks
@@ -208,4 +208,3 @@ def episode_metrics(ep: Episode, transient: float = DEFAULT_TRANSIENT) -> dict[s
         "lost_sight_steps": int(np.sum(~visible)),
         "funnel_exits": ep.funnel_exits,
     }
-

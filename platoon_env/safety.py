@@ -20,8 +20,12 @@ import math
 import numpy as np
 from numba import njit
 
-from platoon_env.geometry.primitives import box_distance, point_segment_distance, segments_intersect
-from platoon_env.geometry.primitives import wrap_angle
+from platoon_env.geometry.primitives import (
+    box_distance,
+    point_segment_distance,
+    segments_intersect,
+    wrap_angle,
+)
 from platoon_env.scenarios.schema import VIOLATION_CAUSES
 
 COLLISION_ROBOT = 1 << VIOLATION_CAUSES.index("collision_robot")
@@ -67,14 +71,15 @@ def first_cause(mask: int) -> str | None:
 
 
 @njit(cache=True)
-def near_boundary(
-    px: float, py: float, limit: float, edges: np.ndarray, boxes: np.ndarray
-) -> bool:
+def near_boundary(px: float, py: float, limit: float, edges: np.ndarray, boxes: np.ndarray) -> bool:
     """True when some boundary point lies within ``limit`` of ``p`` (clearance ``<= limit``)."""
     for e in range(edges.shape[0]):
         if box_distance(px, py, px, py, boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3]) > limit:
             continue
-        if point_segment_distance(px, py, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3]) <= limit:
+        if (
+            point_segment_distance(px, py, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3])
+            <= limit
+        ):
             return True
     return False
 

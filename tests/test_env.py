@@ -62,7 +62,10 @@ def test_observation_matches_ground_truth(corridor: dict[str, Any]) -> None:
         rel = poses[i - 1, :2] - poses[i, :2]
         th = poses[i, 2]
         body = np.array(
-            [math.cos(th) * rel[0] + math.sin(th) * rel[1], -math.sin(th) * rel[0] + math.cos(th) * rel[1]]
+            [
+                math.cos(th) * rel[0] + math.sin(th) * rel[1],
+                -math.sin(th) * rel[0] + math.cos(th) * rel[1],
+            ]
         )
         assert obs[agent][0] == 1.0
         np.testing.assert_allclose(obs[agent][1:3], body, rtol=1e-6, atol=1e-6)
@@ -130,7 +133,9 @@ def test_collision_obstacle(corridor: dict[str, Any]) -> None:
     scenario = copy.deepcopy(corridor)
     scenario["leader"]["path"] = [[1.0, -1.5], [20.0, -1.5]]
     scenario["camera"] = {"half_angle": 1.5, "range": 20.0}
-    env = platoon_env.make(scenario, followers=1, perturb=False, terminate_on=["collision_obstacle"])
+    env = platoon_env.make(
+        scenario, followers=1, perturb=False, terminate_on=["collision_obstacle"]
+    )
     env.reset(seed=0)
     out = _run_until_done(env, {"follower_1": np.array([1.0, -2.0])})
     info = out["infos"]["follower_1"]
@@ -147,7 +152,7 @@ def test_terminate_on_subset_keeps_running(corridor: dict[str, Any]) -> None:
     env.reset(seed=0)
     seen = set()
     for _ in range(500):
-        _, _, term, trunc, infos = env.step(_still(env))
+        _, _, term, _trunc, infos = env.step(_still(env))
         assert not term["follower_1"]
         seen.update(infos["follower_1"]["violations"])
     assert "out_of_range" in seen
@@ -172,7 +177,7 @@ def test_truncation_after_leader_arrives(corridor: dict[str, Any]) -> None:
 def test_max_episode_steps(corridor: dict[str, Any]) -> None:
     env = platoon_env.make(corridor, max_episode_steps=7, terminate_on=[])
     env.reset(seed=0)
-    for k in range(7):
+    for _k in range(7):
         _, _, _, trunc, _ = env.step(_still(env))
     assert all(trunc.values()) and env.steps == 7
     with pytest.raises(RuntimeError, match="reset"):

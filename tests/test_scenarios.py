@@ -187,6 +187,6 @@ def test_gymnasium_rollout() -> None:
     env = gym.make("platoon_env/SingleFollower-StudyC-v0")
     obs, info = env.reset(seed=0)
     assert env.observation_space.contains(obs)
-    obs, reward, terminated, truncated, info = env.step(np.zeros(2, dtype=np.float32))
+    obs, _reward, terminated, truncated, info = env.step(np.zeros(2, dtype=np.float32))
     assert isinstance(terminated, bool) and isinstance(truncated, bool)
     assert "violation" in info

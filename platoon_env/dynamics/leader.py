@@ -33,7 +33,7 @@ def point_at(path: np.ndarray, cum: np.ndarray, s: float) -> tuple[float, float]
         return path[0, 0], path[0, 1]
     if s >= cum[m - 1]:
         return path[m - 1, 0], path[m - 1, 1]
-    k = np.searchsorted(cum, s) - 1
+    k = int(np.searchsorted(cum, s)) - 1
     k = max(0, min(k, m - 2))
     seg = cum[k + 1] - cum[k]
     t = 0.0 if seg <= 0.0 else (s - cum[k]) / seg
@@ -47,7 +47,7 @@ def point_at(path: np.ndarray, cum: np.ndarray, s: float) -> tuple[float, float]
 def project_progress(
     path: np.ndarray, cum: np.ndarray, x: float, y: float, s_prev: float, window: float
 ) -> float:
-    """Arc length of the point of the path nearest to ``(x, y)`` within ``[s_prev, s_prev + window]``.
+    """Arc length of the path point nearest to ``(x, y)`` in ``[s_prev, s_prev + window]``.
 
     Searching only forward in a window keeps the progress monotone and unambiguous on paths
     that pass near themselves.

@@ -74,7 +74,9 @@ def default_max_steps(cfg: ScenarioConfig, path_length: float) -> int:
     return math.ceil(seconds / cfg.simulation.control_period)
 
 
-def default_initial_poses(cfg: ScenarioConfig, path: np.ndarray, cum: np.ndarray) -> tuple[np.ndarray, float]:
+def default_initial_poses(
+    cfg: ScenarioConfig, path: np.ndarray, cum: np.ndarray
+) -> tuple[np.ndarray, float]:
     """The default initial configuration (DESIGN §5).
 
     The last follower stands at the path's first point; walking forward along the path, each
@@ -153,7 +155,9 @@ def initial_violations(cfg: ScenarioConfig, workspace: Workspace, poses: np.ndar
             problems.append(f"{name}: the line of sight to robot {i - 1} crosses an obstacle")
     leader_clear = workspace.clearance(float(poses[0, 0]), float(poses[0, 1]))
     if not leader_clear > r:
-        problems.append(f"leader: clearance {leader_clear:.3f} to the obstacles must exceed r = {r}")
+        problems.append(
+            f"leader: clearance {leader_clear:.3f} to the obstacles must exceed r = {r}"
+        )
     for j in range(poses.shape[0]):
         for k in range(j + 1, poses.shape[0]):
             if np.hypot(*(poses[j, :2] - poses[k, :2])) <= 2 * r:

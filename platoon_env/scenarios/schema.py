@@ -254,7 +254,8 @@ def _parse_value(tp: Any, value: Any, path: str) -> Any:
             return tuple(_parse_value(args[0], v, f"{path}[{k}]") for k, v in enumerate(value))
         if len(value) != len(args):
             raise ScenarioError(f"{path}: expected {len(args)} values, got {len(value)}")
-        return tuple(_parse_value(a, v, f"{path}[{k}]") for k, (a, v) in enumerate(zip(args, value)))
+        pairs = enumerate(zip(args, value, strict=True))
+        return tuple(_parse_value(a, v, f"{path}[{k}]") for k, (a, v) in pairs)
     if isinstance(tp, type) and hasattr(tp, "__dataclass_fields__"):
         return parse_section(tp, value, path)
     raise TypeError(f"unsupported field type {tp!r} at {path}")  # pragma: no cover
@@ -374,5 +375,7 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
             "2 * rho_d_inf must be smaller than both d_des - d_col and d_con - d_des",
         )
         _require(
-            2 * p.rho_beta_inf < bc, f"{path}.ppc.rho_beta_inf", "2 * rho_beta_inf must be < beta_con"
+            2 * p.rho_beta_inf < bc,
+            f"{path}.ppc.rho_beta_inf",
+            "2 * rho_beta_inf must be < beta_con",
         )

@@ -1,0 +1,311 @@
+"""An SB3 ``VecEnv`` over platoon ``ParallelEnv``\\ s with parameter sharing.
+
+Every follower of every env is one slot of the vectorised env, so one shared policy acts for
+all of them: with ``n_envs`` envs of ``N`` followers, ``num_envs = n_envs * N``, and slot
+``k`` is follower ``k - offset_j + 1`` of env ``j`` (slots of env ``j`` are contiguous, in
+``possible_agents`` order).
+
+Two fixed transformations sit between SB3 and the env, so that a saved policy can reproduce
+them from a handful of numbers (see :mod:`training.policies`):
+
+* **Observation normalisation** (fixed, not running): ``obs / observation_scale`` where
+  ``observation_scale`` is the upper bound of the env's observation Box
+  (``[1, d_con, d_con, prox, prox, prox, prox]``), so every component lies in ``[-1, 1]``.
+* **Action rescaling**: the policy acts in ``[-1, 1]^2``, mapped affinely to the physical range
+  ``[u_low, u_high] x [-omega_high, omega_high]`` (see :class:`ActionRange`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
+
+from platoon_env.env import PlatoonParallelEnv
+from platoon_env.observation import ACT_OMEGA, ACT_SIZE, ACT_U
+
+__all__ = ["ActionRange", "PlatoonVecEnv", "observation_scale"]
+
+
+@dataclass(frozen=True)
+class ActionRange:
+    """The physical range that the normalised action ``a in [-1, 1]^2`` maps to.
+
+    ``u = u_low + (a_0 + 1) / 2 * (u_high - u_low)`` [m/s] and ``omega = a_1 * omega_high``
+    [rad/s]. The defaults suit followers that mostly drive forwards at the speed scale of
+    study C (leader at 0.25 m/s): some reverse to back off, three times the leader speed forward
+    to catch up after a corner, and 2 rad/s to turn.
+    """
+
+    u_low: float = -0.5  # [m/s]
+    u_high: float = 1.5  # [m/s]
+    omega_high: float = 2.0  # [rad/s]
+
+    def __post_init__(self) -> None:
+        if not self.u_low < self.u_high:
+            raise ValueError(f"ActionRange needs u_low < u_high, got {self.u_low}, {self.u_high}")
+        if not self.omega_high > 0:
+            raise ValueError(f"ActionRange needs omega_high > 0, got {self.omega_high}")
+
+    def to_physical(self, action: NDArray[Any]) -> NDArray[np.float32]:
+        """Map normalised actions ``(..., 2)`` (clipped to ``[-1, 1]``) to ``[u, omega]``."""
+        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        out = np.empty(a.shape, dtype=np.float32)
+        out[..., ACT_U] = self.u_low + 0.5 * (a[..., ACT_U] + 1.0) * (self.u_high - self.u_low)
+        out[..., ACT_OMEGA] = a[..., ACT_OMEGA] * self.omega_high
+        return out
+
+    def to_dict(self) -> dict[str, float]:
+        """JSON-friendly form (inverse: ``ActionRange(**d)``)."""
+        return asdict(self)
+
+
+def observation_scale(space: spaces.Box) -> NDArray[np.float32]:
+    """The fixed normalisation divisor of an observation Box: ``max(|low|, |high|)``."""
+    scale = np.maximum(np.abs(space.low), np.abs(space.high)).astype(np.float32)
+    if not np.all(np.isfinite(scale)) or np.any(scale <= 0):
+        raise ValueError(f"observation bounds must be finite and non-degenerate, got {space}")
+    return scale
+
+
+class PlatoonVecEnv(VecEnv):
+    """Parameter-sharing SB3 ``VecEnv`` adapter for one or more platoon ``ParallelEnv``\\ s.
+
+    * ``step_async``/``step_wait`` gather each env's per-follower actions from the slots and
+      step every env once. When an env's episode ends (all its followers terminate or truncate
+      together), each of its slots gets ``infos[k]["terminal_observation"]`` (the final,
+      normalised observation) and ``infos[k]["TimeLimit.truncated"] = truncated and not
+      terminated``; the env is reset at once and the slots return the reset observation.
+      ``dones[k] = terminated or truncated``.
+    * :meth:`seed`: env ``j`` is reset with ``seed + j`` on the first :meth:`reset` after it;
+      later auto-resets continue each env's own RNG (so a seeded run is reproducible).
+    * ``get_attr``/``set_attr``/``env_method`` take *slot* indices and act on the envs owning
+      those slots, each env once; results are returned per slot.
+
+    Args:
+        env_fns: callables building the envs (or the envs themselves). All must share the same
+            observation space (the normalisation is one fixed vector).
+        normalize_observations: divide observations by :func:`observation_scale`.
+        action_range: the physical range of the normalised action (the adapter's action space
+            is then ``Box(-1, 1, (2,))``); ``None`` passes physical actions through, with the
+            env's own action space.
+    """
+
+    observation_space: spaces.Box
+    action_space: spaces.Box
+
+    def __init__(
+        self,
+        env_fns: Iterable[Callable[[], PlatoonParallelEnv] | PlatoonParallelEnv],
+        *,
+        normalize_observations: bool = True,
+        action_range: ActionRange | None = None,
+    ) -> None:
+        self.envs: list[PlatoonParallelEnv] = [
+            fn if isinstance(fn, PlatoonParallelEnv) else fn() for fn in env_fns
+        ]
+        if not self.envs:
+            raise ValueError("PlatoonVecEnv needs at least one env")
+        first = self.envs[0]
+        obs_space = first.observation_space(first.possible_agents[0])
+        for j, env in enumerate(self.envs):
+            for agent in env.possible_agents:
+                other = env.observation_space(agent)
+                if not (
+                    np.array_equal(other.low, obs_space.low)
+                    and np.array_equal(other.high, obs_space.high)
+                ):
+                    raise ValueError(
+                        f"env {j} ({agent}) has observation space {other}, expected {obs_space}; "
+                        "parameter sharing needs one observation space"
+                    )
+        self.action_range = action_range
+        self.obs_scale: NDArray[np.float32] | None = (
+            observation_scale(obs_space) if normalize_observations else None
+        )
+        self._offsets = np.cumsum([0] + [len(e.possible_agents) for e in self.envs]).tolist()
+        num_slots = int(self._offsets[-1])
+        if self.obs_scale is not None:
+            observation_space = spaces.Box(
+                low=obs_space.low / self.obs_scale,
+                high=obs_space.high / self.obs_scale,
+                dtype=np.float32,
+            )
+        else:
+            observation_space = spaces.Box(obs_space.low, obs_space.high, dtype=np.float32)
+        if action_range is not None:
+            for j, env in enumerate(self.envs):
+                phys = env.action_space(env.possible_agents[0])
+                lo = np.array([action_range.u_low, -action_range.omega_high])
+                hi = np.array([action_range.u_high, action_range.omega_high])
+                if np.any(lo < phys.low - 1e-6) or np.any(hi > phys.high + 1e-6):
+                    raise ValueError(
+                        f"{action_range} exceeds env {j}'s actuator limits {phys}; "
+                        "raise u_max/omega_max or narrow the range"
+                    )
+            action_space: spaces.Box = spaces.Box(-1.0, 1.0, (ACT_SIZE,), dtype=np.float32)
+        else:
+            action_space = first.action_space(first.possible_agents[0])
+        self._env_seeds: list[int | None] = [None] * len(self.envs)
+        self._env_options: list[dict[str, Any]] = [{} for _ in self.envs]
+        self._obs = np.zeros((num_slots, *observation_space.shape), dtype=np.float32)
+        self._actions: NDArray[np.float32] | None = None
+        super().__init__(num_slots, observation_space, action_space)
+
+    # ----------------------------------------------------------------------------------------
+    # Slots
+    # ----------------------------------------------------------------------------------------
+    @property
+    def n_envs(self) -> int:
+        """Number of wrapped ``ParallelEnv``\\ s (``num_envs`` counts follower slots)."""
+        return len(self.envs)
+
+    def env_slots(self, j: int) -> range:
+        """The slot indices of env ``j``'s followers."""
+        return range(self._offsets[j], self._offsets[j + 1])
+
+    def slot_env(self, k: int) -> int:
+        """The index of the env owning slot ``k``."""
+        if not 0 <= k < self.num_envs:
+            raise IndexError(f"slot {k} out of range [0, {self.num_envs})")
+        return int(np.searchsorted(self._offsets, k, side="right")) - 1
+
+    def _normalise(self, obs: Mapping[str, NDArray[Any]], env: PlatoonParallelEnv) -> np.ndarray:
+        stacked = np.stack([obs[a] for a in env.possible_agents]).astype(np.float32)
+        return stacked / self.obs_scale if self.obs_scale is not None else stacked
+
+    # ----------------------------------------------------------------------------------------
+    # VecEnv API
+    # ----------------------------------------------------------------------------------------
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Seed env ``j`` with ``seed + j`` at the next :meth:`reset`; returns those seeds."""
+        if seed is None:
+            seed = int(np.random.default_rng().integers(np.iinfo(np.uint32).max))
+        self._env_seeds = [seed + j for j in range(self.n_envs)]
+        return list(self._env_seeds)
+
+    def set_options(self, options: list[dict[str, Any]] | dict[str, Any] | None = None) -> None:
+        """Options for each env's next :meth:`reset` (one dict for all, or one per env)."""
+        if options is None:
+            options = {}
+        if isinstance(options, dict):
+            self._env_options = [dict(options) for _ in self.envs]
+        else:
+            if len(options) != self.n_envs:
+                raise ValueError(f"need one options dict per env ({self.n_envs})")
+            self._env_options = [dict(o) for o in options]
+
+    def reset(self) -> np.ndarray:
+        """Reset every env (with the pending seeds/options) and return the stacked observations."""
+        for j, env in enumerate(self.envs):
+            obs, infos = env.reset(seed=self._env_seeds[j], options=self._env_options[j] or None)
+            slots = self.env_slots(j)
+            self._obs[slots.start : slots.stop] = self._normalise(obs, env)
+            for k, agent in zip(slots, env.possible_agents, strict=True):
+                self.reset_infos[k] = infos.get(agent, {})
+        self._env_seeds = [None] * self.n_envs
+        self._env_options = [{} for _ in self.envs]
+        return self._obs.copy()
+
+    def step_async(self, actions: np.ndarray) -> None:
+        """Store the slots' actions ``(num_envs, 2)`` for :meth:`step_wait`."""
+        actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, ACT_SIZE)
+        self._actions = (
+            self.action_range.to_physical(actions) if self.action_range is not None else actions
+        )
+
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        """Step every env once; auto-reset the envs whose episode ended."""
+        if self._actions is None:
+            raise RuntimeError("step_wait() called without step_async()")
+        actions, self._actions = self._actions, None
+        rewards = np.zeros(self.num_envs, dtype=np.float32)
+        dones = np.zeros(self.num_envs, dtype=bool)
+        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        for j, env in enumerate(self.envs):
+            slots = self.env_slots(j)
+            agents = env.possible_agents
+            env_actions = {a: actions[k] for k, a in zip(slots, agents, strict=True)}
+            obs, rew, term, trunc, env_infos = env.step(env_actions)
+            stacked = self._normalise(obs, env)
+            terminated = any(term.values())
+            truncated = any(trunc.values())
+            done = terminated or truncated
+            for i, (k, agent) in enumerate(zip(slots, agents, strict=True)):
+                rewards[k] = rew[agent]
+                info = dict(env_infos.get(agent, {}))
+                if done:
+                    info["terminal_observation"] = stacked[i].copy()
+                    info["TimeLimit.truncated"] = truncated and not terminated
+                infos[k] = info
+            dones[slots.start : slots.stop] = done
+            if done:
+                obs, reset_infos = env.reset(
+                    seed=self._env_seeds[j], options=self._env_options[j] or None
+                )
+                self._env_seeds[j] = None
+                self._env_options[j] = {}
+                stacked = self._normalise(obs, env)
+                for k, agent in zip(slots, agents, strict=True):
+                    self.reset_infos[k] = reset_infos.get(agent, {})
+            self._obs[slots.start : slots.stop] = stacked
+        return self._obs.copy(), rewards, dones, infos
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        """:meth:`step_async` then :meth:`step_wait` (narrower return type than ``VecEnv``)."""
+        self.step_async(actions)
+        return self.step_wait()
+
+    def close(self) -> None:
+        """Close every env."""
+        for env in self.envs:
+            env.close()
+
+    def _env_indices(self, indices: VecEnvIndices) -> list[int]:
+        """Distinct env indices owning the given slots, in first-seen order."""
+        return list(dict.fromkeys(self.slot_env(k) for k in self._get_indices(indices)))
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """``getattr(env, attr_name)`` of the env owning each slot (one entry per slot)."""
+        return [getattr(self.envs[self.slot_env(k)], attr_name) for k in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        """Set ``attr_name`` on every env owning one of the slots (each env once)."""
+        for j in self._env_indices(indices):
+            setattr(self.envs[j], attr_name, value)
+
+    def env_method(
+        self,
+        method_name: str,
+        *method_args: Any,
+        indices: VecEnvIndices = None,
+        **method_kwargs: Any,
+    ) -> list[Any]:
+        """Call ``method_name`` once on each env owning one of the slots; results per slot."""
+        results = {
+            j: getattr(self.envs[j], method_name)(*method_args, **method_kwargs)
+            for j in self._env_indices(indices)
+        }
+        return [results[self.slot_env(k)] for k in self._get_indices(indices)]
+
+    def env_is_wrapped(
+        self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None
+    ) -> list[bool]:
+        """Always False: the envs are PettingZoo envs, never Gymnasium wrappers."""
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        """One ``rgb_array`` frame per slot (the owning env's frame), if render_mode allows."""
+        if self.render_mode != "rgb_array":
+            return [None for _ in range(self.num_envs)]
+        frames = [env.render() for env in self.envs]
+        return [frames[self.slot_env(k)] for k in range(self.num_envs)]
