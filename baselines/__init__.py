@@ -1,6 +1,7 @@
 """Baseline policies for platoon_env, all behind the shared :class:`Policy` interface."""
 
+from baselines.last_seen import LastSeenParams, LastSeenPolicy
 from baselines.policy import Policy
 from baselines.ppc import PPCParams, PPCPolicy
 
-__all__ = ["PPCParams", "PPCPolicy", "Policy"]
+__all__ = ["LastSeenParams", "LastSeenPolicy", "PPCParams", "PPCPolicy", "Policy"]

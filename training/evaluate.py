@@ -10,6 +10,7 @@ With no arguments it runs the default benchmark: PPC against every shipped model
 (``models/*/model.zip``) on the paper's three studies and the held-out procedural test set.
 
 Policies (``--policy``, repeatable): ``ppc`` (the paper's law, :class:`baselines.PPCPolicy`),
+``last_seen`` (ref. [32]'s last-seen baseline, :class:`baselines.LastSeenPolicy`),
 ``NAME=PATH`` (a model saved by ``platoon-train``; PATH is ``DIR`` or ``DIR/model.zip``).
 Each policy runs at its own control period: PPC at the env's default, a learned model at the
 period it was trained with (recorded in its ``model.json``); metrics are in seconds and metres,
@@ -58,6 +59,8 @@ class PolicySpec:
         """``ppc`` or ``NAME=PATH`` (or a bare PATH, named after its folder)."""
         if text == "ppc":
             return cls("ppc", "ppc")
+        if text == "last_seen":
+            return cls("last_seen", "last_seen")
         name, sep, path = text.partition("=")
         if not sep:
             path, name = (
@@ -78,6 +81,11 @@ def build(spec: PolicySpec, scenario: str) -> tuple[platoon_env.PlatoonParallelE
 
         env = platoon_env.make(scenario)
         return env, PPCPolicy(env)
+    if spec.kind == "last_seen":
+        from baselines.last_seen import LastSeenPolicy
+
+        env = platoon_env.make(scenario)
+        return env, LastSeenPolicy(env)
     from training.policies import LearnedPolicy
 
     assert spec.path is not None
