@@ -290,15 +290,19 @@ def test_train_cli_ctrl_c_saves(tmp_path: Path) -> None:
         _train_cmd(out, "--timesteps", "10000000", "--checkpoint-every", "4096",
                    "--no-progress-bar"),
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        # pytest-xdist workers ignore SIGINT and children inherit that: restore the default so
+        # that Python installs its KeyboardInterrupt handler in the trainer.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
-        deadline = time.monotonic() + 90
+        # Generous: a fresh clone compiles the numba kernels on first use.
+        deadline = time.monotonic() + 300
         while not (out / "checkpoint.json").is_file():
             assert proc.poll() is None, proc.communicate()[1][-2000:]
             assert time.monotonic() < deadline, "no checkpoint written"
             time.sleep(0.2)
         os.kill(proc.pid, signal.SIGINT)
-        _, stderr = proc.communicate(timeout=60)
+        _, stderr = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
