@@ -312,3 +312,19 @@ def test_train_cli_ctrl_c_saves(tmp_path: Path) -> None:
     assert meta["interrupted"] is True and 0 < meta["timesteps"] < 10_000_000
     assert (out / "checkpoint.zip").is_file()
     LearnedPolicy.load(out / "checkpoint.zip")
+
+
+def test_train_resume_continues_to_the_total(tmp_path: Path) -> None:
+    """--resume picks up the checkpoint and trains up to --timesteps in total."""
+    from training.train import main as train_main
+
+    out = tmp_path / "run"
+    common = ["--algo", "ppo", "--scenario", "study_c", "--n-envs", "1", "--n-steps", "128",
+              "--batch-size", "64", "--checkpoint-every", "256", "--seed", "0", "--out", str(out),
+              "--no-progress-bar"]
+    assert train_main([*common, "--timesteps", "512"]) == 0
+    first = json.loads((out / "model.json").read_text())["timesteps"]
+    assert train_main([*common, "--timesteps", "1024", "--resume"]) == 0
+    meta = json.loads((out / "model.json").read_text())
+    assert first >= 512 and meta["timesteps"] >= 1024
+    LearnedPolicy.load(out)

@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime as dt
+import json
 import platform
 import subprocess
 import sys
@@ -57,7 +58,7 @@ from stable_baselines3.common.vec_env import VecMonitor
 import platoon_env
 from platoon_env.env import PlatoonParallelEnv
 from platoon_env.scenarios.schema import VIOLATION_CAUSES
-from training.policies import adapter_metadata, save_model
+from training.policies import ALGORITHMS, adapter_metadata, save_model
 from training.vec_env import ActionRange, PlatoonVecEnv
 
 __all__ = ["TrainConfig", "build_model", "build_vec_env", "main", "parse_args", "train"]
@@ -118,6 +119,12 @@ class TrainConfig:
     )
     # --- bookkeeping ---
     checkpoint_every: int = _opt(100_000, "timesteps between checkpoints (0: none)")
+    resume: bool = _opt(
+        False,
+        "continue an interrupted run in --out: from model.zip if it was saved on Ctrl-C, else "
+        "from checkpoint.zip, up to --timesteps in total (SAC restarts with an empty replay "
+        "buffer; a resumed run is not bit-identical to an uninterrupted one)",
+    )
     progress_bar: bool = _opt(True, "show a progress bar (tqdm + rich)")
     torch_threads: int = _opt(1, "torch intra-op threads (1 is fastest for these small MLPs)")
     device: str = _opt("cpu", "torch device")
@@ -367,6 +374,15 @@ def _sb3_progress_bar_available() -> bool:
 # ------------------------------------------------------------------------------------------------
 # Training
 # ------------------------------------------------------------------------------------------------
+def resume_point(out: Path) -> Path | None:
+    """Where to resume a run in ``out``: an interrupted ``model.zip``, else ``checkpoint.zip``."""
+    model_json = out / "model.json"
+    if model_json.is_file() and json.loads(model_json.read_text()).get("interrupted"):
+        return out / "model.zip"
+    checkpoint = out / "checkpoint.zip"
+    return checkpoint if checkpoint.is_file() else None
+
+
 def train(cfg: TrainConfig) -> tuple[Path, bool]:
     """Train as ``cfg`` says; returns ``(path of model.zip, interrupted)``."""
     out = cfg.out_dir
@@ -374,7 +390,14 @@ def train(cfg: TrainConfig) -> tuple[Path, bool]:
     torch.set_num_threads(cfg.torch_threads)
     set_random_seed(cfg.seed)
     venv = build_vec_env(cfg)
-    model = build_model(cfg, VecMonitor(venv), tensorboard_log=str(out / "tb"))
+    start_from = resume_point(out) if cfg.resume else None
+    if start_from is not None:
+        model = ALGORITHMS[cfg.algo].load(
+            start_from, env=VecMonitor(venv), device=cfg.device, tensorboard_log=str(out / "tb")
+        )
+        print(f"resuming from {start_from} at {model.num_timesteps} timesteps", file=sys.stderr)
+    else:
+        model = build_model(cfg, VecMonitor(venv), tensorboard_log=str(out / "tb"))
     commit = git_commit()
     started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     t0 = time.perf_counter()
@@ -402,7 +425,8 @@ def train(cfg: TrainConfig) -> tuple[Path, bool]:
     interrupted = False
     try:
         model.learn(
-            total_timesteps=cfg.timesteps,
+            total_timesteps=max(0, cfg.timesteps - model.num_timesteps),
+            reset_num_timesteps=start_from is None,
             callback=CallbackList(callback_list),
             tb_log_name=cfg.run_name,
             progress_bar=sb3_bar,
