@@ -469,14 +469,11 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     def _infos(
         self, masks: list[int], terms: list[list[float]] | None
     ) -> dict[str, dict[str, Any]]:
-        rows = self._sensed.tolist()
+        """``info[agent]`` of every live agent (built as literals: this runs every step)."""
         d_des = self.scenario.config.formation.d_des
-        infos: dict[str, dict[str, Any]] = {}
-        no_terms: list[list[float]] = [[] for _ in self.agents]
-        for i, agent in enumerate(self.agents):
-            row = rows[i]
-            causes = mask_to_causes(masks[i])
-            infos[agent] = {
+        term_rows = terms if terms is not None else [[] for _ in self.agents]
+        return {
+            agent: {
                 "violation": causes[0] if causes else None,
                 "violations": causes,
                 "cost": 1 if causes else 0,
@@ -490,9 +487,16 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 "d_r": row[SENSE_D_SIGHT_RIGHT],
                 "clearance": row[SENSE_CLEARANCE],
                 "visible": row[SENSE_VISIBLE] > 0.0,
-                "reward_terms": dict(zip(REWARD_TERMS, (terms or no_terms)[i], strict=False)),
+                "reward_terms": dict(zip(REWARD_TERMS, term_row, strict=False)),
             }
-        return infos
+            for agent, row, causes, term_row in zip(
+                self.agents,
+                self._sensed.tolist(),
+                map(mask_to_causes, masks),
+                term_rows,
+                strict=False,
+            )
+        }
 
     def _initial_poses(self, perturb: bool) -> np.ndarray:
         """Default initial configuration, optionally with a seeded feasible perturbation."""
