@@ -17,43 +17,23 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from platoon_env.geometry.sensing import (
-    SENSE_BETA,
-    SENSE_CLEARANCE,
-    SENSE_D,
-    SENSE_D_SIGHT_LEFT,
-    SENSE_D_SIGHT_RIGHT,
-    SENSE_D_WALL_LEFT,
-    SENSE_D_WALL_RIGHT,
-    SENSE_SIZE,
-    SENSE_VISIBLE,
-)
+from platoon_env.geometry.grid import EdgeGrid
+from platoon_env.geometry.sensing import SENSE_NAMES, SENSE_SIZE, SENSE_VISIBLE
+from platoon_env.initial import InitialSampler
 from platoon_env.observation import ACT_SIZE, OBS_SIZE, action_space, observation_space
-from platoon_env.reward import REWARD_TERMS, reward_terms_into, reward_weights
-from platoon_env.safety import causes_to_mask, first_cause, mask_to_causes
+from platoon_env.reward import REWARD_TERMS, reward_terms_dict
+from platoon_env.safety import CAUSES_OF_MASK, causes_to_mask, first_cause
 from platoon_env.scenarios.loader import ScenarioLike, load_config, load_scenario
 from platoon_env.scenarios.scenario import Scenario, build_scenario, initial_violations
-from platoon_env.scenarios.schema import ScenarioError
+from platoon_env.scenarios.schema import VIOLATION_CAUSES, ScenarioError
 from platoon_env.simulator import (
     L_ARRIVED,
     L_PROGRESS,
     L_SIZE,
-    P_BETA_CON,
-    P_D_COL,
-    P_D_CON,
-    P_LEADER_SPEED,
-    P_LEADER_TURN,
-    P_LOOKAHEAD,
-    P_PROXIMITY,
-    P_RADIUS,
-    P_SIZE,
     P_SUBSTEP,
-    clip_actions,
-    step_kernel,
+    kernel_params,
+    platoon_step,
 )
-
-#: Attempts at drawing a feasible perturbed initial configuration before using the default one.
-_PERTURB_ATTEMPTS = 50
 
 
 def _apply_overrides(scenario: ScenarioLike, overrides: Mapping[str, Any]) -> Scenario:
@@ -86,6 +66,26 @@ def _apply_overrides(scenario: ScenarioLike, overrides: Mapping[str, Any]) -> Sc
         cfg = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, **robot_changes))
     free_space = scenario.free_space if isinstance(scenario, Scenario) else None
     return build_scenario(cfg, free_space=free_space)
+
+
+# _infos unpacks a row of the sensing array in this column order (faster than indexing by name).
+_UNPACKED_SENSE_NAMES = (
+    "d",
+    "beta",
+    "visible",
+    "occluded",
+    "d_W_l",
+    "d_W_r",
+    "d_l",
+    "d_r",
+    "clearance",
+)
+if SENSE_NAMES != _UNPACKED_SENSE_NAMES:  # pragma: no cover - guards a refactoring mistake
+    raise ImportError(f"env._infos expects sensing columns {_UNPACKED_SENSE_NAMES}")
+
+
+#: The mask of every violation cause (the default ``terminate_on``).
+ALL_CAUSES_MASK = causes_to_mask(VIOLATION_CAUSES)
 
 
 class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
@@ -191,16 +191,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
             dtype=np.float32,
         )
         # Kernel inputs (float64, contiguous) and scratch buffers, allocated once.
-        self._params = np.zeros(P_SIZE)
-        self._params[P_RADIUS] = cfg.robot.radius
-        self._params[P_D_COL] = cfg.safety.d_col
-        self._params[P_D_CON] = cfg.camera.range
-        self._params[P_BETA_CON] = cfg.camera.half_angle
-        self._params[P_PROXIMITY] = cfg.proximity_range
-        self._params[P_LEADER_SPEED] = cfg.leader.speed
-        self._params[P_LOOKAHEAD] = cfg.leader.lookahead
-        self._params[P_LEADER_TURN] = cfg.leader.max_turn_rate
-        self._params[P_SUBSTEP] = self.control_period / self.physics_substeps
+        self._params = kernel_params(cfg)
         #: The procedural template (None for a fixed workspace) and the current layout number.
         self._template = cfg if cfg.generator is not None else None
         self.layout_index: int | None = 0 if cfg.generator is not None else None
@@ -209,13 +200,11 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self._poses = np.array(self.scenario.initial_poses, dtype=np.float64)
         self._leader = np.zeros(L_SIZE)
         self._actions = np.zeros((n, ACT_SIZE))
-        self._prev = np.zeros((n + 1, 3))
-        self._sub_mask = np.zeros(n, dtype=np.int64)
         self._violations = np.zeros(n, dtype=np.int64)
         self._sensed = np.zeros((n, SENSE_SIZE))
         self._obs = np.zeros((n, OBS_SIZE), dtype=np.float32)
         self._terms = np.zeros((n, len(REWARD_TERMS)))
-        self._weights = reward_weights(cfg)
+        self._rewards = np.zeros(n)
         self.sim_time = 0.0
         self.steps = 0
         self._arrival_time: float | None = None
@@ -293,7 +282,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 raise ScenarioError("initial poses are infeasible: " + "; ".join(problems))
         else:
             perturb = options.get("perturb", cfg.initial.perturb)
-            poses = self._initial_poses(bool(perturb))
+            poses = self._sampler.sample(self.np_random, bool(perturb))
         self._poses[:] = poses
         self._leader[L_PROGRESS] = self.scenario.initial_progress
         self._leader[L_ARRIVED] = 0.0
@@ -318,17 +307,25 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         dict[str, dict[str, Any]],
     ]:
         """Advance by one control period with every live agent's ``[u, omega]``."""
-        if not self.agents:
+        agents = self.agents
+        if not agents:
             raise RuntimeError("step() called on a finished episode; call reset() first")
         act = self._read_actions(actions)
-        self._actions[:] = act
-        done = self._step_kernel(self.physics_substeps)
+        done = self._step_kernel(self.physics_substeps, act)
+        if done < 0:  # nothing changed
+            raise ValueError(
+                f"action of {agents[-1 - done]!r} contains NaN or inf: {act[-1 - done].tolist()}"
+            )
+        self._actions = act
         self.sim_time += done * self._params[P_SUBSTEP]
         self.steps += 1
         if self._leader[L_ARRIVED] and self._arrival_time is None:
             self._arrival_time = self.sim_time
         masks = self._violations.tolist()
-        terminated = any(m & self._terminate_mask for m in masks)
+        if self._terminate_mask == ALL_CAUSES_MASK:  # the default: any violation ends it
+            terminated = any(masks)
+        else:
+            terminated = any(m & self._terminate_mask for m in masks)
         truncated = not terminated and (
             self.steps >= self.max_episode_steps
             or (
@@ -337,25 +334,12 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 >= self.scenario.config.leader.settle_time - 1e-9
             )
         )
-        cfg = self.scenario.config
-        reward_terms_into(
-            self._sensed,
-            cfg.formation.d_des,
-            self._actions,
-            self._violations,
-            self._weights,
-            cfg.camera.range - cfg.formation.d_des,
-            cfg.camera.half_angle,
-            self._terms,
-        )
-        terms = self._terms.tolist()
         obs = self._obs.copy()
-        agents = self.agents
         observations = {a: obs[i] for i, a in enumerate(agents)}
-        rewards = {a: sum(terms[i]) for i, a in enumerate(agents)}
-        terminations = {a: terminated for a in agents}
-        truncations = {a: truncated for a in agents}
-        infos = self._infos(masks, terms)
+        rewards = dict(zip(agents, self._rewards.tolist(), strict=True))
+        terminations = dict.fromkeys(agents, terminated)
+        truncations = dict.fromkeys(agents, truncated)
+        infos = self._infos(masks, self._terms.tolist())
         if terminated or truncated:
             self.agents = []
         if self.render_mode == "human":
@@ -400,41 +384,55 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     def _use_scenario(self, scenario: Scenario) -> None:
         """Point the kernel at ``scenario``'s path and edges (same N and parameters)."""
         self.scenario = scenario
-        self._path = np.ascontiguousarray(scenario.leader_path)
-        self._cum = np.ascontiguousarray(scenario.path_s)
+        # Own writable copies: numba types read-only array arguments more slowly on every call.
+        self._path = np.array(scenario.leader_path, dtype=np.float64)
+        self._cum = np.array(scenario.path_s, dtype=np.float64)
         self._edges = scenario.workspace.edges
         self._boxes = scenario.workspace.boxes
+        self._grid = EdgeGrid.build(self._edges, reach=scenario.config.proximity_range)
+        self._grid_arrays = self._grid.arrays
+        self._sampler = InitialSampler(scenario)
         self.max_episode_steps = scenario.max_episode_steps
         if self._renderer is not None:  # the map changed: redraw from scratch
             self.close()
 
-    def _step_kernel(self, n_substeps: int) -> int:
+    def _step_kernel(self, n_substeps: int, actions: np.ndarray | None = None) -> int:
         return int(
-            step_kernel(
+            platoon_step(
                 self._poses,
-                self._actions,
+                self._actions if actions is None else actions,
                 self._leader,
                 self._path,
                 self._cum,
-                self._edges,
-                self._boxes,
+                *self._grid_arrays,
                 self._params,
                 n_substeps,
                 self._terminate_mask,
-                self._prev,
-                self._sub_mask,
                 self._violations,
                 self._sensed,
                 self._obs,
+                self._terms,
+                self._rewards,
             )
         )
 
     def _read_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
-        """Validate and clip the actions; raises before any state changes.
+        """The live agents' actions as a float64 (N, 2) array; raises on a wrong set of agents
+        or shapes. The kernel clips them and rejects NaN or inf before any state changes."""
+        agents = self.agents
+        try:
+            # Fast path: a dict holding exactly the live agents' actions.
+            if len(actions) != len(agents):
+                raise KeyError
+            out = np.array([actions[a] for a in agents], dtype=np.float64)
+        except (KeyError, TypeError, ValueError):
+            out = self._read_actions_slow(actions)
+        if out.shape != self._actions.shape:
+            out = self._read_actions_slow(actions)
+        return out
 
-        Every live agent needs an action of shape (2,); NaN or inf raise ``ValueError`` naming
-        the agent; values outside the action space are clipped to it.
-        """
+    def _read_actions_slow(self, actions: Mapping[str, Any]) -> np.ndarray:
+        """The checks of :meth:`_read_actions`, with an error message for each misuse."""
         if not isinstance(actions, Mapping):
             raise TypeError(f"actions must be a dict agent -> [u, omega], got {type(actions)}")
         if len(actions) != len(self.agents) or any(a not in actions for a in self.agents):
@@ -459,11 +457,6 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                         f"got shape {shape}"
                     )
             raise ValueError("actions must be numeric arrays of shape (2,) [u, omega]")
-        bad = clip_actions(out, self._act_low, self._act_high)
-        if bad >= 0:
-            raise ValueError(
-                f"action of {self.agents[bad]!r} contains NaN or inf: {out[bad].tolist()}"
-            )
         return out
 
     def _infos(
@@ -471,44 +464,25 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     ) -> dict[str, dict[str, Any]]:
         """``info[agent]`` of every live agent (built as literals: this runs every step)."""
         d_des = self.scenario.config.formation.d_des
-        term_rows = terms if terms is not None else [[] for _ in self.agents]
-        return {
-            agent: {
+        infos: dict[str, dict[str, Any]] = {}
+        rows = self._sensed.tolist()
+        for i, agent in enumerate(self.agents):
+            d, beta, visible, _, wall_l, wall_r, sight_l, sight_r, clearance = rows[i]
+            causes = CAUSES_OF_MASK[masks[i]]
+            infos[agent] = {
                 "violation": causes[0] if causes else None,
                 "violations": causes,
                 "cost": 1 if causes else 0,
-                "d": row[SENSE_D],
-                "beta": row[SENSE_BETA],
-                "e_d": row[SENSE_D] - d_des,
-                "e_beta": row[SENSE_BETA],
-                "d_W_l": row[SENSE_D_WALL_LEFT],
-                "d_W_r": row[SENSE_D_WALL_RIGHT],
-                "d_l": row[SENSE_D_SIGHT_LEFT],
-                "d_r": row[SENSE_D_SIGHT_RIGHT],
-                "clearance": row[SENSE_CLEARANCE],
-                "visible": row[SENSE_VISIBLE] > 0.0,
-                "reward_terms": dict(zip(REWARD_TERMS, term_row, strict=False)),
+                "d": d,
+                "beta": beta,
+                "e_d": d - d_des,
+                "e_beta": beta,
+                "d_W_l": wall_l,
+                "d_W_r": wall_r,
+                "d_l": sight_l,
+                "d_r": sight_r,
+                "clearance": clearance,
+                "visible": visible > 0.0,
+                "reward_terms": reward_terms_dict(terms[i]) if terms is not None else {},
             }
-            for agent, row, causes, term_row in zip(
-                self.agents,
-                self._sensed.tolist(),
-                map(mask_to_causes, masks),
-                term_rows,
-                strict=False,
-            )
-        }
-
-    def _initial_poses(self, perturb: bool) -> np.ndarray:
-        """Default initial configuration, optionally with a seeded feasible perturbation."""
-        base = np.array(self.scenario.initial_poses)
-        cfg = self.scenario.config
-        if not perturb or (cfg.initial.position_noise == 0 and cfg.initial.heading_noise == 0):
-            return base
-        n = self.n_followers
-        for _ in range(_PERTURB_ATTEMPTS):
-            cand = base.copy()
-            cand[1:, :2] += self.np_random.uniform(-1, 1, size=(n, 2)) * cfg.initial.position_noise
-            cand[1:, 2] += self.np_random.uniform(-1, 1, size=n) * cfg.initial.heading_noise
-            if not initial_violations(cfg, self.scenario.workspace, cand):
-                return cand
-        return base
+        return infos

@@ -1,7 +1,9 @@
 """Compiled 2D primitives: point/segment distances and segment intersection.
 
 All functions are numba ``njit`` scalar kernels used inside the per-step loops; they take plain
-floats so that no array is allocated in the hot path. Tests check them against shapely.
+floats so that no array is allocated in the hot path. Tests check them against shapely. The
+``*_distance2`` variants return squared distances: the per-step kernels compare and minimise
+those and take one square root at the end.
 """
 
 from __future__ import annotations
@@ -33,6 +35,28 @@ def point_segment_distance(
     elif t > 1.0:
         t = 1.0
     return math.hypot(px - (ax + t * dx), py - (ay + t * dy))
+
+
+@njit(cache=True)
+def point_segment_distance2(
+    px: float, py: float, ax: float, ay: float, bx: float, by: float
+) -> float:
+    """Squared Euclidean distance from point ``p`` to the closed segment ``[a, b]``."""
+    dx = bx - ax
+    dy = by - ay
+    len2 = dx * dx + dy * dy
+    ex = px - ax
+    ey = py - ay
+    if len2 <= 0.0:
+        return ex * ex + ey * ey
+    t = (ex * dx + ey * dy) / len2
+    if t < 0.0:
+        t = 0.0
+    elif t > 1.0:
+        t = 1.0
+    ex -= t * dx
+    ey -= t * dy
+    return ex * ex + ey * ey
 
 
 @njit(cache=True)
@@ -91,6 +115,16 @@ def box_distance(
     gx = max(0.0, max(ax0, bx0) - min(ax1, bx1))
     gy = max(0.0, max(ay0, by0) - min(ay1, by1))
     return math.hypot(gx, gy)
+
+
+@njit(cache=True, inline="always")
+def box_distance2(
+    ax0: float, ay0: float, ax1: float, ay1: float, bx0: float, by0: float, bx1: float, by1: float
+) -> float:
+    """Squared :func:`box_distance` (no square root: used to skip edges cheaply)."""
+    gx = max(0.0, max(ax0, bx0) - min(ax1, bx1))
+    gy = max(0.0, max(ay0, by0) - min(ay1, by1))
+    return gx * gx + gy * gy
 
 
 @njit(cache=True, inline="always")
