@@ -34,7 +34,7 @@ import os
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,7 +42,7 @@ from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from platoon_env.observation import ACT_SIZE, OBS_SIZE
-from training.vec_env import ActionRange, PlatoonVecEnv
+from training.vec_env import ActionRange
 
 __all__ = [
     "ALGORITHMS",
@@ -64,7 +64,15 @@ def metadata_path(model_path: str | os.PathLike[str]) -> Path:
     return Path(model_path).with_suffix(".json")
 
 
-def adapter_metadata(venv: PlatoonVecEnv) -> dict[str, Any]:
+class VecAdapter(Protocol):
+    """What :func:`adapter_metadata` reads from a VecEnv adapter (``PlatoonVecEnv``,
+    ``BatchedPlatoonVecEnv``)."""
+
+    obs_scale: NDArray[np.float32] | None
+    action_range: ActionRange | None
+
+
+def adapter_metadata(venv: VecAdapter) -> dict[str, Any]:
     """The normalisation and rescaling of ``venv``, in the ``model.json`` schema."""
     return {
         "observation_normalization": None

@@ -58,6 +58,7 @@ from stable_baselines3.common.vec_env import VecMonitor
 import platoon_env
 from platoon_env.env import PlatoonParallelEnv
 from platoon_env.scenarios.schema import VIOLATION_CAUSES
+from training.batched_vec_env import BatchedPlatoonVecEnv
 from training.policies import ALGORITHMS, adapter_metadata, save_model
 from training.vec_env import ActionRange, PlatoonVecEnv
 
@@ -80,6 +81,12 @@ class TrainConfig:
     seed: int = _opt(0, "seed of python/numpy/torch, the policy and the envs (env j: seed + j)")
     out: str | None = _opt(None, "output directory (default: runs/<algo>_<scenario>_s<seed>)")
     n_envs: int = _opt(4, "copies of the scenario stepped in lockstep (slots = n_envs * N)")
+    batched: bool = _opt(
+        False,
+        "step the copies with the batched core in one compiled call (BatchedPlatoonVecEnv; "
+        "fixed-workspace scenarios only); same trajectories as the default adapter",
+    )
+    env_threads: int = _opt(1, "numba threads of the batched core (with --batched)")
     # --- env ---
     control_period: float = _opt(
         0.05, "[s] env control period for training (env default 0.01); saved in model.json"
@@ -200,19 +207,32 @@ def make_env(cfg: TrainConfig) -> PlatoonParallelEnv:
     return platoon_env.make(cfg.scenario, **overrides)
 
 
-def build_vec_env(cfg: TrainConfig) -> PlatoonVecEnv:
-    """``n_envs`` copies of the scenario behind one parameter-sharing :class:`PlatoonVecEnv`."""
+def build_vec_env(cfg: TrainConfig) -> PlatoonVecEnv | BatchedPlatoonVecEnv:
+    """``n_envs`` copies of the scenario behind one parameter-sharing :class:`PlatoonVecEnv`
+    (or, with ``cfg.batched``, a :class:`BatchedPlatoonVecEnv`)."""
     if cfg.n_envs < 1:
         raise ValueError(f"n_envs must be >= 1, got {cfg.n_envs}")
+    if cfg.batched:
+        overrides: dict[str, Any] = {"control_period": cfg.control_period}
+        if cfg.physics_substeps is not None:
+            overrides["physics_substeps"] = cfg.physics_substeps
+        if cfg.max_episode_steps is not None:
+            overrides["max_episode_steps"] = cfg.max_episode_steps
+        return BatchedPlatoonVecEnv(
+            cfg.scenario,
+            cfg.n_envs,
+            n_threads=cfg.env_threads,
+            normalize_observations=cfg.normalize_observations,
+            action_range=cfg.action_range,
+            **overrides,
+        )
     fns: list[Callable[[], PlatoonParallelEnv]] = [lambda: make_env(cfg)] * cfg.n_envs
     return PlatoonVecEnv(
         fns, normalize_observations=cfg.normalize_observations, action_range=cfg.action_range
     )
 
 
-def build_model(
-    cfg: TrainConfig, venv: Any, tensorboard_log: str | None = None
-) -> BaseAlgorithm:
+def build_model(cfg: TrainConfig, venv: Any, tensorboard_log: str | None = None) -> BaseAlgorithm:
     """The SB3 model for ``cfg.algo`` on ``venv``, seeded with ``cfg.seed``."""
     if cfg.algo == "ppo":
         arch = cfg.net_arch or [64, 64]
@@ -276,7 +296,10 @@ def git_commit() -> dict[str, Any]:
 
 
 def run_metadata(
-    cfg: TrainConfig, venv: PlatoonVecEnv, model: BaseAlgorithm, **extra: Any
+    cfg: TrainConfig,
+    venv: PlatoonVecEnv | BatchedPlatoonVecEnv,
+    model: BaseAlgorithm,
+    **extra: Any,
 ) -> dict[str, Any]:
     """The ``model.json`` content for ``model`` trained by ``cfg`` on ``venv``."""
     env = venv.envs[0]

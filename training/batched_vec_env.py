@@ -1,0 +1,266 @@
+"""An SB3 ``VecEnv`` on the batched core (:class:`platoon_env.batched.BatchedPlatoon`).
+
+The drop-in, faster counterpart of :class:`training.vec_env.PlatoonVecEnv`: the same slot
+layout (every follower of every env is one slot; slot ``k`` is follower ``k - N j + 1`` of env
+``j``), the same fixed observation normalisation and action rescaling (:class:`ActionRange`,
+:func:`observation_scale`), the same ``terminal_observation`` / ``TimeLimit.truncated`` and
+seeding semantics, and bit-for-bit the same observations, rewards and dones for the same seeds
+and actions (``tests/test_batched.py``). All envs step in one compiled call, with no Python loop
+over envs; only envs whose episode ended are reset from Python.
+
+Differences from :class:`PlatoonVecEnv`:
+
+* per-slot ``infos`` carry ``violation`` (first cause or None), ``violations`` (all causes) and
+  ``cost`` (0/1) only, not the env's ground-truth diagnostics (``d``, ``beta``, ...); read
+  those from :attr:`BatchedPlatoonVecEnv.core` (e.g. ``core.sensed``) if needed;
+* ``reset_infos`` are empty dicts;
+* only fixed-workspace scenarios (the batched core rejects procedural ones);
+* ``get_attr`` / ``set_attr`` / ``env_method`` act on the one batched core (results repeated per
+  slot); no rendering.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
+
+from platoon_env.batched import BatchedPlatoon
+from platoon_env.observation import ACT_SIZE
+from platoon_env.safety import mask_to_causes
+from platoon_env.scenarios.loader import ScenarioLike
+from platoon_env.scenarios.schema import VIOLATION_CAUSES
+from training.vec_env import ActionRange, observation_scale
+
+__all__ = ["BatchedPlatoonVecEnv"]
+
+#: ``(violation, violations, cost)`` of every possible violation mask.
+_INFO_OF_MASK: tuple[tuple[str | None, tuple[str, ...], int], ...] = tuple(
+    (
+        mask_to_causes(m)[0] if mask_to_causes(m) else None,
+        mask_to_causes(m),
+        1 if m else 0,
+    )
+    for m in range(1 << len(VIOLATION_CAUSES))
+)
+
+
+class BatchedPlatoonVecEnv(VecEnv):
+    """Parameter-sharing SB3 ``VecEnv`` over ``n_envs`` batched copies of one scenario.
+
+    Args:
+        scenario: a shipped name, YAML path, dict or :class:`~platoon_env.Scenario`.
+        n_envs: number of envs (``num_envs = n_envs * N`` slots).
+        n_threads: numba threads stepping the envs (see :class:`BatchedPlatoon`).
+        normalize_observations: divide observations by :func:`observation_scale`.
+        action_range: the physical range of the normalised action (the action space is then
+            ``Box(-1, 1, (2,))``); ``None`` passes physical actions through.
+        **env_kwargs: overrides as :func:`platoon_env.make` (``control_period``,
+            ``max_episode_steps``, ``terminate_on``, ...).
+    """
+
+    observation_space: spaces.Box
+    action_space: spaces.Box
+
+    def __init__(
+        self,
+        scenario: ScenarioLike = "study_c",
+        n_envs: int = 1,
+        *,
+        n_threads: int = 1,
+        normalize_observations: bool = True,
+        action_range: ActionRange | None = None,
+        **env_kwargs: Any,
+    ) -> None:
+        self.core = BatchedPlatoon(
+            scenario, n_envs, n_threads=n_threads, auto_reset=False, **env_kwargs
+        )
+        self.n_followers = self.core.n_followers
+        obs_space = self.core.single_observation_space
+        self.action_range = action_range
+        self.obs_scale: NDArray[np.float32] | None = (
+            observation_scale(obs_space) if normalize_observations else None
+        )
+        if self.obs_scale is not None:
+            observation_space = spaces.Box(
+                low=obs_space.low / self.obs_scale,
+                high=obs_space.high / self.obs_scale,
+                dtype=np.float32,
+            )
+        else:
+            observation_space = spaces.Box(obs_space.low, obs_space.high, dtype=np.float32)
+        if action_range is not None:
+            phys = self.core.single_action_space
+            lo = np.array([action_range.u_low, -action_range.omega_high])
+            hi = np.array([action_range.u_high, action_range.omega_high])
+            if np.any(lo < phys.low - 1e-6) or np.any(hi > phys.high + 1e-6):
+                raise ValueError(
+                    f"{action_range} exceeds the env's actuator limits {phys}; "
+                    "raise u_max/omega_max or narrow the range"
+                )
+            action_space: spaces.Box = spaces.Box(-1.0, 1.0, (ACT_SIZE,), dtype=np.float32)
+        else:
+            action_space = self.core.single_action_space
+        self._env_seeds: list[int | None] = [None] * self.n_envs
+        self._env_perturb: list[bool | None] = [None] * self.n_envs
+        self._actions: NDArray[np.float32] | None = None
+        super().__init__(self.n_envs * self.n_followers, observation_space, action_space)
+
+    # ----------------------------------------------------------------------------------------
+    # Slots
+    # ----------------------------------------------------------------------------------------
+    @property
+    def envs(self) -> list[BatchedPlatoon]:
+        """``[core]``: for code written against ``PlatoonVecEnv.envs[0]``, which reads the
+        episode settings (``control_period``, ``physics_substeps``, ``max_episode_steps``,
+        ``terminate_on``, ``n_followers``); the batched core has the same attributes."""
+        return [self.core]
+
+    @property
+    def n_envs(self) -> int:
+        """Number of batched envs (``num_envs`` counts follower slots)."""
+        return self.core.batch_size
+
+    def env_slots(self, j: int) -> range:
+        """The slot indices of env ``j``'s followers."""
+        return range(j * self.n_followers, (j + 1) * self.n_followers)
+
+    def slot_env(self, k: int) -> int:
+        """The index of the env owning slot ``k``."""
+        if not 0 <= k < self.num_envs:
+            raise IndexError(f"slot {k} out of range [0, {self.num_envs})")
+        return k // self.n_followers
+
+    def _normalise(self, obs: np.ndarray) -> np.ndarray:
+        flat = obs.reshape(-1, obs.shape[-1])
+        return flat / self.obs_scale if self.obs_scale is not None else flat
+
+    # ----------------------------------------------------------------------------------------
+    # VecEnv API
+    # ----------------------------------------------------------------------------------------
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Seed env ``j`` with ``seed + j`` at the next :meth:`reset`; returns those seeds."""
+        if seed is None:
+            seed = int(np.random.default_rng().integers(np.iinfo(np.uint32).max))
+        self._env_seeds = [seed + j for j in range(self.n_envs)]
+        return list(self._env_seeds)
+
+    def set_options(self, options: list[dict[str, Any]] | dict[str, Any] | None = None) -> None:
+        """Options for each env's next reset (one dict for all, or one per env).
+
+        Only ``{"perturb": bool}`` is supported by the batched core.
+        """
+        if options is None:
+            options = {}
+        per_env = [options] * self.n_envs if isinstance(options, dict) else list(options)
+        if len(per_env) != self.n_envs:
+            raise ValueError(f"need one options dict per env ({self.n_envs})")
+        for o in per_env:
+            unknown = set(o) - {"perturb"}
+            if unknown:
+                raise ValueError(
+                    f"BatchedPlatoonVecEnv supports only the 'perturb' reset option, got "
+                    f"{', '.join(sorted(map(str, unknown)))}"
+                )
+        self._env_perturb = [o.get("perturb") for o in per_env]
+
+    def reset(self) -> np.ndarray:
+        """Reset every env (with the pending seeds/options) and return the observations."""
+        obs = self._reset_envs(np.arange(self.n_envs))
+        self.reset_infos = [{} for _ in range(self.num_envs)]
+        return self._normalise(obs).astype(np.float32, copy=False)
+
+    def _reset_envs(self, idx: np.ndarray) -> np.ndarray:
+        """Reset envs ``idx`` with their pending seeds/options; returns every env's observation."""
+        obs = np.empty(0)
+        # Envs with the same perturb option are reset together; seeds stay per env.
+        for perturb in dict.fromkeys(self._env_perturb[j] for j in idx.tolist()):
+            group = [j for j in idx.tolist() if self._env_perturb[j] == perturb]
+            obs = self.core.reset([self._env_seeds[j] for j in group], envs=group, perturb=perturb)
+        for j in idx.tolist():
+            self._env_seeds[j] = None
+            self._env_perturb[j] = None
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        """Store the slots' actions ``(num_envs, 2)`` for :meth:`step_wait`."""
+        actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, ACT_SIZE)
+        self._actions = (
+            self.action_range.to_physical(actions) if self.action_range is not None else actions
+        )
+
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        """Step every env once (one compiled call); reset the envs whose episode ended."""
+        if self._actions is None:
+            raise RuntimeError("step_wait() called without step_async()")
+        actions, self._actions = self._actions, None
+        n = self.n_followers
+        obs, rew, terminated, truncated, info = self.core.step(
+            actions.reshape(self.n_envs, n, ACT_SIZE)
+        )
+        final = self._normalise(obs)
+        rewards = rew.reshape(-1).astype(np.float32)
+        ended = terminated | truncated
+        dones = np.repeat(ended, n)
+        table = _INFO_OF_MASK
+        infos: list[dict[str, Any]] = []
+        for m in info["violations"].reshape(-1).tolist():
+            first, causes, cost = table[m]
+            infos.append({"violation": first, "violations": causes, "cost": cost})
+        if ended.any():
+            idx = np.flatnonzero(ended)
+            for j in idx.tolist():
+                time_limit = bool(truncated[j] and not terminated[j])
+                for k in range(j * n, (j + 1) * n):
+                    infos[k]["terminal_observation"] = final[k].copy()
+                    infos[k]["TimeLimit.truncated"] = time_limit
+            out = self._normalise(self._reset_envs(idx)).astype(np.float32, copy=False)
+        else:
+            out = final.astype(np.float32, copy=False)
+        return out, rewards, dones, infos
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        """:meth:`step_async` then :meth:`step_wait` (narrower return type than ``VecEnv``)."""
+        self.step_async(actions)
+        return self.step_wait()
+
+    def close(self) -> None:
+        """Nothing to release (no renderer, no subprocess)."""
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """``getattr(core, attr_name)`` once per slot (all slots share the batched core)."""
+        value = getattr(self.core, attr_name)
+        return [value for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        """Set ``attr_name`` on the batched core (shared by every slot)."""
+        setattr(self.core, attr_name, value)
+
+    def env_method(
+        self,
+        method_name: str,
+        *method_args: Any,
+        indices: VecEnvIndices = None,
+        **method_kwargs: Any,
+    ) -> list[Any]:
+        """Call ``method_name`` once on the batched core; the result repeated per slot."""
+        result = getattr(self.core, method_name)(*method_args, **method_kwargs)
+        return [result for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(
+        self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None
+    ) -> list[bool]:
+        """Always False: there are no Gymnasium envs to wrap."""
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        """No rendering in the batched core."""
+        return [None for _ in range(self.num_envs)]
