@@ -1,50 +1,46 @@
 """Env-steps per second of one ParallelEnv (PettingZoo dict API), per shipped scenario.
 
-Usage: ``python benchmarks/bench_env.py [--scenario study_a] [--steps 20000]``.
-Actions are a fixed forward command; no violation ends the episode (``terminate_on=()``) so
-every step does the full work, and the episode is reset when the leader's run is over.
+Usage: ``python benchmarks/bench_env.py [--scenario study_a] [--seconds 3]``.
+
+A quick check of the single env; ``benchmarks/run.py`` prints the full table (batched API,
+maps of growing size, MPE and VMAS). The followers replay the PPC policy's actions recorded on
+the same scenario and seed, with ``terminate_on=()`` so that every step does the full work;
+the episode is reset when the recorded actions run out. Procedural scenarios (no PPC block of
+their own layout) use a constant forward command.
 """
 
 from __future__ import annotations
 
 import argparse
-import platform
-import time
+import sys
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from run import machine, record_ppc_actions, time_parallel_env
 
 import platoon_env
 
 
-def measure(scenario: str, steps: int, followers: int | None) -> tuple[float, int, int]:
-    """Return (env-steps/s, followers, boundary edges) for ``steps`` steps of ``scenario``."""
-    kwargs = {} if followers is None else {"followers": followers}
-    env = platoon_env.make(scenario, terminate_on=(), **kwargs)
-    env.reset(seed=0)
-    actions = {a: np.array([0.2, 0.0], dtype=np.float32) for a in env.possible_agents}
-    env.step(actions)  # compile / warm up
-    start = time.perf_counter()
-    for _ in range(steps):
-        env.step(actions)
-        if not env.agents:
-            env.reset()
-    elapsed = time.perf_counter() - start
-    return steps / elapsed, env.n_followers, int(env.scenario.workspace.edges.shape[0])
-
-
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenario", action="append", help="scenario(s); default: all shipped")
-    parser.add_argument("--steps", type=int, default=20_000, help="timed steps per scenario")
-    parser.add_argument("--followers", type=int, default=None, help="override N")
+    parser.add_argument("--seconds", type=float, default=3.0, help="timed seconds per scenario")
+    parser.add_argument("--steps", type=int, default=2000, help="recorded PPC steps to replay")
     args = parser.parse_args()
-    print(
-        f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}"
-    )
-    print(f"{'scenario':<12} {'N':>3} {'edges':>6} {'env-steps/s':>12} {'agent-steps/s':>14}")
+    print("machine: " + ", ".join(f"{k}={v}" for k, v in machine().items()))
+    print(f"{'scenario':<18} {'N':>3} {'edges':>6} {'env-steps/s':>12} {'agent-steps/s':>14}")
     for scenario in args.scenario or platoon_env.list_scenarios():
-        rate, n, edges = measure(scenario, args.steps, args.followers)
-        print(f"{scenario:<12} {n:>3} {edges:>6} {rate:>12,.0f} {rate * n:>14,.0f}")
+        env = platoon_env.make(scenario)
+        n, edges = env.n_followers, int(env.scenario.workspace.edges.shape[0])
+        if env.scenario.config.ppc is not None and env.scenario.config.generator is None:
+            actions = record_ppc_actions(scenario, args.steps)
+        else:
+            actions = np.tile(np.array([0.2, 0.0], dtype=np.float32), (args.steps, n, 1))
+        rate = time_parallel_env(scenario, actions, args.seconds)
+        print(f"{scenario:<18} {n:>3} {edges:>6} {rate:>12,.0f} {rate * n:>14,.0f}")
 
 
 if __name__ == "__main__":
