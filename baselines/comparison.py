@@ -9,7 +9,7 @@ same initial configuration (the same ``reset`` seed) behind the same scripted le
 ``terminate_on`` limited to collisions, so that a lost predecessor does not end the episode but
 is counted: per follower-step without visibility and per visible -> not-visible transition.
 
-Figures, from the seed-0 episodes, for each study (``OUT/<study>_*.png``):
+Figures, from the seed-0 episodes, for each study (``OUT/<study>_vs_last_seen_*.png``):
 
 * ``_trajectories`` — the platoon's traces under each policy (Fig. 8, 12);
 * ``_distances`` — ``d``, ``beta`` and the obstacle distance ``d_W = min(d_W_l, d_W_r)`` of every
@@ -277,7 +277,7 @@ def figures(study: str, episodes: dict[str, Episode], out: Path) -> list[Path]:
             fig.add_subplot(1, len(names), k + 1), sc, ep, n_snapshots=6,
             title=f"{study}, seed {ep.seed}: {name}",
         )  # fmt: skip
-    paths = [save_figure(fig, out / f"{study}_trajectories.png")]
+    paths = [save_figure(fig, out / f"{study}_vs_last_seen_trajectories.png")]
     fig = new_figure(11, 1.0 + 1.8 * n)
     plot_distances(fig, sc, eps, names)
     fig.suptitle(
@@ -285,11 +285,11 @@ def figures(study: str, episodes: dict[str, Episode], out: Path) -> list[Path]:
         "constraints dashed, shaded: predecessor not visible",
         fontsize=10,
     )
-    paths.append(save_figure(fig, out / f"{study}_distances.png"))
+    paths.append(save_figure(fig, out / f"{study}_vs_last_seen_distances.png"))
     fig = new_figure(10, 1.0 + 1.5 * n)
     plot_commands(fig, sc, eps, labels=names)
     fig.suptitle(f"{study}, seed {eps[0].seed} (Figs. 10, 11): velocity commands", fontsize=10)
-    paths.append(save_figure(fig, out / f"{study}_commands.png"))
+    paths.append(save_figure(fig, out / f"{study}_vs_last_seen_commands.png"))
     return paths
 
 

@@ -1,7 +1,7 @@
 """The PettingZoo ``ParallelEnv`` of the platoon (DESIGN §6).
 
 The class coordinates; the physics, sensing, safety and reward live in their own modules and
-one compiled call (:func:`platoon_env.simulator.step_kernel`) does the whole step.
+one compiled call (:func:`platoon_env.simulator.platoon_step`) does the whole step.
 """
 
 from __future__ import annotations

@@ -121,22 +121,6 @@ def observe_into(sensed: np.ndarray, obs: np.ndarray) -> None:
 
 
 @njit(cache=True)
-def clip_actions(actions: np.ndarray, low: np.ndarray, high: np.ndarray) -> int:
-    """Clip ``actions`` (N, 2) into ``[low, high]`` in place.
-
-    Returns the index of the first row holding NaN or inf (left unclipped), or -1.
-    """
-    for i in range(actions.shape[0]):
-        for j in range(actions.shape[1]):
-            if not math.isfinite(actions[i, j]):
-                return i
-    for i in range(actions.shape[0]):
-        for j in range(actions.shape[1]):
-            actions[i, j] = min(high[j], max(low[j], actions[i, j]))
-    return -1
-
-
-@njit(cache=True)
 def advance_substep(
     poses: np.ndarray,
     actions: np.ndarray,
@@ -403,7 +387,10 @@ def platoon_step(
 
 @njit(cache=True)
 def clip_actions_to(actions: np.ndarray, params: np.ndarray) -> int:
-    """:func:`clip_actions` with the actuator limits of ``params`` (``P_U_LOW`` ...)."""
+    """Clip ``actions`` (N, 2) in place to the actuator limits in ``params`` (``P_U_LOW`` ...).
+
+    Returns the index of the first row holding NaN or inf (nothing is clipped then), or -1.
+    """
     for i in range(actions.shape[0]):
         for j in range(actions.shape[1]):
             if not math.isfinite(actions[i, j]):
