@@ -687,3 +687,24 @@ def test_kernel_touching_wall_is_a_collision(kernel_sense: SenseFn) -> None:
     out = kernel_sense(corridor(1.0), poses, 3.0, 0.5, 3.0)
     assert out[0, COL_CLEARANCE] <= radius
     assert out[1, COL_CLEARANCE] <= radius
+
+
+def test_zero_length_edges_change_nothing() -> None:
+    """A zero-length edge (a point on the boundary) changes no reading; boundary_edges drops it."""
+    from platoon_env.geometry.sensing import sense
+    from platoon_env.geometry.workspace import boundary_edges
+
+    free = box(0, 0, 10, 10).difference(box(4, 4, 6, 6))
+    edges = boundary_edges(free)
+    points = np.array([[x, y, x, y] for x, y in np.asarray(free.interiors[0].coords)[:-1]])
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        poses = np.column_stack(
+            [rng.uniform(0.5, 9.5, 3), rng.uniform(0.5, 9.5, 3), rng.uniform(-np.pi, np.pi, 3)]
+        )
+        a = sense(poses, edges, 4.0, 0.5, 4.0)
+        b = sense(poses, np.concatenate([edges, points]), 4.0, 0.5, 4.0)
+        np.testing.assert_array_equal(a, b)
+    # A repeated vertex makes a zero-length edge in the ring; it is not exported.
+    ring = Polygon([(0, 0), (5, 0), (5, 0), (5, 5), (0, 5)])
+    assert np.all(np.hypot(*(boundary_edges(ring)[:, 2:] - boundary_edges(ring)[:, :2]).T) > 0)
