@@ -12,11 +12,12 @@ Equation numbers refer to ``paper/coordination-of-multiple-robotic-vehicles.md``
 * transformed errors ``eps = ln((e - rho_lo) / (rho_hi - e))``;
 * commands: ``u`` (eq. 13) and ``omega`` (eq. 14).
 
-:class:`PPCPolicy` runs it for all followers at once, vectorised over followers, in discrete
-time with the env's control period. The pure functions below (:func:`S`, :func:`F`,
-:func:`projection`, :func:`rho_dot`, :func:`transformed_error`, :func:`compensation`,
-:func:`linear_velocity`, :func:`angular_velocity`) are the same equations on scalars or arrays,
-for unit tests and for readers.
+:class:`PPCPolicy` runs it for all followers at once, in one compiled (numba) loop over the
+followers (:func:`_ppc_step`), in discrete time with the env's control period. The pure
+functions below (:func:`S`, :func:`F`, :func:`projection`, :func:`rho_dot`,
+:func:`transformed_error`, :func:`compensation`, :func:`linear_velocity`,
+:func:`angular_velocity`) are the same equations on scalars or arrays, for unit tests and for
+readers; :func:`_ppc_step` implements exactly them, with the same floors and clamps.
 
 Where this implementation has to decide something the paper leaves open, or departs from the
 printed equations, it says so here and next to the code:
@@ -53,13 +54,13 @@ printed equations, it says so here and next to the code:
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from platoon_env.observation import (
@@ -467,45 +468,199 @@ class PPCEnv(Protocol):
     def scenario(self) -> _Scenario: ...
 
 
-def _to_jk(v4: FloatArray) -> FloatArray:
-    """(4, ...) in :data:`RHO_NAMES` order -> (2, 2, ...) indexed [lo/hi, d/beta, ...]."""
-    return np.ascontiguousarray(np.swapaxes(v4.reshape((2, 2, *v4.shape[1:])), 0, 1))
+# Rows of the signal buffer (``SIGNAL_NAMES`` order): 4 rho, 4 rho_dot, then the scalars.
+_S_RHO = 0
+_S_RHO_DOT = 4
+_S_D = SIGNAL_NAMES.index("d")
+_S_BETA = SIGNAL_NAMES.index("beta")
+_S_E_D = SIGNAL_NAMES.index("e_d")
+_S_E_BETA = SIGNAL_NAMES.index("e_beta")
+_S_EPS_D = SIGNAL_NAMES.index("eps_d")
+_S_EPS_BETA = SIGNAL_NAMES.index("eps_beta")
+_S_F_L = SIGNAL_NAMES.index("F_l")
+_S_F_R = SIGNAL_NAMES.index("F_r")
+_S_C_D = SIGNAL_NAMES.index("C_d")
+_S_C_BETA = SIGNAL_NAMES.index("C_beta")
+_S_U = SIGNAL_NAMES.index("u")
+_S_OMEGA = SIGNAL_NAMES.index("omega")
+_S_VISIBLE = SIGNAL_NAMES.index("visible")
+_S_FUNNEL_EXIT = SIGNAL_NAMES.index("funnel_exit")
+_S_FLOORED = SIGNAL_NAMES.index("clearance_floored")
+#: the boolean signals, stored as 0.0 / 1.0 in the buffer (they are the last three rows).
+_FLAG_ROWS = (_S_VISIBLE, _S_FUNNEL_EXIT, _S_FLOORED)
+assert _FLAG_ROWS == (len(SIGNAL_NAMES) - 3, len(SIGNAL_NAMES) - 2, len(SIGNAL_NAMES) - 1)
+
+# Rows of the per-function constants ``sets`` (4 columns, order of RHO_NAMES).
+_K_LAM_TARGET = 0  # lambda * (-+rho_inf): eq. 12 is rho_dot = lam_target - lambda rho + G
+_K_INV_HALF = 1  # 2 / (rho_max - rho_min)
+_K_MID_INV_HALF = 2  # (rho_max + rho_min) / (rho_max - rho_min)
+_K_RHO_MIN = 3
+_K_RHO_MAX = 4
+# Entries of the scalar constants ``scal``.
+_P_R = 0  # r
+_P_D_DES = 1  # d_des
+_P_FLOOR = 2  # clearance floor (choice 2)
+_P_DELTA = 3  # delta of S
+_P_LAMBDA = 4  # lambda of eq. 12
+_P_EPS_MAX = 5  # choice 4
+_P_K_D = 6  # gain of eq. 13
+_P_K_BETA = 7  # gain of eq. 14
+_P_DT = 8  # Euler step (choice 3)
+_P_F_A = 9  # 1 / (1 - epsilon^2) of the projection's f
+_P_F_B = 10  # epsilon^2 / (1 - epsilon^2)
+_N_SCAL = 11
+# Rows of the per-follower counters.
+_C_FUNNEL_EXITS = 0
+_C_INVISIBLE = 1
+_C_FLOORED = 2
 
 
-def _to_4(a: FloatArray) -> FloatArray:
-    """(2, 2, n) indexed [lo/hi, d/beta, :] -> a new (4, n) array in :data:`RHO_NAMES` order."""
-    out = np.empty((4, a.shape[-1]), dtype=np.float64)
-    out.reshape(2, 2, -1)[...] = np.swapaxes(a, 0, 1)
-    return out
+@njit(cache=True)
+def _ppc_step(
+    obs: np.ndarray,
+    idx: np.ndarray,
+    rho: np.ndarray,
+    sets: np.ndarray,
+    scal: np.ndarray,
+    sig: np.ndarray,
+    counts: np.ndarray,
+) -> np.ndarray:
+    r"""One control step of the PPC law (eqs. 7, 10-14) for the followers ``idx`` (compiled).
 
+    ``obs`` (n, 7) float64 holds the observations of followers ``idx`` (n,), row by row.
+    ``rho`` (4, N) (order of :data:`RHO_NAMES`) is advanced in place for those followers; their
+    columns of ``sig`` (len(SIGNAL_NAMES), N) receive the signals at time ``t`` (flags as
+    0.0/1.0) and ``counts`` (3, N) their counters ([funnel exits, invisible steps, clearance
+    floor hits]). ``sets`` (5, 4) and ``scal`` (11,) are the constants (``_K_*``, ``_P_*``).
+    Returns the (n, 2) float32 commands ``[u, omega]``.
 
-# The two clearances of each side are adjacent in the observation, so that the law reads them
-# with slices ([left, right] columns) instead of fancy indexing.
-assert OBS_D_WALL_RIGHT == OBS_D_WALL_LEFT + 1 and OBS_D_SIGHT_RIGHT == OBS_D_SIGHT_LEFT + 1
-_WALL = slice(OBS_D_WALL_LEFT, OBS_D_WALL_RIGHT + 1)
-_SIGHT = slice(OBS_D_SIGHT_LEFT, OBS_D_SIGHT_RIGHT + 1)
-#: [G_d, G_beta] = [F_l, F_r] @ _G_OF_F: G_d = -F_l - F_r (12a, 12b), G_beta = F_l - F_r (12c, 12d)
-_G_OF_F = np.array([[-1.0, 1.0], [-1.0, -1.0]])
+    The same equations as the pure functions, with the same floors and clamps, per follower:
 
+    * eqs. 2-3, 7: ``d = |p~|`` (floored at :data:`DISTANCE_FLOOR`, choice 6),
+      ``beta = atan2(y~, x~)``; ``e_d = d - d_des``, ``e_beta = beta`` (0 when not visible,
+      choice 5);
+    * after eq. 12 (:func:`clearance_margin`, :func:`F`): ``m = min(d_l, d_W_l) - r`` (and right),
+      floored at the clearance floor (choice 2), ``F = S(m; delta)/m = max(1/m - 1/delta, 0)``;
+    * eq. 12a-d (:func:`rho_dot`): ``rho_dot = -lambda (rho -+ rho_inf) + G`` with
+      ``G_d = -F_r - F_l`` (12a, 12b), ``G_beta = -F_r + F_l`` (12c, 12d), then
+      :func:`projection`: ``x = (2 rho - (max + min))/(max - min)``,
+      ``f = (x^2 - epsilon^2)/(1 - epsilon^2)``,
+      ``Proj = rho_dot (1 - f)`` if ``f > 0`` and ``rho_dot x > 0``, else ``rho_dot``;
+    * eq. 10 (:func:`outside_funnel`): exit unless ``lo < e < hi`` (flagged only if visible);
+      :func:`transformed_error`: ``eps = ln((e - lo)/(hi - e))`` with ``e - lo``, ``hi - e``
+      floored at ``_TINY`` and ``|eps| <= eps_max`` (choice 4);
+      :func:`compensation`: ``C = (lo_dot (hi - e) + hi_dot (e - lo)) / (hi - lo)`` (the
+      derivation's ``C``, choice 1; ``hi - lo`` floored at ``_WIDTH_FLOOR``);
+    * eq. 13 (:func:`linear_velocity`): ``u = (k_d eps_d - C_d)/cos(beta)``,
+      ``cos(beta) = x~/d`` floored at :data:`COS_FLOOR` (choice 6);
+      eq. 14 (:func:`angular_velocity`): ``omega = (u/d) sin(beta) + k_beta eps_beta - C_beta``
+      with ``sin(beta) = y~/d``; ``u = omega = 0`` without a visible predecessor (choice 5);
+    * explicit Euler step ``rho += dt Proj(rho_dot)``, clipped to the set (choice 3).
+    """
+    n = obs.shape[0]
+    cmd = np.empty((n, 2), dtype=np.float32)
+    r = scal[_P_R]
+    d_des = scal[_P_D_DES]
+    floor = scal[_P_FLOOR]
+    inv_delta = 1.0 / scal[_P_DELTA]
+    lam = scal[_P_LAMBDA]
+    eps_max = scal[_P_EPS_MAX]
+    k_d = scal[_P_K_D]
+    k_beta = scal[_P_K_BETA]
+    dt = scal[_P_DT]
+    f_a = scal[_P_F_A]
+    f_b = scal[_P_F_B]
+    pd = np.empty(4)
+    for k in range(n):
+        i = idx[k]
+        visible = obs[k, OBS_VISIBLE] > 0.5
+        v = 1.0 if visible else 0.0
 
-@dataclass(frozen=True)
-class _Consts:
-    """Per-call constants in the layout [lo/hi, d/beta, follower], shape (2, 2, n) or (2, 2, 1)."""
+        # eqs. 2-3 and 7: d = |p~| (floored, choice 6), beta = atan2(y~, x~); e = (d - d_des, beta),
+        # reported as 0 without a visible predecessor (choice 5)
+        x = obs[k, OBS_X_REL]
+        y = obs[k, OBS_Y_REL]
+        d = max(math.hypot(x, y), DISTANCE_FLOOR)
+        e_d = (d - d_des) * v
+        e_b = math.atan2(y, x) * v
 
-    lam_target: FloatArray  # lambda * (-+rho_inf): eq. 12 is rho_dot = lam_target - lambda rho + G
-    inv_half: FloatArray  # 2 / (rho_max - rho_min)
-    mid_inv_half: FloatArray  # (rho_max + rho_min) / (rho_max - rho_min)
-    rho_min: FloatArray
-    rho_max: FloatArray
+        # after eq. 12: m = min(d_sight - r, d_wall - r) for left and right, floored (choice 2);
+        # F = S(m; delta)/m = max(1/m - 1/delta, 0)
+        m_l = min(obs[k, OBS_D_SIGHT_LEFT], obs[k, OBS_D_WALL_LEFT]) - r
+        m_r = min(obs[k, OBS_D_SIGHT_RIGHT], obs[k, OBS_D_WALL_RIGHT]) - r
+        floored = m_l < floor or m_r < floor
+        F_l = max(1.0 / max(m_l, floor) - inv_delta, 0.0)
+        F_r = max(1.0 / max(m_r, floor) - inv_delta, 0.0)
 
-    def tiled(self, n: int) -> _Consts:
-        """The same constants repeated for ``n`` followers (avoids broadcasting in the loop)."""
-        return _Consts(
-            *(
-                np.ascontiguousarray(np.broadcast_to(a, (2, 2, n)))
-                for a in dataclasses.astuple(self)
-            )
-        )
+        # eq. 12a-d: rho_dot = -lambda (rho -+ rho_inf) + G, G_d = -F_r - F_l (12a, 12b),
+        # G_beta = -F_r + F_l (12c, 12d); then the projection operator over each set:
+        # x = (2 rho - (max + min))/(max - min), f = (x^2 - eps^2)/(1 - eps^2),
+        # Proj = rd (1 - f) if f > 0 and rd f'(rho) > 0 (f' has the sign of x), else rd
+        g_d = -F_l - F_r
+        g_b = F_l - F_r
+        for j in range(4):
+            rho_j = rho[j, i]
+            rd = rho_j * -lam + sets[_K_LAM_TARGET, j] + (g_d if j < 2 else g_b)
+            xn = rho_j * sets[_K_INV_HALF, j] - sets[_K_MID_INV_HALF, j]
+            f = max(xn * xn * f_a - f_b, 0.0)
+            pd[j] = rd - f * rd if xn * rd > 0.0 else rd
+            sig[_S_RHO + j, i] = rho_j
+            sig[_S_RHO_DOT + j, i] = pd[j]
+
+        # eq. 10: lo < e < hi; eps = ln((e - lo)/(hi - e)), |eps| <= eps_max (choice 4)
+        lo_d = rho[0, i]
+        hi_d = rho[1, i]
+        lo_b = rho[2, i]
+        hi_b = rho[3, i]
+        num_d = e_d - lo_d
+        den_d = hi_d - e_d
+        num_b = e_b - lo_b
+        den_b = hi_b - e_b
+        funnel_exit = visible and min(min(num_d, den_d), min(num_b, den_b)) <= 0.0
+        eps_d = math.log(max(num_d, _TINY) / max(den_d, _TINY))
+        eps_d = min(max(eps_d, -eps_max), eps_max) * v
+        eps_b = math.log(max(num_b, _TINY) / max(den_b, _TINY))
+        eps_b = min(max(eps_b, -eps_max), eps_max) * v
+        # C = (lo_dot (hi - e) + hi_dot (e - lo)) / (hi - lo)  (the derivation's C, choice 1)
+        C_d = (pd[0] * den_d + num_d * pd[1]) / max(hi_d - lo_d, _WIDTH_FLOOR) * v
+        C_b = (pd[2] * den_b + num_b * pd[3]) / max(hi_b - lo_b, _WIDTH_FLOOR) * v
+
+        # eq. 13: u = (k_d eps_d - C_d) / cos(beta), cos(beta) = x~/d (floored, choice 6)
+        # eq. 14: omega = (u/d) sin(beta) + k_beta eps_beta - C_beta, sin(beta) = y~/d
+        cos_b = max(x / d, COS_FLOOR)
+        u = (eps_d * k_d - C_d) / cos_b
+        omega = u * y / (d * d) + eps_b * k_beta - C_b
+        u *= v  # choice 5: stop
+        omega *= v
+        cmd[k, 0] = u
+        cmd[k, 1] = omega
+
+        # advance rho by one Euler step and clip it to its set (choice 3)
+        for j in range(4):
+            rho[j, i] = min(max(rho[j, i] + pd[j] * dt, sets[_K_RHO_MIN, j]), sets[_K_RHO_MAX, j])
+
+        sig[_S_D, i] = d * v
+        sig[_S_BETA, i] = e_b
+        sig[_S_E_D, i] = e_d
+        sig[_S_E_BETA, i] = e_b
+        sig[_S_EPS_D, i] = eps_d
+        sig[_S_EPS_BETA, i] = eps_b
+        sig[_S_F_L, i] = F_l
+        sig[_S_F_R, i] = F_r
+        sig[_S_C_D, i] = C_d
+        sig[_S_C_BETA, i] = C_b
+        sig[_S_U, i] = u
+        sig[_S_OMEGA, i] = omega
+        sig[_S_VISIBLE, i] = v
+        sig[_S_FUNNEL_EXIT, i] = 1.0 if funnel_exit else 0.0
+        sig[_S_FLOORED, i] = 1.0 if floored else 0.0
+        if funnel_exit:
+            counts[_C_FUNNEL_EXITS, i] += 1
+        if not visible:
+            counts[_C_INVISIBLE, i] += 1
+        if floored:
+            counts[_C_FLOORED, i] += 1
+    return cmd
 
 
 class PPCPolicy:
@@ -517,7 +672,7 @@ class PPCPolicy:
     of :attr:`PPCParams.PPC_KEYS` (e.g. ``k_d=2.0``, ``dt=0.005``, ``lambda_=1.0``) may be
     overridden by keyword. Followers are indexed by ``env.possible_agents``.
 
-    Each :meth:`act` call, for all followers at once (numpy, no loop over followers):
+    Each :meth:`act` call, for all followers at once (one compiled call, :func:`_ppc_step`):
 
     1. read the observation at time ``t``: ``d``, ``beta`` (eqs. 2-3), errors (eq. 7) and the
        four clearances;
@@ -542,31 +697,39 @@ class PPCPolicy:
         self.params: PPCParams = PPCParams.from_config(config, period, **overrides)
         self.agents: tuple[str, ...] = tuple(env.possible_agents)
         self._index: dict[str, int] = {a: i for i, a in enumerate(self.agents)}
+        self._all: NDArray[np.intp] = np.arange(len(self.agents), dtype=np.intp)
         n = len(self.agents)
         p = self.params
-        rho_min4, rho_max4 = p.sets()
-        rho_min = _to_jk(rho_min4)[..., None]  # (2, 2, 1), layout [lo/hi, d/beta, follower]
-        rho_max = _to_jk(rho_max4)[..., None]
-        target = _to_jk(np.array([-p.rho_d_inf, p.rho_d_inf, -p.rho_beta_inf, p.rho_beta_inf]))
-        self._consts1 = _Consts(
-            lam_target=p.lambda_ * target[..., None],
-            inv_half=2.0 / (rho_max - rho_min),
-            mid_inv_half=(rho_max + rho_min) / (rho_max - rho_min),
-            rho_min=rho_min,
-            rho_max=rho_max,
-        )
-        self._consts = self._consts1.tiled(n)
-        self._rho0 = _to_jk(p.initial_rho())[..., None]  # eq. 12 initial values
+        rho_min, rho_max = p.sets()
+        target = np.array([-p.rho_d_inf, p.rho_d_inf, -p.rho_beta_inf, p.rho_beta_inf])
+        self._sets = np.empty((5, 4), dtype=np.float64)
+        self._sets[_K_LAM_TARGET] = p.lambda_ * target
+        self._sets[_K_INV_HALF] = 2.0 / (rho_max - rho_min)
+        self._sets[_K_MID_INV_HALF] = (rho_max + rho_min) / (rho_max - rho_min)
+        self._sets[_K_RHO_MIN] = rho_min
+        self._sets[_K_RHO_MAX] = rho_max
+        self._scal = np.empty(_N_SCAL, dtype=np.float64)
+        self._scal[_P_R] = p.r
+        self._scal[_P_D_DES] = p.d_des
+        self._scal[_P_FLOOR] = p.clearance_floor
+        self._scal[_P_DELTA] = p.delta
+        self._scal[_P_LAMBDA] = p.lambda_
+        self._scal[_P_EPS_MAX] = p.eps_max
+        self._scal[_P_K_D] = p.k_d
+        self._scal[_P_K_BETA] = p.k_beta
+        self._scal[_P_DT] = p.dt
         # f(rho) = a x^2 - b with a = 1/(1 - epsilon^2), b = epsilon^2/(1 - epsilon^2)
-        self._f_a = 1.0 / (1.0 - p.epsilon**2)
-        self._f_b = p.epsilon**2 / (1.0 - p.epsilon**2)
-        self._rho = np.empty((2, 2, n), dtype=np.float64)
-        self.funnel_exits: NDArray[np.int64] = np.zeros(n, dtype=np.int64)
-        self.invisible_steps: NDArray[np.int64] = np.zeros(n, dtype=np.int64)
-        self.clearance_floor_hits: NDArray[np.int64] = np.zeros(n, dtype=np.int64)
+        self._scal[_P_F_A] = 1.0 / (1.0 - p.epsilon**2)
+        self._scal[_P_F_B] = p.epsilon**2 / (1.0 - p.epsilon**2)
+        self._rho0 = p.initial_rho()[:, None]  # eq. 12 initial values, (4, 1)
+        self._rho = np.empty((4, n), dtype=np.float64)  # rows in RHO_NAMES order
+        self._counts = np.zeros((3, n), dtype=np.int64)
+        self.funnel_exits: NDArray[np.int64] = self._counts[_C_FUNNEL_EXITS]
+        self.invisible_steps: NDArray[np.int64] = self._counts[_C_INVISIBLE]
+        self.clearance_floor_hits: NDArray[np.int64] = self._counts[_C_FLOORED]
         self.steps: int = 0
-        self._raw: _Raw | None = None  # the last full call's signals, turned into a dict lazily
-        self._sig: dict[str, NDArray[Any]] = {}
+        # the signals of the last call, rows in SIGNAL_NAMES order (flags as 0.0 / 1.0)
+        self._sig = np.zeros((len(SIGNAL_NAMES), n), dtype=np.float64)
         self.reset()
 
     # -- Policy interface -----------------------------------------------------------------------
@@ -578,17 +741,10 @@ class PPCPolicy:
         """
         del seed
         self._rho[...] = self._rho0
-        self.funnel_exits[:] = 0
-        self.invisible_steps[:] = 0
-        self.clearance_floor_hits[:] = 0
+        self._counts[...] = 0
         self.steps = 0
-        n = len(self.agents)
-        self._raw = None
-        self._sig = {name: np.zeros(n) for name in SIGNAL_NAMES}
-        for name in ("visible", "funnel_exit", "clearance_floored"):
-            self._sig[name] = np.zeros(n, dtype=bool)
-        for name, row in zip(RHO_NAMES, _to_4(self._rho), strict=True):
-            self._sig[name] = row
+        self._sig[...] = 0.0
+        self._sig[_S_RHO : _S_RHO + 4] = self._rho
 
     def act(self, observations: Mapping[str, ArrayLike]) -> dict[str, NDArray[np.float32]]:
         """Commands ``{agent: float32 [u, omega]}`` for every agent in ``observations``.
@@ -602,11 +758,7 @@ class PPCPolicy:
             raise ValueError(f"expected observations of shape ({OBS_SIZE},), got {obs.shape[1:]}")
         self.steps += 1
         if keys == self.agents:
-            cmd, raw = self._step(obs, self._rho, self._consts)
-            self.funnel_exits += raw.funnel_exit
-            self.invisible_steps += ~raw.visible
-            self.clearance_floor_hits += raw.floored
-            self._raw = raw
+            idx = self._all
         else:  # a subset (or another order) of the followers
             try:
                 idx = np.array([self._index[a] for a in keys], dtype=np.intp)
@@ -614,17 +766,7 @@ class PPCPolicy:
                 raise KeyError(
                     f"unknown agent {err.args[0]!r}; expected some of {self.agents}"
                 ) from None
-            rho = self._rho[:, :, idx]
-            cmd, raw = self._step(obs, rho, self._consts1)
-            self._rho[:, :, idx] = rho
-            self.funnel_exits[idx] += raw.funnel_exit
-            self.invisible_steps[idx] += ~raw.visible
-            self.clearance_floor_hits[idx] += raw.floored
-            self._materialise()
-            for name, value in raw.to_dict().items():
-                merged = self._sig[name].copy()
-                merged[idx] = value
-                self._sig[name] = merged
+        cmd = _ppc_step(obs, idx, self._rho, self._sets, self._scal, self._sig, self._counts)
         return dict(zip(keys, cmd, strict=True))
 
     # -- diagnostics ----------------------------------------------------------------------------
@@ -633,7 +775,7 @@ class PPCPolicy:
     def rho(self) -> FloatArray:
         """Current performance functions (after the last Euler step), shape (4, N), rows in
         :data:`RHO_NAMES` order (a copy)."""
-        return _to_4(self._rho)
+        return self._rho.copy()
 
     @property
     def signals(self) -> dict[str, NDArray[Any]]:
@@ -647,151 +789,8 @@ class PPCPolicy:
         and ``omega`` are 0. Before the first :meth:`act` the ``rho`` are the initial values and
         everything else is 0.
         """
-        self._materialise()
-        return {k: v.copy() for k, v in self._sig.items()}
-
-    def _materialise(self) -> None:
-        if self._raw is not None:
-            self._sig = self._raw.to_dict()
-            self._raw = None
-
-    # -- the law --------------------------------------------------------------------------------
-
-    def _step(
-        self, obs: FloatArray, rho: FloatArray, c: _Consts
-    ) -> tuple[NDArray[np.float32], _Raw]:
-        """One control step for the ``n`` followers of ``obs`` (n, 7); ``rho`` (2, 2, n) is
-        advanced in place. Returns the (n, 2) float32 commands and the signals at time ``t``."""
-        p = self.params
-        n = obs.shape[0]
-        visible = obs[:, OBS_VISIBLE] > 0.5
-        all_visible = bool(visible.all())
-
-        # eqs. 2-3 and 7: d = |p~|, beta = atan2(y~, x~); e = (d - d_des, beta)
-        x = obs[:, OBS_X_REL]
-        y = obs[:, OBS_Y_REL]
-        d = np.hypot(x, y)
-        np.maximum(d, DISTANCE_FLOOR, out=d)  # choice 6
-        e = np.empty((2, n))
-        np.subtract(d, p.d_des, out=e[0])
-        np.arctan2(y, x, out=e[1])
-        if not all_visible:
-            e *= visible  # choice 5: errors reported as 0
-
-        # after eq. 12: m = min(d_sight - r, d_wall - r) for [left, right], floored (choice 2);
-        # F = S(m; delta)/m = max(1/m - 1/delta, 0)
-        m = np.minimum(obs[:, _SIGHT], obs[:, _WALL])
-        m -= p.r
-        floored_lr = m < p.clearance_floor
-        floored = floored_lr[:, 0] | floored_lr[:, 1]
-        np.maximum(m, p.clearance_floor, out=m)
-        Fm = np.reciprocal(m)
-        Fm -= 1.0 / p.delta
-        np.maximum(Fm, 0.0, out=Fm)  # columns F_l, F_r
-
-        # eq. 12a-d: rho_dot = -lambda (rho -+ rho_inf) + G, G_d = -F_r - F_l, G_beta = -F_r + F_l
-        G = Fm @ _G_OF_F  # (n, 2): [G_d, G_beta]
-        rd = rho * -p.lambda_
-        rd += c.lam_target
-        rd += G.T
-        # projection operator over each set: x = (2 rho - (max + min))/(max - min),
-        # f = (x^2 - eps^2)/(1 - eps^2); Proj = rd (1 - f) if f > 0 and rd f'(rho) > 0 (f' ~ x)
-        xn = rho * c.inv_half
-        xn -= c.mid_inv_half
-        f = xn * xn
-        f *= self._f_a
-        f -= self._f_b
-        np.maximum(f, 0.0, out=f)  # f > 0 ...
-        xn *= rd
-        f *= xn > 0.0  # ... and rd f'(rho) > 0; else the factor is 0
-        f *= rd
-        pd = np.subtract(rd, f, out=f)  # Proj(rho_dot; rho) = rd - rd f [f > 0, rd x > 0]
-
-        # eq. 10: lo < e < hi; eps = ln((e - lo)/(hi - e)), |eps| <= eps_max (choice 4)
-        lo = rho[0]
-        hi = rho[1]
-        num = e - lo
-        den = hi - e
-        gap = np.minimum(num, den)
-        funnel_exit = np.minimum(gap[0], gap[1]) <= 0.0
-        eps = np.maximum(num, _TINY)
-        eps /= np.maximum(den, _TINY)
-        np.log(eps, out=eps)
-        np.maximum(eps, -p.eps_max, out=eps)
-        np.minimum(eps, p.eps_max, out=eps)
-        # C = (lo_dot (hi - e) + hi_dot (e - lo)) / (hi - lo)  (the derivation's C, choice 1)
-        C = pd[0] * den
-        num *= pd[1]
-        C += num
-        width = hi - lo
-        np.maximum(width, _WIDTH_FLOOR, out=width)
-        C /= width
-        if not all_visible:
-            funnel_exit &= visible
-            eps *= visible
-            C *= visible
-
-        # eq. 13: u = (k_d eps_d - C_d) / cos(beta), cos(beta) = x~/d (floored, choice 6)
-        # eq. 14: omega = (u/d) sin(beta) + k_beta eps_beta - C_beta, sin(beta) = y~/d
-        cmd = np.empty((n, 2))
-        u = cmd[:, 0]
-        omega = cmd[:, 1]
-        cos_b = x / d
-        np.maximum(cos_b, COS_FLOOR, out=cos_b)
-        np.multiply(eps[0], p.k_d, out=u)
-        u -= C[0]
-        u /= cos_b
-        np.multiply(u, y, out=omega)
-        omega /= d * d
-        omega += eps[1] * p.k_beta
-        omega -= C[1]
-        if not all_visible:
-            cmd *= visible[:, None]  # choice 5: stop
-
-        # advance rho by one Euler step and clip it to its set (choice 3)
-        rho_t = rho.copy()
-        rho += pd * p.dt
-        np.maximum(rho, c.rho_min, out=rho)
-        np.minimum(rho, c.rho_max, out=rho)
-        raw = _Raw(rho_t, pd, d, e, eps, Fm, C, cmd, visible, funnel_exit, floored)
-        return cmd.astype(np.float32), raw
-
-
-@dataclass(frozen=True)
-class _Raw:
-    """One call's internal signals as computed (turned into :attr:`PPCPolicy.signals` lazily)."""
-
-    rho: FloatArray  # (2, 2, n), at time t
-    rho_dot: FloatArray  # (2, 2, n), projected
-    d: FloatArray
-    e: FloatArray  # (2, n)
-    eps: FloatArray  # (2, n)
-    F: FloatArray  # (n, 2): F_l, F_r
-    C: FloatArray  # (2, n)
-    cmd: FloatArray  # (n, 2)
-    visible: NDArray[np.bool_]
-    funnel_exit: NDArray[np.bool_]
-    floored: NDArray[np.bool_]
-
-    def to_dict(self) -> dict[str, NDArray[Any]]:
+        sig = self._sig
         out: dict[str, NDArray[Any]] = {}
-        for name, row in zip(RHO_NAMES, _to_4(self.rho), strict=True):
-            out[name] = row
-        for name, row in zip(RHO_NAMES, _to_4(self.rho_dot), strict=True):
-            out[name + "_dot"] = row
-        out["d"] = self.d * self.visible
-        out["beta"] = self.e[1].copy()
-        out["e_d"] = self.e[0].copy()
-        out["e_beta"] = self.e[1].copy()
-        out["eps_d"] = self.eps[0].copy()
-        out["eps_beta"] = self.eps[1].copy()
-        out["F_l"] = self.F[:, 0].copy()
-        out["F_r"] = self.F[:, 1].copy()
-        out["C_d"] = self.C[0].copy()
-        out["C_beta"] = self.C[1].copy()
-        out["u"] = self.cmd[:, 0].copy()
-        out["omega"] = self.cmd[:, 1].copy()
-        out["visible"] = self.visible.copy()
-        out["funnel_exit"] = self.funnel_exit.copy()
-        out["clearance_floored"] = self.floored.copy()
+        for k, name in enumerate(SIGNAL_NAMES):
+            out[name] = sig[k] != 0.0 if k in _FLAG_ROWS else sig[k].copy()
         return out

@@ -22,6 +22,7 @@ from baselines.ppc import (
     SIGNAL_NAMES,
     F,
     S,
+    _ppc_step,
     angular_velocity,
     clearance_margin,
     compensation,
@@ -518,3 +519,118 @@ def test_closed_loop_unicycle_pair_stays_in_funnels() -> None:
     sig = policy.signals
     assert abs(sig["e_d"][0]) < RHO_D_INF and abs(sig["e_beta"][0]) < RHO_B_INF
     assert policy.funnel_exits[0] == 0
+
+
+def test_compiled_core_matches_the_pure_functions() -> None:
+    """The compiled per-step core (``_ppc_step``) against the pure-function pipeline on 1,000
+    random observations of 1,000 of 1,200 followers, in random order, from random performance
+    functions (projection active near the bounds), with invisible predecessors, funnel exits and
+    clearances at or beyond contact (margin floored); the other 200 followers are untouched."""
+    n_all, n = 1200, 1000
+    rng = np.random.default_rng(11)
+    policy = PPCPolicy(make_env(n_all))
+    # performance functions anywhere in their sets with lo < hi (as the law keeps them; a
+    # collapsed funnel makes C ill-conditioned), 10% of them on a bound
+    mid, half = (RHO_MAX + RHO_MIN)[:, None] / 2, (RHO_MAX - RHO_MIN)[:, None] / 2
+    rho0 = np.empty((4, n_all))
+    todo = np.ones(n_all, dtype=bool)
+    while todo.any():
+        xpos = rng.uniform(-1.0, 1.0, (4, n_all))
+        on_bound = rng.uniform(size=xpos.shape) < 0.1
+        xpos[on_bound] = rng.choice([-1.0, 1.0], size=on_bound.sum())
+        draw = np.clip(mid + xpos * half, RHO_MIN[:, None], RHO_MAX[:, None])
+        rho0[:, todo] = draw[:, todo]
+        todo = (rho0[1] - rho0[0] < 0.05) | (rho0[3] - rho0[2] < 0.05)
+    policy._rho[...] = rho0
+    sig_before = policy._sig.copy()
+    counts_before = np.array([[3], [5], [7]]) * np.ones((3, n_all), dtype=np.int64)
+    policy._counts[...] = counts_before
+
+    idx = rng.permutation(n_all)[:n].astype(np.intp)
+    visible = rng.uniform(size=n) > 0.2
+    d = rng.uniform(1e-3, 2.0, n)
+    beta = rng.uniform(-0.7, 0.7, n)
+    behind = rng.uniform(size=n) < 0.02
+    beta[behind] = rng.choice([-1.6, 1.6], size=behind.sum())  # cos(beta) < 0: floored
+    clear = rng.uniform(0.0, 1.0, (n, 4))
+    special = rng.uniform(size=clear.shape)
+    clear[special < 0.3] = FAR
+    clear[(special >= 0.3) & (special < 0.35)] = R  # at contact: m = 0
+    clear[(special >= 0.35) & (special < 0.4)] = R + CLEARANCE_FLOOR / 2  # below the floor
+    clear[(special >= 0.4) & (special < 0.45)] = 0.0  # beyond contact: m = -r
+    obs = np.zeros((n, 7))
+    obs[:, 0] = visible
+    obs[:, 1] = np.where(visible, d * np.cos(beta), 0.0)
+    obs[:, 2] = np.where(visible, d * np.sin(beta), 0.0)
+    obs[:, 3:] = clear
+
+    cmd = _ppc_step(obs, idx, policy._rho, policy._sets, policy._scal, policy._sig, policy._counts)
+
+    # the pure-function pipeline, vectorised over the 1,000 followers
+    rho = rho0[:, idx]
+    floored = (clearance_margin(obs[:, 5], obs[:, 3], R) < CLEARANCE_FLOOR) | (
+        clearance_margin(obs[:, 6], obs[:, 4], R) < CLEARANCE_FLOOR
+    )
+    f_l = F(clearance_margin(obs[:, 5], obs[:, 3], R), DELTA)
+    f_r = F(clearance_margin(obs[:, 6], obs[:, 4], R), DELTA)
+    rates = rho_dot(rho, f_l, f_r, LAM, RHO_D_INF, RHO_B_INF)
+    pd = projection(rates, rho, RHO_MIN[:, None], RHO_MAX[:, None], EPS)
+    d_obs = np.hypot(obs[:, 1], obs[:, 2])
+    b_obs = np.arctan2(obs[:, 2], obs[:, 1])
+    e_d = np.where(visible, d_obs - D_DES, 0.0)
+    e_b = np.where(visible, b_obs, 0.0)
+    exits = visible & (outside_funnel(e_d, rho[0], rho[1]) | outside_funnel(e_b, rho[2], rho[3]))
+    eps_d = np.where(visible, transformed_error(e_d, rho[0], rho[1]), 0.0)
+    eps_b = np.where(visible, transformed_error(e_b, rho[2], rho[3]), 0.0)
+    c_d = np.where(visible, compensation(e_d, rho[0], rho[1], pd[0], pd[1]), 0.0)
+    c_b = np.where(visible, compensation(e_b, rho[2], rho[3], pd[2], pd[3]), 0.0)
+    u = np.where(visible, linear_velocity(eps_d, b_obs, c_d, K_D), 0.0)
+    omega = np.where(visible, angular_velocity(u, d_obs, b_obs, eps_b, c_b, K_B), 0.0)
+    assert exits.sum() > 100 and (~visible).sum() > 100 and floored.sum() > 100
+    assert (visible & (np.cos(b_obs) < 0)).sum() > 0
+
+    # the projection's f is computed in another (algebraically equal) form, so the projected
+    # rates and what depends on them agree to a few ulps of the unprojected rates
+    rate_scale = np.abs(rates).max(axis=0)
+    sig = policy._sig
+    expected = {
+        **{name: rho[k] for k, name in enumerate(RHO_NAMES)},
+        **{f"{name}_dot": pd[k] for k, name in enumerate(RHO_NAMES)},
+        "d": np.where(visible, d_obs, 0.0),
+        "beta": e_b,
+        "e_d": e_d,
+        "e_beta": e_b,
+        "eps_d": eps_d,
+        "eps_beta": eps_b,
+        "F_l": f_l,
+        "F_r": f_r,
+        "C_d": c_d,
+        "C_beta": c_b,
+        "u": u,
+        "omega": omega,
+        "visible": visible,
+        "funnel_exit": exits,
+        "clearance_floored": floored,
+    }
+    assert set(expected) == set(SIGNAL_NAMES)
+    for k, name in enumerate(SIGNAL_NAMES):
+        got = sig[k, idx]
+        if name in ("visible", "funnel_exit", "clearance_floored"):
+            np.testing.assert_array_equal(got != 0.0, expected[name], err_msg=name)
+        else:
+            scale = 1.0 + np.abs(expected[name])
+            if name.endswith("_dot") or name in ("C_d", "C_beta", "u", "omega"):
+                scale += rate_scale
+            np.testing.assert_array_less(np.abs(got - expected[name]) / scale, 1e-12, err_msg=name)
+    # the commands are the u, omega signals (checked above) in float32
+    uo = np.stack([sig[SIGNAL_NAMES.index("u"), idx], sig[SIGNAL_NAMES.index("omega"), idx]])
+    np.testing.assert_array_equal(cmd, uo.T.astype(np.float32))
+    assert cmd.dtype == np.float32 and cmd.shape == (n, 2)
+    new_rho = np.clip(rho + DT * pd, RHO_MIN[:, None], RHO_MAX[:, None])
+    np.testing.assert_allclose(policy._rho[:, idx], new_rho, rtol=0, atol=1e-12)
+    increments = np.stack([exits, ~visible, floored]).astype(np.int64)
+    np.testing.assert_array_equal(policy._counts[:, idx], counts_before[:, idx] + increments)
+    rest = np.setdiff1d(np.arange(n_all), idx)
+    np.testing.assert_array_equal(policy._rho[:, rest], rho0[:, rest])
+    np.testing.assert_array_equal(policy._sig[:, rest], sig_before[:, rest])
+    np.testing.assert_array_equal(policy._counts[:, rest], counts_before[:, rest])
