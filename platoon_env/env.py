@@ -192,6 +192,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         )
         # Kernel inputs (float64, contiguous) and scratch buffers, allocated once.
         self._params = kernel_params(cfg)
+        self._substep = float(self._params[P_SUBSTEP])  # [s] as a Python float, for sim_time
         #: The procedural template (None for a fixed workspace) and the current layout number.
         self._template = cfg if cfg.generator is not None else None
         self.layout_index: int | None = 0 if cfg.generator is not None else None
@@ -317,7 +318,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 f"action of {agents[-1 - done]!r} contains NaN or inf: {act[-1 - done].tolist()}"
             )
         self._actions = act
-        self.sim_time += done * self._params[P_SUBSTEP]
+        self.sim_time += done * self._substep
         self.steps += 1
         if self._leader[L_ARRIVED] and self._arrival_time is None:
             self._arrival_time = self.sim_time
@@ -335,7 +336,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
             )
         )
         obs = self._obs.copy()
-        observations = {a: obs[i] for i, a in enumerate(agents)}
+        observations = dict(zip(agents, obs, strict=True))
         rewards = dict(zip(agents, self._rewards.tolist(), strict=True))
         terminations = dict.fromkeys(agents, terminated)
         truncations = dict.fromkeys(agents, truncated)
