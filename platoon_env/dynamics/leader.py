@@ -55,8 +55,12 @@ def project_progress(
     m = path.shape[0]
     best_d = math.inf
     best_s = s_prev
-    for k in range(m - 1):
-        if cum[k + 1] < s_prev or cum[k] > s_prev + window:
+    # Segments ending before s_prev are skipped by a binary search; the loop stops past the window.
+    first = max(0, int(np.searchsorted(cum, s_prev)) - 1)
+    for k in range(first, m - 1):
+        if cum[k] > s_prev + window:
+            break
+        if cum[k + 1] < s_prev:
             continue
         ax, ay = path[k, 0], path[k, 1]
         dx, dy = path[k + 1, 0] - ax, path[k + 1, 1] - ay
