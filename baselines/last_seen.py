@@ -92,13 +92,14 @@ enough (turn radii >= 1 m, ``beta_con = 0.785``) that the defaults keep visibili
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from baselines.policy import PolicyEnv
 from platoon_env.observation import (
     OBS_D_WALL_LEFT,
     OBS_D_WALL_RIGHT,
@@ -311,24 +312,6 @@ class LastSeenParams:
 # ----------------------------------------------------------------------------------------------
 
 
-class _Scenario(Protocol):
-    @property
-    def config(self) -> ScenarioConfig: ...
-
-
-class LastSeenEnv(Protocol):
-    """What :class:`LastSeenPolicy` reads from the env."""
-
-    @property
-    def possible_agents(self) -> Sequence[str]: ...
-
-    @property
-    def control_period(self) -> float: ...
-
-    @property
-    def scenario(self) -> _Scenario: ...
-
-
 class LastSeenPolicy:
     r"""Ref. [32] as the paper describes it: saturated tracking, drive to the last-seen point.
 
@@ -351,7 +334,7 @@ class LastSeenPolicy:
     initial configuration requires). :attr:`signals` holds the last call's signals.
     """
 
-    def __init__(self, env: LastSeenEnv, *, dt: float | None = None, **overrides: float) -> None:
+    def __init__(self, env: PolicyEnv, *, dt: float | None = None, **overrides: float) -> None:
         if dt is not None:
             overrides["dt"] = dt
         self.params: LastSeenParams = LastSeenParams.from_config(

@@ -9,12 +9,34 @@ policies (the PPC law keeps its performance functions) restore their initial sta
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Policy"]
+from platoon_env.scenarios.schema import ScenarioConfig
+
+__all__ = ["Policy", "PolicyEnv"]
+
+
+class _Scenario(Protocol):
+    @property
+    def config(self) -> ScenarioConfig: ...
+
+
+class PolicyEnv(Protocol):
+    """What the scripted policies (:class:`baselines.PPCPolicy`, :class:`baselines.LastSeenPolicy`)
+    read from the env: the agents, the control period and the scenario's parameters."""
+
+    @property
+    def possible_agents(self) -> Sequence[str]: ...
+
+    @property
+    def control_period(self) -> float: ...
+
+    @property
+    def scenario(self) -> _Scenario: ...
 
 
 @runtime_checkable

@@ -55,14 +55,15 @@ printed equations, it says so here and next to the code:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar
 
 import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from baselines.policy import PolicyEnv
 from platoon_env.observation import (
     OBS_D_SIGHT_LEFT,
     OBS_D_SIGHT_RIGHT,
@@ -450,24 +451,6 @@ class PPCParams:
 # ----------------------------------------------------------------------------------------------
 
 
-class _Scenario(Protocol):
-    @property
-    def config(self) -> ScenarioConfig: ...
-
-
-class PPCEnv(Protocol):
-    """What :class:`PPCPolicy` reads from the env."""
-
-    @property
-    def possible_agents(self) -> Sequence[str]: ...
-
-    @property
-    def control_period(self) -> float: ...
-
-    @property
-    def scenario(self) -> _Scenario: ...
-
-
 # Rows of the signal buffer (``SIGNAL_NAMES`` order): 4 rho, 4 rho_dot, then the scalars.
 _S_RHO = 0
 _S_RHO_DOT = 4
@@ -691,7 +674,7 @@ class PPCPolicy:
     margin was floored).
     """
 
-    def __init__(self, env: PPCEnv, *, dt: float | None = None, **overrides: float) -> None:
+    def __init__(self, env: PolicyEnv, *, dt: float | None = None, **overrides: float) -> None:
         config = env.scenario.config
         period = float(env.control_period) if dt is None else float(dt)
         self.params: PPCParams = PPCParams.from_config(config, period, **overrides)
