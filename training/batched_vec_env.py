@@ -28,7 +28,6 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
-from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
 
 from platoon_env.batched import BatchedPlatoon
@@ -36,7 +35,7 @@ from platoon_env.observation import ACT_SIZE
 from platoon_env.safety import mask_to_causes
 from platoon_env.scenarios.loader import ScenarioLike
 from platoon_env.scenarios.schema import VIOLATION_CAUSES
-from training.vec_env import ActionRange, observation_scale
+from training.vec_env import ActionRange, SlotVecEnv, observation_scale
 
 __all__ = ["BatchedPlatoonVecEnv"]
 
@@ -51,7 +50,7 @@ _INFO_OF_MASK: tuple[tuple[str | None, tuple[str, ...], int], ...] = tuple(
 )
 
 
-class BatchedPlatoonVecEnv(VecEnv):
+class BatchedPlatoonVecEnv(SlotVecEnv):
     """Parameter-sharing SB3 ``VecEnv`` over ``n_envs`` batched copies of one scenario.
 
     Args:
@@ -133,8 +132,7 @@ class BatchedPlatoonVecEnv(VecEnv):
 
     def slot_env(self, k: int) -> int:
         """The index of the env owning slot ``k``."""
-        if not 0 <= k < self.num_envs:
-            raise IndexError(f"slot {k} out of range [0, {self.num_envs})")
+        self._check_slot(k)
         return k // self.n_followers
 
     def _normalise(self, obs: np.ndarray) -> np.ndarray:
@@ -144,13 +142,6 @@ class BatchedPlatoonVecEnv(VecEnv):
     # ----------------------------------------------------------------------------------------
     # VecEnv API
     # ----------------------------------------------------------------------------------------
-    def seed(self, seed: int | None = None) -> Sequence[int | None]:
-        """Seed env ``j`` with ``seed + j`` at the next :meth:`reset`; returns those seeds."""
-        if seed is None:
-            seed = int(np.random.default_rng().integers(np.iinfo(np.uint32).max))
-        self._env_seeds = [seed + j for j in range(self.n_envs)]
-        return list(self._env_seeds)
-
     def set_options(self, options: list[dict[str, Any]] | dict[str, Any] | None = None) -> None:
         """Options for each env's next reset (one dict for all, or one per env).
 
@@ -224,13 +215,6 @@ class BatchedPlatoonVecEnv(VecEnv):
         else:
             out = final.astype(np.float32, copy=False)
         return out, rewards, dones, infos
-
-    def step(
-        self, actions: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
-        """:meth:`step_async` then :meth:`step_wait` (narrower return type than ``VecEnv``)."""
-        self.step_async(actions)
-        return self.step_wait()
 
     def close(self) -> None:
         """Nothing to release (no renderer, no subprocess)."""

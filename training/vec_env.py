@@ -75,7 +75,43 @@ def observation_scale(space: spaces.Box) -> NDArray[np.float32]:
     return scale
 
 
-class PlatoonVecEnv(VecEnv):
+class SlotVecEnv(VecEnv):
+    """What both platoon adapters share: one slot per follower, env ``j`` seeded ``seed + j``.
+
+    Subclasses define :attr:`n_envs` and keep ``_env_seeds`` (one pending seed per env).
+    """
+
+    _env_seeds: list[int | None]
+
+    @property
+    def n_envs(self) -> int:  # pragma: no cover - defined by every subclass
+        """Number of envs (``num_envs`` counts follower slots)."""
+        raise NotImplementedError
+
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        """Step every env once (defined by every subclass)."""
+        raise NotImplementedError  # pragma: no cover
+
+    def _check_slot(self, k: int) -> None:
+        if not 0 <= k < self.num_envs:
+            raise IndexError(f"slot {k} out of range [0, {self.num_envs})")
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Seed env ``j`` with ``seed + j`` at the next :meth:`reset`; returns those seeds."""
+        if seed is None:
+            seed = int(np.random.default_rng().integers(np.iinfo(np.uint32).max))
+        self._env_seeds = [seed + j for j in range(self.n_envs)]
+        return list(self._env_seeds)
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        """:meth:`step_async` then :meth:`step_wait` (narrower return type than ``VecEnv``)."""
+        self.step_async(actions)
+        return self.step_wait()
+
+
+class PlatoonVecEnv(SlotVecEnv):
     """Parameter-sharing SB3 ``VecEnv`` adapter for one or more platoon ``ParallelEnv``\\ s.
 
     * ``step_async``/``step_wait`` gather each env's per-follower actions from the slots and
@@ -173,8 +209,7 @@ class PlatoonVecEnv(VecEnv):
 
     def slot_env(self, k: int) -> int:
         """The index of the env owning slot ``k``."""
-        if not 0 <= k < self.num_envs:
-            raise IndexError(f"slot {k} out of range [0, {self.num_envs})")
+        self._check_slot(k)
         return int(np.searchsorted(self._offsets, k, side="right")) - 1
 
     def _normalise(self, obs: Mapping[str, NDArray[Any]], env: PlatoonParallelEnv) -> np.ndarray:
@@ -184,13 +219,6 @@ class PlatoonVecEnv(VecEnv):
     # ----------------------------------------------------------------------------------------
     # VecEnv API
     # ----------------------------------------------------------------------------------------
-    def seed(self, seed: int | None = None) -> Sequence[int | None]:
-        """Seed env ``j`` with ``seed + j`` at the next :meth:`reset`; returns those seeds."""
-        if seed is None:
-            seed = int(np.random.default_rng().integers(np.iinfo(np.uint32).max))
-        self._env_seeds = [seed + j for j in range(self.n_envs)]
-        return list(self._env_seeds)
-
     def set_options(self, options: list[dict[str, Any]] | dict[str, Any] | None = None) -> None:
         """Options for each env's next :meth:`reset` (one dict for all, or one per env)."""
         if options is None:
@@ -257,13 +285,6 @@ class PlatoonVecEnv(VecEnv):
                     self.reset_infos[k] = reset_infos.get(agent, {})
             self._obs[slots.start : slots.stop] = stacked
         return self._obs.copy(), rewards, dones, infos
-
-    def step(
-        self, actions: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
-        """:meth:`step_async` then :meth:`step_wait` (narrower return type than ``VecEnv``)."""
-        self.step_async(actions)
-        return self.step_wait()
 
     def close(self) -> None:
         """Close every env."""
