@@ -114,6 +114,22 @@ def segment_hits_boundary(
     return False
 
 
+@njit(cache=True, inline="always")
+def distance_bearing_causes(
+    d: float, beta: float, d_col: float, d_con: float, beta_con: float
+) -> int:
+    """The causes read off ``d_i`` and ``beta_i`` alone: ``d_i <= d_col`` (eq. 4),
+    ``d_i >= d_con`` and ``|beta_i| >= beta_con`` (eq. 5)."""
+    mask = 0
+    if d <= d_col:
+        mask |= COLLISION_ROBOT
+    if d >= d_con:
+        mask |= OUT_OF_RANGE
+    if abs(beta) >= beta_con:
+        mask |= OUT_OF_FOV
+    return mask
+
+
 @njit(cache=True)
 def pose_violation(
     px: float,
@@ -126,18 +142,11 @@ def pose_violation(
     beta_con: float,
 ) -> int:
     """The causes that depend on the pair of poses only: ``d_i`` and ``beta_i`` (eqs. 2-5)."""
-    mask = 0
     dx = qx - px
     dy = qy - py
     d = math.sqrt(dx * dx + dy * dy)  # as in sensing.sense_candidates
     beta = wrap_angle(math.atan2(dy, dx) - theta)
-    if d <= d_col:
-        mask |= COLLISION_ROBOT
-    if d >= d_con:
-        mask |= OUT_OF_RANGE
-    if abs(beta) >= beta_con:
-        mask |= OUT_OF_FOV
-    return mask
+    return distance_bearing_causes(d, beta, d_col, d_con, beta_con)
 
 
 @njit(cache=True)
@@ -221,17 +230,11 @@ def sensed_violation(
 ) -> int:
     """The violation mask from a follower's sensing (``d``, ``beta``, squared clearance,
     occlusion) and the tunnelling check; same rules as :func:`follower_violation`."""
-    mask = 0
-    if d <= d_col:
-        mask |= COLLISION_ROBOT
+    mask = distance_bearing_causes(d, beta, d_col, d_con, beta_con)
     if clearance2 <= radius * radius or motion_hit:
         mask |= COLLISION_OBSTACLE
     if occluded:
         mask |= OCCLUDED
-    if d >= d_con:
-        mask |= OUT_OF_RANGE
-    if abs(beta) >= beta_con:
-        mask |= OUT_OF_FOV
     return mask
 
 
