@@ -27,22 +27,6 @@ REWARD_TERMS: tuple[str, ...] = ("distance", "bearing", "effort", "alive", "viol
 R_DISTANCE, R_BEARING, R_EFFORT, R_ALIVE, R_VIOLATION = range(5)
 
 
-def reward_terms_dict(values: list[float]) -> dict[str, float]:
-    """``dict(zip(REWARD_TERMS, values))`` for one follower's terms (``info["reward_terms"]``).
-
-    Written as a literal: it is built for every follower in every step, and a literal is three
-    times faster than ``dict(zip(...))``. ``tests/test_batched.py`` checks the two agree.
-    """
-    distance, bearing, effort, alive, violation = values
-    return {
-        "distance": distance,
-        "bearing": bearing,
-        "effort": effort,
-        "alive": alive,
-        "violation": violation,
-    }
-
-
 def reward_weights(cfg: ScenarioConfig) -> np.ndarray:
     """The weights of :data:`REWARD_TERMS` as a float64 vector."""
     w = cfg.reward

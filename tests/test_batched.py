@@ -227,11 +227,3 @@ def test_vec_env_trains_ppo() -> None:
     model = PPO("MlpPolicy", venv, n_steps=16, batch_size=32, n_epochs=1, seed=0, device="cpu")
     model.learn(total_timesteps=64)
     assert model.num_timesteps >= 64
-
-
-def test_reward_terms_dict_follows_reward_terms() -> None:
-    from platoon_env.reward import REWARD_TERMS, reward_terms_dict
-
-    values = [0.5 * k - 1.0 for k in range(len(REWARD_TERMS))]
-    assert reward_terms_dict(values) == dict(zip(REWARD_TERMS, values, strict=True))
-    assert list(reward_terms_dict(values)) == list(REWARD_TERMS)

@@ -321,3 +321,51 @@ def test_info_has_every_cause_name(corridor: dict[str, Any]) -> None:
     for info in infos.values():
         assert info["violation"] is None and info["cost"] == 0
         assert set(VIOLATION_CAUSES) >= set(info["violations"])
+
+
+def test_info_diagnostics_and_reward_terms(corridor: dict[str, Any]) -> None:
+    """info matches env.sensed, reward_terms follow the formulas of platoon_env.reward in the
+    order of REWARD_TERMS, and each reward is the sum of its terms — with and without
+    violations (the followers turn away until they lose their predecessor)."""
+    from platoon_env.geometry.sensing import SENSE_NAMES
+    from platoon_env.reward import REWARD_TERMS
+
+    env = platoon_env.make(corridor, terminate_on=[])
+    cfg = env.scenario.config
+    w = cfg.reward
+    d_des, beta_con = cfg.formation.d_des, cfg.camera.half_angle
+    env.reset(seed=0)
+    seen_violation = seen_clean = False
+    for t in range(150):
+        act = {
+            a: np.array([0.3, 0.8 if k % 2 else -0.8 * (t % 3)]) for k, a in enumerate(env.agents)
+        }
+        _, rewards, _, _, infos = env.step(act)
+        sensed = env.sensed
+        for k, agent in enumerate(env.possible_agents):
+            info = infos[agent]
+            for c, name in enumerate(SENSE_NAMES):
+                if name == "occluded":
+                    continue
+                expected = sensed[k, c] > 0 if name == "visible" else sensed[k, c]
+                assert info[name] == expected, name
+            assert info["e_d"] == pytest.approx(info["d"] - d_des)
+            assert info["e_beta"] == info["beta"]
+            terms = info["reward_terms"]
+            assert list(terms) == list(REWARD_TERMS)
+            ed = min(2.0, max(-2.0, info["e_d"] / (cfg.camera.range - d_des)))
+            eb = min(2.0, max(-2.0, info["e_beta"] / beta_con))
+            u, omega = np.clip(act[agent], [-cfg.robot.u_max, -cfg.robot.omega_max],
+                               [cfg.robot.u_max, cfg.robot.omega_max])  # fmt: skip
+            violated = bool(info["violations"])
+            assert info["cost"] == int(violated)
+            assert (info["violation"] is None) == (not violated)
+            seen_violation |= violated
+            seen_clean |= not violated
+            assert terms["distance"] == pytest.approx(-w.distance * ed * ed)
+            assert terms["bearing"] == pytest.approx(-w.bearing * eb * eb)
+            assert terms["effort"] == pytest.approx(-w.effort * (u * u + omega * omega), rel=1e-6)
+            assert terms["alive"] == (0.0 if violated else w.alive)
+            assert terms["violation"] == (-w.violation if violated else 0.0)
+            assert rewards[agent] == pytest.approx(sum(terms.values()))
+    assert seen_violation and seen_clean
