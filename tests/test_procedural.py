@@ -12,7 +12,7 @@ from pettingzoo.test import parallel_api_test
 from shapely.geometry import LineString, box
 
 import platoon_env
-from platoon_env.scenarios import procedural
+from platoon_env.scenarios import corridor_layouts, procedural, room_layouts
 from platoon_env.scenarios.loader import load_config
 from platoon_env.scenarios.procedural import (
     LAYOUT_BOUNDS,
@@ -173,8 +173,8 @@ def test_layouts_are_valid(kind: str, split: str) -> None:
 
 
 def test_fallback_when_sampling_fails(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(procedural, "_sample_corridor", lambda rng, p: None)
-    monkeypatch.setattr(procedural, "_sample_rooms", lambda rng, p: None)
+    monkeypatch.setattr(corridor_layouts, "sample_corridor", lambda rng, p: None)
+    monkeypatch.setattr(room_layouts, "sample_rooms", lambda rng, p: None)
     sc = generate_scenario(TEMPLATE, 42)
     assert box(*LAYOUT_BOUNDS).covers(sc.free_space)
     assert initial_violations(sc.config, sc.workspace, np.asarray(sc.initial_poses)) == []

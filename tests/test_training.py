@@ -103,10 +103,13 @@ def test_action_rescaling() -> None:
     rng = ActionRange(u_low=-0.5, u_high=1.5, omega_high=2.0)
     np.testing.assert_allclose(rng.to_physical(np.array([-1.0, -1.0])), [-0.5, -2.0])
     np.testing.assert_allclose(rng.to_physical(np.array([1.0, 1.0])), [1.5, 2.0])
-    np.testing.assert_allclose(rng.to_physical(np.array([[-0.5, 0.0], [3.0, -7.0]])), [
-        [0.0, 0.0],
-        [1.5, -2.0],
-    ])
+    np.testing.assert_allclose(
+        rng.to_physical(np.array([[-0.5, 0.0], [3.0, -7.0]])),
+        [
+            [0.0, 0.0],
+            [1.5, -2.0],
+        ],
+    )
     with pytest.raises(ValueError, match="actuator limits"):
         PlatoonVecEnv([lambda: platoon_env.make("study_c", u_max=1.0)], action_range=rng)
     with pytest.raises(ValueError):
@@ -192,8 +195,20 @@ def test_seeded_reproducibility() -> None:
 # ------------------------------------------------------------------------------------------------
 def test_parse_args_matches_config() -> None:
     assert parse_args([]) == TrainConfig()
-    cfg = parse_args(["--algo", "sac", "--net-arch", "32", "32", "--no-progress-bar",
-                      "--control-period", "0.02", "--max-episode-steps", "100"])
+    cfg = parse_args(
+        [
+            "--algo",
+            "sac",
+            "--net-arch",
+            "32",
+            "32",
+            "--no-progress-bar",
+            "--control-period",
+            "0.02",
+            "--max-episode-steps",
+            "100",
+        ]
+    )
     assert cfg.algo == "sac" and cfg.net_arch == [32, 32] and cfg.progress_bar is False
     assert cfg.control_period == 0.02 and cfg.max_episode_steps == 100
 
@@ -260,15 +275,30 @@ def test_learned_policy_needs_metadata(tmp_path: Path) -> None:
 
 
 def _train_cmd(out: Path, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "training.train", "--algo", "ppo", "--scenario", "study_c",
-            "--seed", "0", "--out", str(out), *extra]
+    return [
+        sys.executable,
+        "-m",
+        "training.train",
+        "--algo",
+        "ppo",
+        "--scenario",
+        "study_c",
+        "--seed",
+        "0",
+        "--out",
+        str(out),
+        *extra,
+    ]
 
 
 def test_train_cli_smoke(tmp_path: Path) -> None:
     out = tmp_path / "run"
     res = subprocess.run(
         _train_cmd(out, "--timesteps", "2048"),
-        cwd=REPO, capture_output=True, text=True, timeout=120,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert res.returncode == 0, res.stderr[-2000:]
     assert (out / "model.zip").is_file() and (out / "model.json").is_file()
@@ -287,9 +317,13 @@ def test_train_cli_ctrl_c_saves(tmp_path: Path) -> None:
     """SIGINT mid-run: the last checkpoint survives and the model so far is saved."""
     out = tmp_path / "run"
     proc = subprocess.Popen(
-        _train_cmd(out, "--timesteps", "10000000", "--checkpoint-every", "4096",
-                   "--no-progress-bar"),
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        _train_cmd(
+            out, "--timesteps", "10000000", "--checkpoint-every", "4096", "--no-progress-bar"
+        ),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
         # pytest-xdist workers ignore SIGINT and children inherit that: restore the default so
         # that Python installs its KeyboardInterrupt handler in the trainer.
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
@@ -319,9 +353,25 @@ def test_train_resume_continues_to_the_total(tmp_path: Path) -> None:
     from training.train import main as train_main
 
     out = tmp_path / "run"
-    common = ["--algo", "ppo", "--scenario", "study_c", "--n-envs", "1", "--n-steps", "128",
-              "--batch-size", "64", "--checkpoint-every", "256", "--seed", "0", "--out", str(out),
-              "--no-progress-bar"]
+    common = [
+        "--algo",
+        "ppo",
+        "--scenario",
+        "study_c",
+        "--n-envs",
+        "1",
+        "--n-steps",
+        "128",
+        "--batch-size",
+        "64",
+        "--checkpoint-every",
+        "256",
+        "--seed",
+        "0",
+        "--out",
+        str(out),
+        "--no-progress-bar",
+    ]
     assert train_main([*common, "--timesteps", "512"]) == 0
     first = json.loads((out / "model.json").read_text())["timesteps"]
     assert train_main([*common, "--timesteps", "1024", "--resume"]) == 0

@@ -1,0 +1,176 @@
+"""Pieces shared by the procedural layout kinds (internal to :mod:`~platoon_env.scenarios`).
+
+:mod:`~platoon_env.scenarios.procedural` orchestrates; the kinds
+(:mod:`~platoon_env.scenarios.corridor_layouts`, :mod:`~platoon_env.scenarios.room_layouts`)
+sample. Both sides use what is here: the generator's parameters derived from the template
+(:class:`Params`), the sampled result (:class:`Layout`), the layout box and clearances,
+rounding a polyline's corners into the leader path, and the last steps of every sampler
+(:func:`fit_in_bounds`, :func:`path_is_clear`). Nothing here draws from a random stream except
+where an ``rng`` is passed in, and each function draws in a fixed order.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Polygon
+
+from platoon_env.scenarios.schema import ScenarioConfig
+
+#: ``(xmin, ymin, xmax, ymax)``: every generated free space lies inside this box [m].
+LAYOUT_BOUNDS: tuple[float, float, float, float] = (0.0, 0.0, 40.0, 40.0)
+#: The leader's path keeps at least ``r + PATH_CLEARANCE`` from every wall [m].
+PATH_CLEARANCE = 0.25
+#: Gap between a layout and the edge of :data:`LAYOUT_BOUNDS` [m].
+BOUNDS_MARGIN = 0.5
+#: Free-standing obstacles and pillars keep at least ``r + this`` from the leader's path [m].
+OBSTACLE_PATH_CLEARANCE = 0.35
+
+_PATH_LENGTH = (15.0, 40.0)  # [m] usual range of the leader path's length
+_ARC_STEP = 0.1  # [rad] angular step of the points sampling a rounded corner
+
+
+@dataclass(frozen=True)
+class Params:
+    """What the generator needs from the template (robot size, platoon length, sensors)."""
+
+    r: float  # robot radius
+    d_des: float  # desired inter-robot distance (chord)
+    start_len: float  # straight start stretch that holds the platoon
+    min_radius: float  # minimum radius of the leader path's rounded corners
+    delta: float  # PPC activation distance: "narrow" means clearance - r < delta
+    len_min: float  # leader-path length range
+    len_max: float
+
+    @classmethod
+    def from_template(cls, template: ScenarioConfig) -> Params:
+        """Derive the generator's parameters from ``template``."""
+        r = template.robot.radius
+        d_des = template.formation.d_des
+        beta_con = template.camera.half_angle
+        leader = template.leader
+        start_len = template.followers * d_des + 1.0
+        # A follower on an arc of radius R sees its predecessor (chord d_des ahead) at
+        # |beta| = asin(d_des / 2R): keep that below 0.8 beta_con. The leader must also be able
+        # to turn that tightly (u / omega_max) and pure pursuit should not cut the corner.
+        min_radius = max(
+            d_des / (2.0 * math.sin(0.8 * beta_con)),
+            1.2 * leader.speed / leader.max_turn_rate,
+            leader.lookahead,
+        )
+        delta = template.ppc.delta if template.ppc is not None else 0.5
+        len_min = max(_PATH_LENGTH[0], start_len + 6.0)
+        len_max = max(_PATH_LENGTH[1], start_len + 25.0)
+        return cls(r, d_des, start_len, min_radius, delta, len_min, len_max)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A sampled layout before it becomes a config: free space, leader path, kind."""
+
+    kind: str
+    free_space: Polygon
+    path: np.ndarray  # (M, 2) leader path
+
+
+@dataclass(frozen=True)
+class Corner:
+    """A rounded corner of a polyline: the arc replacing vertex ``vertex``."""
+
+    vertex: np.ndarray  # the polyline's vertex
+    t_in: np.ndarray  # tangent point on the incoming segment
+    t_out: np.ndarray  # tangent point on the outgoing segment
+    arc: np.ndarray  # (K, 2) points from t_in to t_out inclusive
+    turn: float  # signed turn angle [rad], > 0 to the left
+    tangent: float  # |vertex - t_in| = |t_out - vertex|
+
+
+def unit(angle: float) -> np.ndarray:
+    """The unit vector at ``angle`` [rad] from the x axis."""
+    return np.array([math.cos(angle), math.sin(angle)])
+
+
+def round_corners(points: np.ndarray, radii: np.ndarray) -> list[Corner]:
+    """Replace every interior vertex of the polyline ``points`` by a circular arc.
+
+    ``radii[k]`` is the radius at vertex ``k + 1``. The arcs are tangent to both segments; the
+    caller checks that consecutive tangent points do not overlap.
+    """
+    corners: list[Corner] = []
+    for k in range(1, points.shape[0] - 1):
+        p = points[k]
+        u_in = p - points[k - 1]
+        u_in = u_in / np.hypot(*u_in)
+        u_out = points[k + 1] - p
+        u_out = u_out / np.hypot(*u_out)
+        turn = math.atan2(u_in[0] * u_out[1] - u_in[1] * u_out[0], float(u_in @ u_out))
+        radius = float(radii[k - 1])
+        if abs(turn) < 1e-9:
+            corners.append(Corner(p, p, p, p[None, :], 0.0, 0.0))
+            continue
+        tangent = radius * math.tan(abs(turn) / 2.0)
+        t_in = p - tangent * u_in
+        t_out = p + tangent * u_out
+        normal = np.array([-u_in[1], u_in[0]]) * math.copysign(1.0, turn)
+        centre = t_in + radius * normal
+        a0 = math.atan2(t_in[1] - centre[1], t_in[0] - centre[0])
+        n = max(2, math.ceil(abs(turn) / _ARC_STEP))
+        ang = a0 + np.linspace(0.0, turn, n + 1)
+        arc = centre + radius * np.column_stack([np.cos(ang), np.sin(ang)])
+        arc[0], arc[-1] = t_in, t_out
+        corners.append(Corner(p, t_in, t_out, arc, turn, tangent))
+    return corners
+
+
+def rounded_path(points: np.ndarray, corners: list[Corner]) -> np.ndarray:
+    """The polyline with its corners replaced by their arcs (consecutive duplicates removed)."""
+    parts = [points[:1], *[c.arc for c in corners], points[-1:]]
+    path = np.concatenate(parts, axis=0)
+    keep = np.ones(path.shape[0], dtype=bool)
+    keep[1:] = np.hypot(*np.diff(path, axis=0).T) > 1e-9
+    return path[keep]
+
+
+def path_length(path: np.ndarray) -> float:
+    """The length of the polyline ``path`` [m]."""
+    return float(np.hypot(*np.diff(path, axis=0).T).sum())
+
+
+def beside(rng: np.random.Generator, line: LineString, offset: float) -> np.ndarray:
+    """A random point at distance ``offset`` to the left or right of a random point of
+    ``line`` (measured along the line's normal there)."""
+    s = float(rng.uniform(0.1, line.length - 0.1))
+    a = np.array(line.interpolate(s - 0.1).coords[0])
+    b = np.array(line.interpolate(s + 0.1).coords[0])
+    t = (b - a) / max(float(np.hypot(*(b - a))), 1e-12)
+    side = 1.0 if rng.random() < 0.5 else -1.0
+    return np.asarray(0.5 * (a + b) + side * offset * np.array([-t[1], t[0]]))
+
+
+def fit_in_bounds(
+    rng: np.random.Generator, free: Polygon, path: np.ndarray, matrix: np.ndarray | None = None
+) -> tuple[Polygon, np.ndarray] | None:
+    """Apply the linear map ``matrix`` (if any), then shift to a random place inside
+    :data:`LAYOUT_BOUNDS` (keeping a margin); None if the layout is too large."""
+    if matrix is not None:
+        m = matrix
+        free = shapely.transform(free, lambda xy: xy @ m.T)
+        path = path @ m.T
+    xmin, ymin, xmax, ymax = free.bounds
+    bx0, by0, bx1, by1 = LAYOUT_BOUNDS
+    lo = np.array([bx0 + BOUNDS_MARGIN - xmin, by0 + BOUNDS_MARGIN - ymin])
+    hi = np.array([bx1 - BOUNDS_MARGIN - xmax, by1 - BOUNDS_MARGIN - ymax])
+    if np.any(hi < lo):
+        return None
+    shift = rng.uniform(lo, hi)
+    free = shapely.transform(free, lambda xy: xy + shift)
+    return free, path + shift
+
+
+def path_is_clear(free: Polygon, path: np.ndarray, r: float) -> bool:
+    """Whether the path lies in ``free`` with clearance >= ``r + PATH_CLEARANCE`` (exact)."""
+    line = LineString(path)
+    return bool(free.covers(line) and line.distance(free.boundary) >= r + PATH_CLEARANCE + 1e-3)

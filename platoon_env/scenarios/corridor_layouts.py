@@ -1,0 +1,181 @@
+"""The ``corridor`` kind of procedural layout.
+
+A corridor (the free space's outer polygon, sometimes with a small pillar as a hole) along a
+random polyline of 4-8 segments: a straight start stretch that holds the platoon, then turns of
+which at least one is sharp, and pieces of varying width, at least one narrow enough that the
+followers' clearance terms engage on both sides (see :mod:`~platoon_env.scenarios.procedural`
+for the numbers). :func:`sample_corridor` is called by
+:func:`~platoon_env.scenarios.procedural.generate_scenario`; the pillars are the small shapes
+of :mod:`~platoon_env.scenarios.room_layouts`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Polygon
+
+from platoon_env.scenarios._layout import (
+    OBSTACLE_PATH_CLEARANCE,
+    Layout,
+    Params,
+    beside,
+    fit_in_bounds,
+    path_is_clear,
+    round_corners,
+    rounded_path,
+    unit,
+)
+from platoon_env.scenarios.room_layouts import SMALL_SHAPES, place
+
+_SHARP_TURN = (math.radians(30.0), math.radians(100.0))
+_GENTLE_TURN = (math.radians(8.0), math.radians(30.0))
+_WIDE_CLEARANCE = (0.5, 1.2)  # [m] half-width minus r of a wide corridor piece
+_NARROW_CLEARANCE = (0.3, 0.45)  # [m] half-width minus r of a narrow piece (capped below delta)
+_MIN_CLEARANCE = 0.25  # [m] a corridor is never narrower than 2 (r + this)
+_WALL_GAP = 0.5  # [m] minimum wall thickness between non-adjacent parts of a corridor
+_PILLAR_GAP = 0.3  # [m] a corridor's pillar keeps this gap to the corridor's walls
+
+
+def _corridor_clearances(rng: np.random.Generator, n: int, p: Params) -> np.ndarray:
+    """Half-width minus ``r`` of ``n`` consecutive corridor pieces; at least one is narrow."""
+    narrow_hi = max(_MIN_CLEARANCE, min(_NARROW_CLEARANCE[1], p.delta - 0.05))
+    narrow_lo = max(_MIN_CLEARANCE, min(_NARROW_CLEARANCE[0], narrow_hi))
+
+    def draw() -> float:
+        if rng.random() < 0.35:
+            return float(rng.uniform(narrow_lo, narrow_hi))
+        return float(rng.uniform(*_WIDE_CLEARANCE))
+
+    out = np.empty(n)
+    out[0] = draw()
+    for k in range(1, n):
+        out[k] = out[k - 1] if rng.random() < 0.25 else draw()
+    if not np.any(out < p.delta):
+        out[int(rng.integers(n))] = rng.uniform(narrow_lo, narrow_hi)
+    return out
+
+
+def sample_corridor(rng: np.random.Generator, p: Params) -> Layout | None:
+    """One corridor layout, or None when the draw does not fit (self-contact, too large)."""
+    n_seg = int(rng.integers(4, 9))
+    n_corner = n_seg - 1
+    sharp = rng.random(n_corner) < 0.5
+    if not sharp.any():
+        sharp[int(rng.integers(n_corner))] = True
+    magnitude = np.where(
+        sharp, rng.uniform(*_SHARP_TURN, n_corner), rng.uniform(*_GENTLE_TURN, n_corner)
+    )
+    signs = np.empty(n_corner)
+    signs[0] = 1.0 if rng.random() < 0.5 else -1.0
+    for k in range(1, n_corner):
+        signs[k] = -signs[k - 1] if rng.random() < 0.6 else signs[k - 1]
+    turns = signs * magnitude
+    # Pieces 0..n_seg; piece k (1 <= k < n_seg) holds corner k; 0 and n_seg are the two ends.
+    clear = _corridor_clearances(rng, n_seg + 1, p)
+    half = p.r + clear
+    radii = p.min_radius * rng.uniform(1.0, 1.3, n_corner)
+    radii = np.maximum(radii, half[1:n_seg] + 0.3)  # inner wall keeps a positive radius
+    tangents = radii * np.tan(np.abs(turns) / 2.0)
+    arc_len = float(np.sum(radii * np.abs(turns)))
+    # Straight parts of the segments: the first holds the platoon, the rest share the length.
+    first = p.start_len + float(rng.uniform(0.2, 1.5))
+    min_straight = 0.8
+    target = float(rng.uniform(p.len_min, p.len_max - 5.0))
+    rest = target - first - arc_len - min_straight * (n_seg - 1)
+    if rest <= 0.0:
+        return None
+    straights = np.concatenate(
+        [[first], min_straight + rest * rng.dirichlet(np.full(n_seg - 1, 3.0))]
+    )
+    heading = float(rng.uniform(-math.pi, math.pi))
+    headings = heading + np.concatenate([[0.0], np.cumsum(turns)])
+    pts = np.zeros((n_seg + 1, 2))
+    for k in range(n_seg):
+        length = straights[k]
+        length += tangents[k - 1] if k >= 1 else 0.0
+        length += tangents[k] if k < n_corner else 0.0
+        pts[k + 1] = pts[k] + length * unit(float(headings[k]))
+    corners = round_corners(pts, radii)
+    path = rounded_path(pts, corners)
+    # Split point of each segment's straight part, where the width may change.
+    splits = []
+    for k in range(n_seg):
+        a = pts[0] if k == 0 else corners[k - 1].t_out
+        b = pts[-1] if k == n_seg - 1 else corners[k].t_in
+        splits.append(a + float(rng.uniform(0.3, 0.7)) * (b - a))
+    start_ext = pts[0] - (p.r + 0.45) * unit(float(headings[0]))
+    end_ext = pts[-1] + (p.r + float(rng.uniform(0.5, 1.0))) * unit(float(headings[-1]))
+    # Piece k runs from split k - 1 to split k. At each split the narrower piece reaches a
+    # little into its neighbour, so that the union has no crack along the common cap.
+    overlap = 0.05
+    lines: list[list[np.ndarray]] = [[start_ext, splits[0]]]
+    for k in range(1, n_seg):
+        lines.append([splits[k - 1], *corners[k - 1].arc, splits[k]])
+    lines.append([splits[-1], end_ext])
+    for k in range(n_seg):
+        u = unit(float(headings[k])) * overlap
+        if half[k] <= half[k + 1]:
+            lines[k][-1] = lines[k][-1] + u
+        else:
+            lines[k + 1][0] = lines[k + 1][0] - u
+    buf = {"cap_style": "flat", "join_style": "mitre", "mitre_limit": 10.0}
+    pieces = []
+    for k, pts_k in enumerate(lines):
+        piece = LineString(pts_k).buffer(half[k], **buf)
+        if 1 <= k < n_seg:  # the sharp outer corner of the turn
+            c = corners[k - 1]
+            pocket = LineString([splits[k - 1], c.vertex, splits[k]]).buffer(half[k], **buf)
+            piece = piece.union(pocket)
+        pieces.append(piece)
+    for i in range(len(pieces)):
+        for j in range(i + 2, len(pieces)):
+            if pieces[i].distance(pieces[j]) < _WALL_GAP:
+                return None  # the corridor would run into itself
+    corridor = shapely.union_all(pieces)
+    if not isinstance(corridor, Polygon) or len(corridor.interiors) > 0:
+        return None
+    corridor = corridor.simplify(1e-6, preserve_topology=True)
+    if rng.random() < 0.5:
+        corridor = _add_pillar(rng, corridor, path, p, pieces, clear)
+    fitted = fit_in_bounds(rng, corridor, path)
+    if fitted is None:
+        return None
+    free, path = fitted
+    if not path_is_clear(free, path, p.r):
+        return None
+    return Layout("corridor", free, path)
+
+
+def _add_pillar(
+    rng: np.random.Generator,
+    corridor: Polygon,
+    path: np.ndarray,
+    p: Params,
+    pieces: list[Polygon],
+    clear: np.ndarray,
+) -> Polygon:
+    """Put a small pillar (a hole) beside the path in a wide piece, if one fits."""
+    wide = [k for k in range(1, len(pieces)) if clear[k] >= 1.0]
+    if not wide:
+        return corridor
+    line = LineString(path)
+    for _ in range(4):
+        piece = pieces[wide[int(rng.integers(len(wide)))]]
+        inside = line.intersection(piece)
+        if not isinstance(inside, LineString) or inside.length < 0.5:
+            continue
+        size = float(rng.uniform(0.2, 0.35))
+        offset = p.r + OBSTACLE_PATH_CLEARANCE + 0.6 * size + float(rng.uniform(0.0, 0.2))
+        centre = beside(rng, inside, offset)
+        shape = SMALL_SHAPES[int(rng.integers(len(SMALL_SHAPES)))](rng, size)
+        pillar = place(shape, centre, float(rng.uniform(0.0, 2.0 * math.pi)))
+        if (
+            corridor.contains(pillar)
+            and pillar.distance(corridor.exterior) >= _PILLAR_GAP
+            and pillar.distance(line) >= p.r + OBSTACLE_PATH_CLEARANCE
+        ):
+            return Polygon(corridor.exterior.coords, [pillar.exterior.coords])
+    return corridor
