@@ -7,6 +7,7 @@ bash scripts/setup.sh
 export MPLBACKEND=Agg
 echo "== ruff"
 .venv/bin/ruff check platoon_env baselines training tests benchmarks scripts
+.venv/bin/ruff format --check platoon_env baselines training tests benchmarks scripts
 echo "== mypy"
 .venv/bin/mypy platoon_env baselines training
 echo "== pytest"
