@@ -13,6 +13,8 @@ from typing import Any
 
 from pettingzoo.utils.env import AECEnv
 
+# First of the package's modules: keys numba's kernel cache on the source (see the module).
+import platoon_env._numba_cache  # noqa: F401
 from platoon_env.env import PlatoonParallelEnv
 from platoon_env.gym_env import GYM_IDS, SingleFollowerEnv, register_gym_ids
 from platoon_env.scenarios import (
