@@ -82,7 +82,14 @@ _UNPACKED_SENSE_NAMES = (
 )
 if SENSE_NAMES != _UNPACKED_SENSE_NAMES:  # pragma: no cover - guards a refactoring mistake
     raise ImportError(f"env._infos expects sensing columns {_UNPACKED_SENSE_NAMES}")
-if REWARD_TERMS != ("distance", "bearing", "effort", "alive", "violation"):  # pragma: no cover
+if REWARD_TERMS != (
+    "distance",
+    "bearing",
+    "effort",
+    "alive",
+    "violation",
+    "wall",
+):  # pragma: no cover
     raise ImportError(f"env._infos expects reward terms in another order than {REWARD_TERMS}")
 
 
@@ -490,13 +497,14 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
             if terms is None:
                 reward_terms = {}
             else:
-                distance, bearing, effort, alive, violation = terms[i]
+                distance, bearing, effort, alive, violation, wall = terms[i]
                 reward_terms = {
                     "distance": distance,
                     "bearing": bearing,
                     "effort": effort,
                     "alive": alive,
                     "violation": violation,
+                    "wall": wall,
                 }
             infos[agent] = {
                 "violation": first,

@@ -68,8 +68,9 @@ P_U_LOW = 11
 P_OMEGA_LOW = 12
 P_U_HIGH = 13
 P_OMEGA_HIGH = 14
-#: The weights of ``REWARD_TERMS`` occupy ``P_REWARD_WEIGHTS ... P_REWARD_WEIGHTS + 4``.
-P_REWARD_WEIGHTS = 15
+P_WALL_MARGIN = 15
+#: The weights of ``REWARD_TERMS`` occupy ``P_REWARD_WEIGHTS ... P_REWARD_WEIGHTS + 5``.
+P_REWARD_WEIGHTS = 16
 P_SIZE = P_REWARD_WEIGHTS + len(REWARD_TERMS)
 
 
@@ -88,6 +89,7 @@ def kernel_params(cfg: ScenarioConfig) -> np.ndarray:
     params[P_D_DES] = cfg.formation.d_des
     # The distance error is normalised by d_con - d_des, the bearing error by beta_con.
     params[P_REWARD_D_SCALE] = cfg.camera.range - cfg.formation.d_des
+    params[P_WALL_MARGIN] = cfg.reward.wall_margin
     # Actuator limits exactly as the float32 action Box holds them.
     space = action_space(cfg)
     params[P_U_LOW], params[P_OMEGA_LOW] = space.low.astype(np.float64)
@@ -375,6 +377,8 @@ def platoon_step(
             params[P_REWARD_WEIGHTS : P_REWARD_WEIGHTS + terms.shape[1]],
             params[P_REWARD_D_SCALE],
             params[P_BETA_CON],
+            params[P_RADIUS],
+            params[P_WALL_MARGIN],
             terms,
         )
         for i in range(terms.shape[0]):

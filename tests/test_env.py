@@ -334,8 +334,9 @@ def test_info_diagnostics_and_reward_terms(corridor: dict[str, Any]) -> None:
     cfg = env.scenario.config
     w = cfg.reward
     d_des, beta_con = cfg.formation.d_des, cfg.camera.half_angle
-    env.reset(seed=0)
-    seen_violation = seen_clean = False
+    # The platoon starts along the lower wall (y = -2): follower 2 is 0.1 m beyond r from it.
+    env.reset(seed=0, options={"poses": [[3.0, -1.7, 0.0], [2.0, -1.7, 0.0], [1.0, -1.75, 0.0]]})
+    seen_violation = seen_clean = seen_wall = False
     for t in range(150):
         act = {
             a: np.array([0.3, 0.8 if k % 2 else -0.8 * (t % 3)]) for k, a in enumerate(env.agents)
@@ -367,5 +368,8 @@ def test_info_diagnostics_and_reward_terms(corridor: dict[str, Any]) -> None:
             assert terms["effort"] == pytest.approx(-w.effort * (u * u + omega * omega), rel=1e-6)
             assert terms["alive"] == (0.0 if violated else w.alive)
             assert terms["violation"] == (-w.violation if violated else 0.0)
+            near = min(1.0, max(0.0, 1.0 - (info["clearance"] - cfg.robot.radius) / w.wall_margin))
+            assert terms["wall"] == pytest.approx(-w.wall * near * near)
+            seen_wall |= 0.0 > terms["wall"] > -w.wall
             assert rewards[agent] == pytest.approx(sum(terms.values()))
-    assert seen_violation and seen_clean
+    assert seen_violation and seen_clean and seen_wall

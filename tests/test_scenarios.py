@@ -103,12 +103,15 @@ def test_missing_and_mistyped(corridor: dict[str, Any]) -> None:
         ("safety", "d_col", 0.2, "safety.d_col"),  # < 2r
         ("robot", "radius", -0.1, "robot.radius"),
         ("ppc", "epsilon", 1.0, "ppc.epsilon"),
+        ("reward", "wall_margin", 0.0, "reward.wall_margin"),
+        ("reward", "wall", math.inf, "reward.wall"),
+        ("reward", "distance", math.nan, "reward.distance"),
     ],
 )
 def test_parameter_ranges(
     corridor: dict[str, Any], section: str, key: str, value: float, field: str
 ) -> None:
-    corridor[section][key] = value
+    corridor.setdefault(section, {})[key] = value
     assert field in _error(corridor)
 
 

@@ -15,7 +15,7 @@ import math
 import types
 import typing
 from collections.abc import Mapping
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from typing import Any, TypeVar
 
 Point = tuple[float, float]
@@ -148,6 +148,8 @@ class RewardConfig:
     effort: float = 0.01  # penalty on u^2 + omega^2
     alive: float = 1.0  # bonus per step without violation
     violation: float = 100.0  # penalty when a violation occurs
+    wall: float = 1.0  # penalty on (1 - (clearance - r) / wall_margin)^2 near a wall
+    wall_margin: float = 0.25  # [m] clearance beyond r below which the wall term applies
 
 
 @dataclass(frozen=True)
@@ -360,6 +362,9 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
         f"{path}.simulation.max_episode_steps",
         "must be >= 1",
     )
+    for name, value in asdict(cfg.reward).items():
+        _require(math.isfinite(value), f"{path}.reward.{name}", f"must be finite, got {value}")
+    _require(cfg.reward.wall_margin > 0, f"{path}.reward.wall_margin", "must be > 0")
     ini = cfg.initial
     _require(ini.position_noise >= 0, f"{path}.initial.position_noise", "must be >= 0")
     _require(ini.heading_noise >= 0, f"{path}.initial.heading_noise", "must be >= 0")
