@@ -231,6 +231,21 @@ def test_ppo_seeded_runs_identical() -> None:
     assert any(not torch.equal(first[k], other[k]) for k in first)
 
 
+def test_metadata_step_limit() -> None:
+    """model.json records a fixed workspace's step limit, and none for procedural layouts
+    (each layout derives its own) unless one was set."""
+    fixed = platoon_env.make("study_c", control_period=tiny_config().control_period)
+    for scenario, limit, expected in [
+        ("study_c", None, fixed.max_episode_steps),
+        ("procedural_train", None, None),
+        ("procedural_train", 500, 500),
+    ]:
+        cfg = tiny_config(scenario=scenario, max_episode_steps=limit)
+        venv = build_vec_env(cfg)
+        meta = run_metadata(cfg, venv, build_model(cfg, venv))
+        assert meta["max_episode_steps"] == expected, scenario
+
+
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_learned_policy_round_trip(tmp_path: Path, algo: str) -> None:
     cfg = tiny_config(algo=algo, learning_starts=64, batch_size=64, net_arch=[32, 32])

@@ -309,7 +309,10 @@ def run_metadata(
         "seed": cfg.seed,
         "control_period": env.control_period,
         "physics_substeps": env.physics_substeps,
-        "max_episode_steps": env.max_episode_steps,
+        # A procedural scenario derives the limit from each layout's path: record only a set one.
+        "max_episode_steps": env.max_episode_steps
+        if env.layout_index is None
+        else cfg.max_episode_steps,
         "terminate_on": sorted(env.terminate_on),
         "n_followers": env.n_followers,
         **adapter_metadata(venv),
