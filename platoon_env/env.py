@@ -82,15 +82,10 @@ _UNPACKED_SENSE_NAMES = (
 )
 if SENSE_NAMES != _UNPACKED_SENSE_NAMES:  # pragma: no cover - guards a refactoring mistake
     raise ImportError(f"env._infos expects sensing columns {_UNPACKED_SENSE_NAMES}")
-if REWARD_TERMS != (
-    "distance",
-    "bearing",
-    "effort",
-    "alive",
-    "violation",
-    "wall",
-):  # pragma: no cover
-    raise ImportError(f"env._infos expects reward terms in another order than {REWARD_TERMS}")
+# ... and the reward terms in this order.
+_UNPACKED_REWARD_TERMS = ("distance", "bearing", "effort", "alive", "violation", "wall")
+if REWARD_TERMS != _UNPACKED_REWARD_TERMS:  # pragma: no cover - guards a refactoring mistake
+    raise ImportError(f"env._infos expects reward terms {_UNPACKED_REWARD_TERMS}")
 
 
 #: ``(info["violation"], info["violations"], info["cost"])`` of every violation mask.
