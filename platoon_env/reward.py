@@ -59,6 +59,9 @@ def reward_terms_into(
     ``sensed`` holds the ground-truth sensing (``SENSE_*`` columns) after the step; ``radius``
     is the robot radius ``r`` and ``wall_margin`` the margin ``m`` of the ``wall`` term.
     """
+    if out.shape[1] != len(REWARD_TERMS) or out.shape[0] != sensed.shape[0]:
+        # Compiled code does not check bounds: a short buffer would be overwritten silently.
+        raise ValueError("out must have shape (N, len(REWARD_TERMS))")
     for i in range(out.shape[0]):
         ed = min(2.0, max(-2.0, (sensed[i, SENSE_D] - d_des) / d_scale))
         eb = min(2.0, max(-2.0, sensed[i, SENSE_BETA] / beta_scale))
