@@ -37,7 +37,7 @@ def configure_numba_cache() -> Path | None:
 
     Must run before the first ``@njit(cache=True)`` function of the package is decorated.
     """
-    if os.environ.get("NUMBA_CACHE_DIR") or numba.config.CACHE_DIR:
+    if os.environ.get("NUMBA_CACHE_DIR") or numba.config.CACHE_DIR:  # type: ignore[attr-defined]
         return None
     root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
     cache_dir = root / "platoon_env" / "numba" / source_digest(Path(__file__).resolve().parent)
@@ -48,7 +48,7 @@ def configure_numba_cache() -> Path | None:
         probe.unlink()
     except OSError:
         return None
-    numba.config.CACHE_DIR = str(cache_dir)
+    numba.config.CACHE_DIR = str(cache_dir)  # type: ignore[attr-defined]
     return cache_dir
 
 

@@ -69,8 +69,9 @@ P_OMEGA_LOW = 12
 P_U_HIGH = 13
 P_OMEGA_HIGH = 14
 P_WALL_MARGIN = 15
+P_PROXIMITY_HALF_ANGLE = 16
 #: The weights of ``REWARD_TERMS`` occupy ``P_REWARD_WEIGHTS ... P_REWARD_WEIGHTS + 5``.
-P_REWARD_WEIGHTS = 16
+P_REWARD_WEIGHTS = 17
 P_SIZE = P_REWARD_WEIGHTS + len(REWARD_TERMS)
 
 
@@ -82,6 +83,7 @@ def kernel_params(cfg: ScenarioConfig) -> np.ndarray:
     params[P_D_CON] = cfg.camera.range
     params[P_BETA_CON] = cfg.camera.half_angle
     params[P_PROXIMITY] = cfg.proximity_range
+    params[P_PROXIMITY_HALF_ANGLE] = cfg.proximity_half_angle
     params[P_LEADER_SPEED] = cfg.leader.speed
     params[P_LOOKAHEAD] = cfg.leader.lookahead
     params[P_LEADER_TURN] = cfg.leader.max_turn_rate
@@ -200,6 +202,7 @@ def simulate(
     d_con = params[P_D_CON]
     beta_con = params[P_BETA_CON]
     prox = params[P_PROXIMITY]
+    prox_half_angle = params[P_PROXIMITY_HALF_ANGLE]
     prev = np.empty_like(poses)
     sub_mask = np.empty(n, dtype=np.int64)
     cand = np.empty(edges.shape[0], dtype=np.int64)
@@ -240,6 +243,7 @@ def simulate(
                     d_con,
                     beta_con,
                     prox,
+                    prox_half_angle,
                     sensed[i],
                 )
                 sub_mask[i] = sensed_violation(
@@ -302,6 +306,7 @@ def simulate(
                 d_con,
                 beta_con,
                 prox,
+                prox_half_angle,
                 sensed[i],
             )
     observe_into(sensed, obs)

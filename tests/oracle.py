@@ -19,12 +19,18 @@ The sensing model, for follower ``i`` at ``p_i`` with heading ``theta_i`` behind
   range, which is also their value when a side holds no boundary at all;
 - ``clearance``: distance from ``p_i`` to ``dW_f``, uncapped (the collision check is
   ``clearance <= r``);
-- if ``d_i == 0`` the follower's heading replaces ``p_{i-1} - p_i`` for left and right.
+- if ``d_i == 0`` the follower's heading replaces ``p_{i-1} - p_i`` for left and right;
+- with a proximity sector of half-angle ``alpha < pi``, the four clearances see only the
+  boundary points ``b`` whose bearing from ``p_i`` relative to ``theta_i`` lies in
+  ``[-alpha, alpha]`` (and ``p_i`` itself): the boundary is clipped to that closed wedge
+  before the left/right split; ``clearance`` and the camera columns ignore the sector.
 
 The half-planes are big polygons: the line through ``L_i`` splits a box much larger than the
 workspace. Their shared side runs through ``p_i`` and ``p_{i-1}`` themselves (exact input
 coordinates), so that boundary points lying exactly on ``L_i`` land in both halves under GEOS's
-robust predicates.
+robust predicates. The wedge is a polygon too: apex ``p_i``, its two rays exactly along
+``theta_i ± alpha`` and, in between, vertices going round the front far beyond the proximity
+range (a non-convex polygon when ``alpha > pi/2``).
 """
 
 from __future__ import annotations
@@ -112,6 +118,26 @@ def _half_plane(
     return polygon
 
 
+def _sector(apex: tuple[float, float], heading: float, half_angle: float, reach: float) -> Polygon:
+    """The closed wedge of bearings ``heading ± half_angle`` from ``apex``, out to ``> reach``.
+
+    Its rays end at ``apex + R (cos(heading ± half_angle), sin(heading ± half_angle))`` and the
+    vertices between them go round the front in steps of at most ``pi/2``, so every chord lies
+    at least ``R cos(pi/4) > reach`` from the apex (``R = 2 reach``).
+    """
+    px, py = apex
+    radius = 2.0 * reach
+    steps = max(1, math.ceil(2.0 * half_angle / (math.pi / 2)))
+    angles = [heading - half_angle]
+    angles += [heading - half_angle + 2.0 * half_angle * k / steps for k in range(1, steps)]
+    angles.append(heading + half_angle)
+    ring = [(px, py)] + [(px + radius * math.cos(a), py + radius * math.sin(a)) for a in angles]
+    polygon = Polygon(ring)
+    if not polygon.is_valid:  # pragma: no cover - a guard on the oracle itself
+        raise AssertionError(f"oracle built an invalid sector polygon: {polygon.wkt}")
+    return polygon
+
+
 def _capped_distance(geometry: BaseGeometry, side_boundary: BaseGeometry, cap: float) -> float:
     """``min(distance(geometry, side_boundary), cap)``; ``cap`` when the side holds no boundary."""
     if side_boundary.is_empty:
@@ -127,12 +153,14 @@ def oracle_sense_follower(
     beta_con: float,
     proximity_range: float,
     reach: float,
+    proximity_half_angle: float = math.pi,
 ) -> NDArray[np.float64]:
     """The nine sensed quantities of one follower, as a length-9 float64 array.
 
     ``boundary`` is ``dW_f`` (a shapely line geometry), ``follower`` is ``[x, y, theta]`` and
     ``predecessor`` is ``[x, y, ...]``. ``reach`` is a length beyond which no boundary lies
-    from the follower (it sizes the half-plane polygons).
+    from the follower (it sizes the half-plane and wedge polygons). ``proximity_half_angle``
+    (``>= pi``: all around) limits what the four clearances see.
     """
     px, py, theta = float(follower[0]), float(follower[1]), float(follower[2])
     qx, qy = float(predecessor[0]), float(predecessor[1])
@@ -152,10 +180,13 @@ def oracle_sense_follower(
     occluded = bool(line_of_sight.intersects(boundary))
     visible = d < d_con and abs(beta) < beta_con and not occluded
 
+    sensed = boundary
+    if proximity_half_angle < math.pi:
+        sensed = boundary.intersection(_sector((px, py), theta, proximity_half_angle, reach))
     sides = []
     for side in (1.0, -1.0):
         half_plane = _half_plane((px, py), (qx, qy), direction, side, reach)
-        side_boundary = boundary.intersection(half_plane)
+        side_boundary = sensed.intersection(half_plane)
         sides.append(side_boundary)
     left, right = sides
 
@@ -178,6 +209,7 @@ def oracle_sense(
     d_con: float,
     beta_con: float,
     proximity_range: float,
+    proximity_half_angle: float = math.pi,
 ) -> NDArray[np.float64]:
     """Reference sensing of every follower: an ``(N, 9)`` float64 array.
 
@@ -189,6 +221,8 @@ def oracle_sense(
         d_con: camera range; visibility needs ``d_i < d_con``.
         beta_con: camera half-angle; visibility needs ``|beta_i| < beta_con``.
         proximity_range: cap of ``d_W_l, d_W_r, d_l, d_r``.
+        proximity_half_angle: those four see only the boundary at bearings within
+            ``± proximity_half_angle`` of the follower's heading (default ``pi``: all around).
 
     Returns:
         Row ``i - 1`` holds follower ``i``'s ``[d, beta, visible, occluded, d_W_l, d_W_r, d_l,
@@ -211,7 +245,14 @@ def oracle_sense(
     reach = 8.0 * extent
     rows = [
         oracle_sense_follower(
-            boundary, poses[i], poses[i - 1], d_con, beta_con, proximity_range, reach
+            boundary,
+            poses[i],
+            poses[i - 1],
+            d_con,
+            beta_con,
+            proximity_range,
+            reach,
+            proximity_half_angle,
         )
         for i in range(1, poses.shape[0])
     ]

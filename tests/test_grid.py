@@ -26,9 +26,11 @@ import platoon_env
 from platoon_env.geometry.grid import EdgeGrid, edge_boxes, grid_candidates
 from platoon_env.geometry.sensing import SENSE_SIZE, sense
 from platoon_env.geometry.workspace import boundary_edges
+from platoon_env.reward import REWARD_TERMS
 from platoon_env.simulator import kernel_params, platoon_step, step_kernel
 
 CELL_SIZES = (None, 0.3, 1.0, 7.0)
+SECTOR_HALF_ANGLES = (0.5, math.pi / 2, 2.27, 3.0)
 
 
 def _random_edges(rng: np.random.Generator, n: int) -> NDArray[np.float64]:
@@ -101,6 +103,14 @@ def test_culled_sensing_matches_oracle_and_brute_force(
             culled, oracle_sense(workspace.free_space, poses, d_con, beta_con, prox), context
         )
         np.testing.assert_allclose(culled, brute, rtol=0, atol=1e-12, err_msg=context)
+        # The same with a proximity sector (convex, half-plane, non-convex).
+        half_angle = SECTOR_HALF_ANGLES[trial % len(SECTOR_HALF_ANGLES)]
+        culled = sense(poses, edges, d_con, beta_con, prox, grid, proximity_half_angle=half_angle)
+        brute = sense(poses, edges, d_con, beta_con, prox, proximity_half_angle=half_angle)
+        context = f"{context}, sector ±{half_angle}"
+        reference = oracle_sense(workspace.free_space, poses, d_con, beta_con, prox, half_angle)
+        assert_agree(culled, reference, context)
+        np.testing.assert_allclose(culled, brute, rtol=0, atol=1e-12, err_msg=context)
 
 
 @pytest.mark.parametrize("cell_size", [None, 0.5])
@@ -135,7 +145,8 @@ def test_poses_outside_the_grid() -> None:
 
 @pytest.mark.parametrize("scenario", ["study_a", "study_b", "study_c"])
 def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
-    """Random actions, no termination: grid and brute-force kernels give the same steps."""
+    """Random actions, no termination: grid and brute-force kernels give the same steps,
+    and the sensing of :func:`sense` with the scenario's proximity sector (study B's ±130 deg)."""
     env = platoon_env.make(scenario, terminate_on=())
     env.reset(seed=0)
     cfg = env.scenario.config
@@ -154,7 +165,7 @@ def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
         )
         for key in ("a", "b")
     }
-    terms, rewards = np.zeros((n, 5)), np.zeros(n)
+    terms, rewards = np.zeros((n, len(REWARD_TERMS))), np.zeros(n)
     rng = np.random.default_rng(0)
     for t in range(300):
         act = rng.uniform([-0.3, -1.5], [1.0, 1.5], size=(n, 2))
@@ -174,6 +185,11 @@ def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
         assert np.array_equal(viol, viol_b), t
         np.testing.assert_allclose(sensed, sensed_b, rtol=0, atol=1e-12, err_msg=str(t))
         np.testing.assert_array_equal(state["a"][0], state["b"][0])
+        direct = sense(
+            state["a"][0], edges, cfg.camera.range, cfg.camera.half_angle,
+            cfg.proximity_range, proximity_half_angle=cfg.proximity_half_angle,
+        )  # fmt: skip
+        np.testing.assert_allclose(sensed, direct, rtol=0, atol=1e-12, err_msg=str(t))
 
 
 @pytest.mark.parametrize("scenario", ["corridor", "study_a"])
@@ -203,7 +219,8 @@ def test_substep_checks_match_brute_force(scenario: str, corridor: dict[str, Any
     poses = env.poses
     leader = np.array([env.scenario.initial_progress, 0.0])
     viol, sensed = np.zeros(n, dtype=np.int64), np.zeros((n, SENSE_SIZE))
-    obs, terms, rewards = np.zeros((n, 7), dtype=np.float32), np.zeros((n, 5)), np.zeros(n)
+    obs, terms = np.zeros((n, 7), dtype=np.float32), np.zeros((n, len(REWARD_TERMS)))
+    rewards = np.zeros(n)
     platoon_step(poses, np.zeros((n, 2)), leader, path, cum, *grid.arrays, params, 0, 0,
                  viol, sensed, obs, terms, rewards)  # fmt: skip
     rng = np.random.default_rng(2)

@@ -106,6 +106,10 @@ def test_missing_and_mistyped(corridor: dict[str, Any]) -> None:
         ("reward", "wall_margin", 0.0, "reward.wall_margin"),
         ("reward", "wall", math.inf, "reward.wall"),
         ("reward", "distance", math.nan, "reward.distance"),
+        ("proximity", "half_angle", 0.0, "proximity.half_angle"),
+        ("proximity", "half_angle", -0.5, "proximity.half_angle"),
+        ("proximity", "half_angle", math.pi + 1e-9, "proximity.half_angle"),
+        ("proximity", "half_angle", math.inf, "proximity.half_angle"),
     ],
 )
 def test_parameter_ranges(
@@ -113,6 +117,23 @@ def test_parameter_ranges(
 ) -> None:
     corridor.setdefault(section, {})[key] = value
     assert field in _error(corridor)
+
+
+def test_proximity_sector(corridor: dict[str, Any]) -> None:
+    """``proximity.half_angle``: optional (all around, pi, by default), any value in (0, pi];
+    study B uses the paper's +-130 deg and the kernel receives it."""
+    from platoon_env.simulator import P_PROXIMITY_HALF_ANGLE, kernel_params
+
+    assert load_config(corridor).proximity.half_angle is None
+    assert load_config(corridor).proximity_half_angle == math.pi
+    for value in (1e-3, 1.0, math.pi):
+        corridor["proximity"] = {"half_angle": value}
+        assert load_config(corridor).proximity_half_angle == value
+    study_b = load_config("study_b")
+    assert study_b.proximity_half_angle == math.radians(130)
+    assert kernel_params(study_b)[P_PROXIMITY_HALF_ANGLE] == math.radians(130)
+    for name in ("study_a", "study_c"):
+        assert load_config(name).proximity.half_angle is None
 
 
 def test_self_intersecting_and_empty_polygons(corridor: dict[str, Any]) -> None:

@@ -17,6 +17,7 @@ The kernel is imported inside a fixture, so the oracle's own checks run without 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from types import ModuleType
 
@@ -288,15 +289,31 @@ def _proximity_range(workspace: Workspace, k: int) -> float:
     return (workspace.d_con, 0.6, 100.0)[k % 3]
 
 
-@pytest.mark.parametrize("workspace", all_workspaces(), ids=lambda w: w.name)
-def test_kernel_matches_oracle_random_states(kernel_sense: SenseFn, workspace: Workspace) -> None:
-    """Random platoons (N = 3, a quarter of the robots near walls): every column agrees."""
+def random_states(workspace: Workspace) -> Iterator[tuple[int, NDArray[np.float64], float]]:
+    """The random platoon states of a workspace: ``(k, poses, proximity range)``."""
     rng = np.random.default_rng(sum(map(ord, workspace.name)))
     for k in range(RANDOM_STATES_PER_WORKSPACE):
         poses = sample_platoon(
             workspace.free_space, rng, N_FOLLOWERS, workspace.d_con, workspace.beta_con
         )
-        prox = _proximity_range(workspace, k)
+        yield k, poses, _proximity_range(workspace, k)
+
+
+def lattice_states(workspace: Workspace) -> Iterator[tuple[int, NDArray[np.float64], float]]:
+    """The lattice platoon states of a workspace: ``(k, poses, proximity range)``."""
+    rng = np.random.default_rng(7 + sum(map(ord, workspace.name)))
+    for k in range(LATTICE_STATES_PER_WORKSPACE):
+        poses = sample_lattice_platoon(workspace.free_space, rng, N_FOLLOWERS)
+        yield k, poses, _proximity_range(workspace, k)
+
+
+LATTICE_WORKSPACES = [collinear_holes(), two_rooms(), all_workspaces()[1]]
+
+
+@pytest.mark.parametrize("workspace", all_workspaces(), ids=lambda w: w.name)
+def test_kernel_matches_oracle_random_states(kernel_sense: SenseFn, workspace: Workspace) -> None:
+    """Random platoons (N = 3, a quarter of the robots near walls): every column agrees."""
+    for k, poses, prox in random_states(workspace):
         args = (poses, workspace.d_con, workspace.beta_con, prox)
         assert_agree(
             kernel_sense(workspace.free_space, *args),
@@ -305,19 +322,14 @@ def test_kernel_matches_oracle_random_states(kernel_sense: SenseFn, workspace: W
         )
 
 
-@pytest.mark.parametrize(
-    "workspace", [collinear_holes(), two_rooms(), all_workspaces()[1]], ids=lambda w: w.name
-)
+@pytest.mark.parametrize("workspace", LATTICE_WORKSPACES, ids=lambda w: w.name)
 def test_kernel_matches_oracle_lattice_states(kernel_sense: SenseFn, workspace: Workspace) -> None:
     """Poses on the workspace's own 0.5 m lattice: exact collinear and touching configurations.
 
     Lines of sight run exactly through vertices and along edges, robots sit exactly on walls
     and occasionally on each other; the closed half-planes must agree with the oracle's.
     """
-    rng = np.random.default_rng(7 + sum(map(ord, workspace.name)))
-    for k in range(LATTICE_STATES_PER_WORKSPACE):
-        poses = sample_lattice_platoon(workspace.free_space, rng, N_FOLLOWERS)
-        prox = _proximity_range(workspace, k)
+    for k, poses, prox in lattice_states(workspace):
         args = (poses, workspace.d_con, workspace.beta_con, prox)
         assert_agree(
             kernel_sense(workspace.free_space, *args),
@@ -708,3 +720,220 @@ def test_zero_length_edges_change_nothing() -> None:
     # A repeated vertex makes a zero-length edge in the ring; it is not exported.
     ring = Polygon([(0, 0), (5, 0), (5, 0), (5, 5), (0, 5)])
     assert np.all(np.hypot(*(boundary_edges(ring)[:, 2:] - boundary_edges(ring)[:, :2]).T) > 0)
+
+
+# --------------------------------------------------------------------------------------------
+# 4. The proximity sector: the four clearances see only the boundary within ±alpha of the
+#    heading; the camera columns and the clearance do not change.
+
+#: Convex sectors (0.5, pi/2), non-convex ones (2.27, 3.0: a blind cone behind) and all around.
+SECTOR_HALF_ANGLES = (0.5, math.pi / 2, 2.27, 3.0, math.pi)
+SENSOR_COLUMNS = [COL_D_WALL_LEFT, COL_D_WALL_RIGHT, COL_D_SIGHT_LEFT, COL_D_SIGHT_RIGHT]
+GROUND_TRUTH_COLUMNS = [COL_D, COL_BETA, COL_VISIBLE, COL_OCCLUDED, COL_CLEARANCE]
+
+#: (free space, poses, d_con, beta_con, proximity range, half-angle) -> (N, 9) array.
+SectorSenseFn = Callable[
+    [BaseGeometry, NDArray[np.float64], float, float, float, float], NDArray[np.float64]
+]
+
+
+@pytest.fixture(scope="module")
+def kernel_sense_sector() -> SectorSenseFn:
+    """:func:`kernel_sense` with a proximity sector of the given half-angle."""
+    from platoon_env.geometry.sensing import sense
+    from platoon_env.geometry.workspace import boundary_edges
+
+    def run(
+        free_space: BaseGeometry,
+        poses: NDArray[np.float64],
+        d_con: float,
+        beta_con: float,
+        proximity_range: float,
+        half_angle: float,
+    ) -> NDArray[np.float64]:
+        edges = boundary_edges(free_space)
+        return np.asarray(
+            sense(poses, edges, d_con, beta_con, proximity_range, proximity_half_angle=half_angle)
+        )
+
+    return run
+
+
+def _check_sector_state(
+    kernel_sense_sector: SectorSenseFn,
+    workspace: Workspace,
+    poses: NDArray[np.float64],
+    prox: float,
+    half_angle: float,
+    context: str,
+) -> None:
+    """Kernel and oracle agree with the sector; only the four clearances may change."""
+    args = (poses, workspace.d_con, workspace.beta_con, prox)
+    kernel = kernel_sense_sector(workspace.free_space, *args, half_angle)
+    context = f"{context}, half_angle={half_angle}, prox={prox}, poses={poses.tolist()}"
+    assert_agree(kernel, oracle_sense(workspace.free_space, *args, half_angle), context)
+    everywhere = kernel_sense_sector(workspace.free_space, *args, math.pi)
+    np.testing.assert_array_equal(
+        kernel[:, GROUND_TRUTH_COLUMNS], everywhere[:, GROUND_TRUTH_COLUMNS], err_msg=context
+    )
+
+
+@pytest.mark.parametrize("workspace", all_workspaces(), ids=lambda w: w.name)
+def test_sector_kernel_matches_oracle_random_states(
+    kernel_sense_sector: SectorSenseFn, workspace: Workspace
+) -> None:
+    """The random states of the tests above, each with one sector (cycling the half-angles)."""
+    for k, poses, prox in random_states(workspace):
+        half_angle = SECTOR_HALF_ANGLES[k % len(SECTOR_HALF_ANGLES)]
+        _check_sector_state(
+            kernel_sense_sector, workspace, poses, prox, half_angle, f"{workspace.name} state {k}"
+        )
+
+
+@pytest.mark.parametrize("workspace", LATTICE_WORKSPACES, ids=lambda w: w.name)
+def test_sector_kernel_matches_oracle_lattice_states(
+    kernel_sense_sector: SectorSenseFn, workspace: Workspace
+) -> None:
+    """The lattice states (robots exactly on walls, the apex of the sector on an edge)."""
+    for k, poses, prox in lattice_states(workspace):
+        half_angle = SECTOR_HALF_ANGLES[k % len(SECTOR_HALF_ANGLES)]
+        _check_sector_state(
+            kernel_sense_sector,
+            workspace,
+            poses,
+            prox,
+            half_angle,
+            f"{workspace.name} lattice state {k}",
+        )
+
+
+def test_sector_of_pi_is_all_around(kernel_sense: SenseFn) -> None:
+    """``half_angle = pi`` gives the result without a sector bit for bit, also with the grid."""
+    from platoon_env.geometry.grid import EdgeGrid
+    from platoon_env.geometry.sensing import sense
+    from platoon_env.geometry.workspace import boundary_edges
+
+    for workspace in all_workspaces():
+        edges = boundary_edges(workspace.free_space)
+        states = [*random_states(workspace)][:100]
+        for k, poses, prox in states:
+            args = (poses, edges, workspace.d_con, workspace.beta_con, prox)
+            grid = EdgeGrid.build(edges, reach=prox)
+            context = f"{workspace.name} state {k}"
+            default = sense(*args)
+            np.testing.assert_array_equal(sense(*args, proximity_half_angle=math.pi), default)
+            np.testing.assert_array_equal(
+                sense(*args, grid, proximity_half_angle=math.pi), sense(*args, grid), context
+            )
+            np.testing.assert_array_equal(
+                kernel_sense(workspace.free_space, *args[:1], *args[2:]), default, context
+            )
+
+
+def _room(*obstacles: Polygon) -> Polygon:
+    """A 20 m square room with the given obstacles (its walls beyond every proximity range)."""
+    free: Polygon = box(0.0, 0.0, 20.0, 20.0)
+    for obstacle in obstacles:
+        free = free.difference(obstacle)
+    return free
+
+
+def _sense_both(
+    kernel_sense_sector: SectorSenseFn,
+    free_space: Polygon,
+    poses: NDArray[np.float64],
+    prox: float,
+    half_angle: float,
+    name: str,
+) -> NDArray[np.float64]:
+    """The kernel's reading of follower 1 after checking it against the oracle's."""
+    kernel = kernel_sense_sector(free_space, poses, 4.0, 0.5, prox, half_angle)
+    assert_agree(kernel, oracle_sense(free_space, poses, 4.0, 0.5, prox, half_angle), name)
+    return kernel[0]
+
+
+def test_sector_hides_a_wall_behind(kernel_sense_sector: SectorSenseFn) -> None:
+    """A post 1 m straight behind the robot (all of it at bearings beyond 153 deg): seen all
+    around, unseen with study B's ±130 deg; the clearance still reports it."""
+    free = _room(box(3.0, 9.5, 4.0, 10.5))
+    poses = np.array([[6.0, 10.0, 0.0], [5.0, 10.0, 0.0]])
+    everywhere = _sense_both(kernel_sense_sector, free, poses, 3.0, math.pi, "all around")
+    assert everywhere[SENSOR_COLUMNS].tolist() == [1.0, 1.0, 1.0, 1.0]
+    sector = _sense_both(kernel_sense_sector, free, poses, 3.0, math.radians(130), "±130 deg")
+    assert sector[SENSOR_COLUMNS].tolist() == [3.0, 3.0, 3.0, 3.0]
+    assert sector[COL_CLEARANCE] == everywhere[COL_CLEARANCE] == 1.0
+    assert sector[COL_VISIBLE] == everywhere[COL_VISIBLE] == 1.0
+
+
+def test_sector_splits_an_edge_crossing_the_blind_cone(
+    kernel_sense_sector: SectorSenseFn,
+) -> None:
+    """A wall x = 4 behind a robot at (5, 10) heading 0.1 rad, predecessor at (5, 9): the whole
+    wall lies right of ``L_i``, and the blind cone (beyond ±130 deg) cuts it into two sensed
+    pieces, which end where the sector's rays meet it. The upper piece is nearest to ``p``
+    (``d_W_r``), the lower one to ``L_i`` (``d_r``)."""
+    theta, alpha = 0.1, math.radians(130)
+    free = _room(box(3.0, 7.0, 4.0, 12.0))
+    poses = np.array([[5.0, 9.0, 0.0], [5.0, 10.0, theta]])
+    out = _sense_both(kernel_sense_sector, free, poses, 3.0, alpha, "blind cone")
+    upper_y = 10.0 - math.tan(theta + alpha)  # where the ray theta + alpha meets x = 4
+    lower_y = 10.0 - math.tan(theta - alpha)
+    assert 7.0 < lower_y < 9.0 and 10.0 < upper_y < 12.0
+    assert out[COL_D_WALL_RIGHT] == pytest.approx(math.hypot(1.0, upper_y - 10.0), abs=1e-12)
+    assert out[COL_D_SIGHT_RIGHT] == pytest.approx(math.hypot(1.0, 9.0 - lower_y), abs=1e-12)
+    assert out[COL_D_WALL_LEFT] == out[COL_D_SIGHT_LEFT] == 3.0
+    everywhere = _sense_both(kernel_sense_sector, free, poses, 3.0, math.pi, "all around")
+    assert everywhere[COL_D_WALL_RIGHT] == everywhere[COL_D_SIGHT_RIGHT] == 1.0
+
+
+@pytest.mark.parametrize("half_angle", [0.5, 2.27])
+@pytest.mark.parametrize("lift", [0.0, 1e-9])
+def test_point_on_a_sector_ray_is_sensed(
+    kernel_sense_sector: SectorSenseFn, half_angle: float, lift: float
+) -> None:
+    """A triangle in the blind region touching the ray ``theta + alpha`` (exactly +x, as
+    ``theta = -alpha``) with one vertex, 1 m from the robot: that vertex is sensed (closed
+    sector), on the left of ``L_i``; lifted 1e-9 m off the ray, nothing is."""
+    px, py = 5.0, 5.0
+    theta = -half_angle
+    triangle = Polygon([(px + 1.0, py + lift), (px + 2.0, py + 0.5), (px + 1.2, py + 1.0)])
+    poses = np.array([[px + math.cos(theta), py + math.sin(theta), 0.0], [px, py, theta]])
+    out = _sense_both(kernel_sense_sector, _room(triangle), poses, 3.0, half_angle, "ray")
+    # L_i (1 m along theta) is alpha away from the ray: its nearest point to the vertex is its
+    # foot when alpha < pi/2, else p.
+    sight = math.sin(half_angle) if half_angle < math.pi / 2 else 1.0
+    assert out[COL_D_WALL_LEFT] == pytest.approx(1.0 if lift == 0.0 else 3.0, abs=1e-12)
+    assert out[COL_D_SIGHT_LEFT] == pytest.approx(sight if lift == 0.0 else 3.0, abs=1e-12)
+    assert out[COL_D_WALL_RIGHT] == out[COL_D_SIGHT_RIGHT] == 3.0
+    assert out[COL_CLEARANCE] == pytest.approx(math.hypot(1.0, lift), abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("predecessor", "theta"), [((0.0, 4.0), math.pi), ((0.3, 3.1), 3.0)], ids=["along", "across"]
+)
+def test_sector_apex_on_a_wall(
+    kernel_sense_sector: SectorSenseFn, predecessor: tuple[float, float], theta: float
+) -> None:
+    """A robot exactly on the wall x = 0 at 0.4 of its edge, facing it with a ±0.5 rad sector
+    (both directions along the wall are blind): its own position is a sensed boundary point
+    on ``L_i``, so all four read 0 (clipping alone would lose that point to rounding)."""
+    free = box(0.0, 0.0, 10.0, 10.0)
+    poses = np.array([[*predecessor, 0.0], [0.0, 3.0, theta]])
+    out = _sense_both(kernel_sense_sector, free, poses, 3.0, 0.5, "apex")
+    assert out[SENSOR_COLUMNS].tolist() == [0.0, 0.0, 0.0, 0.0]
+    assert out[COL_OCCLUDED] == 1.0 and out[COL_CLEARANCE] == 0.0
+
+
+def test_occlusion_behind_the_sector(kernel_sense_sector: SectorSenseFn) -> None:
+    """The predecessor 3 m behind the robot, beyond a post, outside a ±90 deg sector: the
+    camera reports the occlusion, but the post is not sensed, so ``d_l``, ``d_r`` are the
+    distances to the sensed boundary (a box ahead on the right; nothing on the left), not 0."""
+    free = _room(box(3.0, 9.0, 4.0, 11.0), box(7.0, 11.5, 8.0, 12.5))
+    poses = np.array([[2.0, 10.0, 0.0], [5.0, 10.0, 0.0]])  # looking back along -x: +y is right
+    everywhere = _sense_both(kernel_sense_sector, free, poses, 3.0, math.pi, "all around")
+    assert everywhere[COL_OCCLUDED] == 1.0 and everywhere[COL_VISIBLE] == 0.0
+    assert everywhere[SENSOR_COLUMNS].tolist() == [1.0, 1.0, 0.0, 0.0]
+    out = _sense_both(kernel_sense_sector, free, poses, 3.0, math.pi / 2, "±90 deg")
+    assert out[COL_OCCLUDED] == 1.0 and out[COL_VISIBLE] == 0.0
+    corner = math.hypot(2.0, 1.5)  # p to the box's corner (7, 11.5)
+    assert out[SENSOR_COLUMNS].tolist() == pytest.approx([3.0, corner, 3.0, corner], abs=1e-12)

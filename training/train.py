@@ -311,7 +311,7 @@ def run_metadata(
         "physics_substeps": env.physics_substeps,
         # A procedural scenario derives the limit from each layout's path: record only a set one.
         "max_episode_steps": env.max_episode_steps
-        if env.layout_index is None
+        if getattr(env, "layout_index", None) is None  # BatchedPlatoon: fixed layouts only
         else cfg.max_episode_steps,
         "terminate_on": sorted(env.terminate_on),
         "n_followers": env.n_followers,

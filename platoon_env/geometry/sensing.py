@@ -11,7 +11,15 @@ obstacle-boundary edges ``∂W_f``:
   left / right. A point ``b`` is left when ``cross(p_{i-1} - p_i, b - p_i) > 0``; edges that cross
   the line through ``L_i`` are split at it; points on the line count for both sides. All four
   are capped at the proximity range. Hence occluded ⇔ ``d_l = d_r = 0``.
-* ``clearance``: distance from ``p_i`` to ``∂W_f``, uncapped (collision iff ``clearance <= r``).
+* the proximity sector (``proximity.half_angle`` = ``alpha``, default ``pi``: all around): the
+  four clearances see only the boundary points ``b`` whose bearing from ``p_i`` relative to
+  ``theta_i`` lies in ``[-alpha, alpha]`` (closed; ``p_i`` itself included), i.e. the boundary
+  clipped to a wedge with apex ``p_i`` (for ``alpha > pi/2`` the complement of a blind cone
+  behind the robot, which can cut one edge into two sensed pieces). Occluded ⇒
+  ``d_l = d_r = 0`` then holds when the predecessor's bearing lies in the sector (the crossing
+  is sensed); otherwise ``d_l``, ``d_r`` come from the sensed boundary like the others.
+* ``clearance``: distance from ``p_i`` to ``∂W_f``, uncapped (collision iff ``clearance <= r``),
+  all around whatever the sector: the sector limits what a policy senses, not physics.
 
 The same edge arrays and primitives serve the collision checks in :mod:`platoon_env.safety`, so
 no sensor sees a wall the robot could drive through. Tests compare against a shapely oracle.
@@ -21,7 +29,9 @@ lists near its line of sight (within the proximity range), and skips those whose
 cannot improve a current minimum; distances are compared squared, with one square root per
 output. The uncapped clearance falls back to a widening grid search when no edge lies within
 the proximity range. The brute-force entry points (:func:`sense_into`, :func:`sense` without a
-grid) visit every edge and give the same results.
+grid) visit every edge and give the same results. With a sector, each left / right part of an
+edge is clipped to it before its distances are taken (a clipped part is never nearer, so the
+culling bounds stay valid); without one (``alpha = pi``) none of that code runs.
 """
 
 from __future__ import annotations
@@ -113,16 +123,19 @@ def sense_candidates(
     d_con: float,
     beta_con: float,
     proximity_range: float,
+    proximity_half_angle: float,
     out: np.ndarray,
 ) -> tuple[float, bool]:
     """Sense one follower at ``(px, py, theta)`` with predecessor at ``(qx, qy)`` (eqs. 2-3).
 
     Visits the edges ``cand[:n_cand]`` only (they must include every edge within the proximity
     range of ``L_i`` and every edge whose box overlaps ``L_i``'s); writes the ``SENSE_*``
-    columns into ``out``. Returns ``(clearance², motion_hit)``: the squared clearance over the
-    visited edges (exact whenever it is ``<= proximity_range²`` or every edge was visited) and,
-    when ``check_motion``, whether the motion segment ``[o, p]`` of the last sub-step touches an
-    edge (the tunnelling check of :mod:`platoon_env.safety`).
+    columns into ``out``. The four clearances see only the boundary inside the proximity
+    sector ``theta ± proximity_half_angle`` (``>= pi``: all around). Returns
+    ``(clearance², motion_hit)``: the squared clearance over the visited edges (exact whenever
+    it is ``<= proximity_range²`` or every edge was visited) and, when ``check_motion``, whether
+    the motion segment ``[o, p]`` of the last sub-step touches an edge (the tunnelling check of
+    :mod:`platoon_env.safety`).
     """
     dx = qx - px
     dy = qy - py
@@ -145,6 +158,24 @@ def sense_candidates(
     clear2 = math.inf
     occluded = False
     motion_hit = False
+    # The proximity sector: the closed half-planes left of the ray theta - alpha (cross(r-, v)
+    # >= 0) and right of the ray theta + alpha (cross(v, r+) >= 0), v = b - p; their
+    # intersection for alpha <= pi/2, their union (the complement of the blind cone behind the
+    # robot) beyond. alpha >= pi: all around, and none of this runs.
+    sectored = proximity_half_angle < math.pi
+    convex = proximity_half_angle <= 0.5 * math.pi
+    rmx, rmy, rpx, rpy = 0.0, 0.0, 0.0, 0.0
+    # Occluded => d_l = d_r = 0 as long as L_i's crossing point is sensed, i.e. L_i lies in the
+    # sector; otherwise the sight clearances come from the sensed boundary like the others.
+    occlusion_zeroes_sight = True
+    if sectored:
+        rmx = math.cos(theta - proximity_half_angle)
+        rmy = math.sin(theta - proximity_half_angle)
+        rpx = math.cos(theta + proximity_half_angle)
+        rpy = math.sin(theta + proximity_half_angle)
+        in_minus = cross(rmx, rmy, dx, dy) >= 0.0
+        in_plus = cross(dx, dy, rpx, rpy) >= 0.0
+        occlusion_zeroes_sight = (in_minus and in_plus) if convex else (in_minus or in_plus)
     for k in range(n_cand):
         e = cand[k]
         bx0, by0, bx1, by1 = boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3]
@@ -168,11 +199,17 @@ def sense_candidates(
         # Once occluded, d_l = d_r = 0: only the wall clearances remain to be found.
         lb_sight = 0.0
         need_sight = False
-        if not occluded:
+        if not occluded or not occlusion_zeroes_sight:
             if not sight_box:
                 lb_sight = box_distance2(sx0, sy0, sx1, sy1, bx0, by0, bx1, by1)
             need_sight = lb_sight < max(sight_l, sight_r)
         if not (need_sight or lb_point < max(wall_l, wall_r)):
+            continue
+        if sectored and lb_point == 0.0 and cross(bx - ax, by - ay, px - ax, py - ay) == 0.0:
+            # p lies on the edge (the test of segments_intersect): the sector's apex is a
+            # sensed boundary point on L_i, so all four clearances are 0. Clipping alone could
+            # lose it to rounding when both directions along the edge are blind.
+            wall_l = wall_r = sight_l = sight_r = 0.0
             continue
         sa = cross(lx, ly, ax - px, ay - py)
         sb = cross(lx, ly, bx - px, by - py)
@@ -197,9 +234,31 @@ def sense_candidates(
         else:
             has_left = False
         if has_left and (lb_point < wall_l or (need_sight and lb_sight < sight_l)):
-            near, sight = _part_distances2(
-                px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey, need_sight and lb_sight < sight_l
-            )
+            with_sight = need_sight and lb_sight < sight_l
+            if sectored:
+                near, sight = _sector_part_distances2(
+                    px,
+                    py,
+                    qx,
+                    qy,
+                    dx,
+                    dy,
+                    inv_d2,
+                    cx,
+                    cy,
+                    ex,
+                    ey,
+                    with_sight,
+                    rmx,
+                    rmy,
+                    rpx,
+                    rpy,
+                    convex,
+                )
+            else:
+                near, sight = _part_distances2(
+                    px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey, with_sight
+                )
             wall_l = min(wall_l, near)
             sight_l = min(sight_l, sight)
         # Right part: the closed half-plane cross <= 0.
@@ -217,9 +276,31 @@ def sense_candidates(
         else:
             has_right = False
         if has_right and (lb_point < wall_r or (need_sight and lb_sight < sight_r)):
-            near, sight = _part_distances2(
-                px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey, need_sight and lb_sight < sight_r
-            )
+            with_sight = need_sight and lb_sight < sight_r
+            if sectored:
+                near, sight = _sector_part_distances2(
+                    px,
+                    py,
+                    qx,
+                    qy,
+                    dx,
+                    dy,
+                    inv_d2,
+                    cx,
+                    cy,
+                    ex,
+                    ey,
+                    with_sight,
+                    rmx,
+                    rmy,
+                    rpx,
+                    rpy,
+                    convex,
+                )
+            else:
+                near, sight = _part_distances2(
+                    px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey, with_sight
+                )
             wall_r = min(wall_r, near)
             sight_r = min(sight_r, sight)
     out[SENSE_D] = d
@@ -228,8 +309,9 @@ def sense_candidates(
     out[SENSE_VISIBLE] = 1.0 if (d < d_con and abs(beta) < beta_con and not occluded) else 0.0
     out[SENSE_D_WALL_LEFT] = _capped(wall_l, cap2, proximity_range)
     out[SENSE_D_WALL_RIGHT] = _capped(wall_r, cap2, proximity_range)
-    out[SENSE_D_SIGHT_LEFT] = 0.0 if occluded else _capped(sight_l, cap2, proximity_range)
-    out[SENSE_D_SIGHT_RIGHT] = 0.0 if occluded else _capped(sight_r, cap2, proximity_range)
+    zero_sight = occluded and occlusion_zeroes_sight
+    out[SENSE_D_SIGHT_LEFT] = 0.0 if zero_sight else _capped(sight_l, cap2, proximity_range)
+    out[SENSE_D_SIGHT_RIGHT] = 0.0 if zero_sight else _capped(sight_r, cap2, proximity_range)
     out[SENSE_CLEARANCE] = math.sqrt(clear2)
     return clear2, motion_hit
 
@@ -292,6 +374,108 @@ def _part_distances2(
 
 
 @njit(cache=True, inline="always")
+def _half_plane_interval(g0: float, g1: float) -> tuple[float, float]:
+    """The parameters ``t in [0, 1]`` where ``g0 + t (g1 - g0) >= 0``, as ``(lo, hi)``.
+
+    ``g0``, ``g1``: a linear function's values at ``t = 0, 1``. Empty: ``(1, 0)`` (``lo > hi``).
+    """
+    if g0 >= 0.0:
+        if g1 >= 0.0:
+            return 0.0, 1.0
+        return 0.0, g0 / (g0 - g1)
+    if g1 >= 0.0:
+        return g0 / (g0 - g1), 1.0
+    return 1.0, 0.0
+
+
+@njit(cache=True, inline="always")
+def _point_at(c: float, e: float, t: float) -> float:
+    """``c + t (e - c)``, exactly ``c`` at ``t = 0`` and ``e`` at ``t = 1``."""
+    if t == 0.0:
+        return c
+    if t == 1.0:
+        return e
+    return c + t * (e - c)
+
+
+@njit(cache=True)
+def _sector_part_distances2(
+    px: float,
+    py: float,
+    qx: float,
+    qy: float,
+    dx: float,
+    dy: float,
+    inv_d2: float,
+    cx: float,
+    cy: float,
+    ex: float,
+    ey: float,
+    with_sight: bool,
+    rmx: float,
+    rmy: float,
+    rpx: float,
+    rpy: float,
+    convex: bool,
+) -> tuple[float, float]:
+    """:func:`_part_distances2` over the points of ``[c, e]`` inside the proximity sector.
+
+    The sector is the intersection (``convex``, half-angle ``<= pi/2``) or union of the closed
+    half-planes ``cross(r-, b - p) >= 0`` and ``cross(b - p, r+) >= 0``, ``r-`` / ``r+`` the
+    directions of its two rays from ``p``. Each gives an interval of the part's parameter; the
+    part's sensed points are one interval, or two when the part crosses the blind cone. Returns
+    ``(inf, inf)`` when none is sensed. The sensed pieces never cross ``L_i`` where
+    :func:`_part_distances2` needs that (see :func:`sense_candidates`).
+    """
+    vcx, vcy = cx - px, cy - py
+    vex, vey = ex - px, ey - py
+    lo1, hi1 = _half_plane_interval(cross(rmx, rmy, vcx, vcy), cross(rmx, rmy, vex, vey))
+    lo2, hi2 = _half_plane_interval(cross(vcx, vcy, rpx, rpy), cross(vex, vey, rpx, rpy))
+    if convex:
+        lo1, hi1 = max(lo1, lo2), min(hi1, hi2)
+        lo2, hi2 = 1.0, 0.0
+    elif lo1 > hi1:
+        lo1, hi1 = lo2, hi2
+        lo2, hi2 = 1.0, 0.0
+    elif lo2 <= hi2 and lo2 <= hi1 and lo1 <= hi2:  # overlapping: one piece
+        lo1, hi1 = min(lo1, lo2), max(hi1, hi2)
+        lo2, hi2 = 1.0, 0.0
+    near, sight = math.inf, math.inf
+    if lo1 <= hi1:
+        near, sight = _part_distances2(
+            px,
+            py,
+            qx,
+            qy,
+            dx,
+            dy,
+            inv_d2,
+            _point_at(cx, ex, lo1),
+            _point_at(cy, ey, lo1),
+            _point_at(cx, ex, hi1),
+            _point_at(cy, ey, hi1),
+            with_sight,
+        )
+    if lo2 <= hi2:
+        near2, sight2 = _part_distances2(
+            px,
+            py,
+            qx,
+            qy,
+            dx,
+            dy,
+            inv_d2,
+            _point_at(cx, ex, lo2),
+            _point_at(cy, ey, lo2),
+            _point_at(cx, ex, hi2),
+            _point_at(cy, ey, hi2),
+            with_sight,
+        )
+        near, sight = min(near, near2), min(sight, sight2)
+    return near, sight
+
+
+@njit(cache=True, inline="always")
 def _capped(value2: float, cap2: float, cap: float) -> float:
     """``sqrt(value2)``, or exactly ``cap`` when the squared value reached the cap."""
     return cap if value2 >= cap2 else math.sqrt(value2)
@@ -317,6 +501,7 @@ def sense_follower_grid(
     d_con: float,
     beta_con: float,
     proximity_range: float,
+    proximity_half_angle: float,
     out: np.ndarray,
 ) -> tuple[float, bool]:
     """:func:`sense_candidates` over the edges the grid lists near ``L_i`` (and ``[o, p]``).
@@ -346,6 +531,7 @@ def sense_follower_grid(
         d_con,
         beta_con,
         proximity_range,
+        proximity_half_angle,
         out,
     )
     if clear2 > proximity_range * proximity_range and not covers_grid(grid_params, x0, y0, x1, y1):
@@ -369,6 +555,7 @@ def sense_follower(
     beta_con: float,
     proximity_range: float,
     out: np.ndarray,
+    proximity_half_angle: float = math.pi,
 ) -> None:
     """Sense one follower against every edge (brute force); see :func:`sense_candidates`."""
     cand = np.arange(edges.shape[0])
@@ -388,6 +575,7 @@ def sense_follower(
         d_con,
         beta_con,
         proximity_range,
+        proximity_half_angle,
         out,
     )
 
@@ -401,10 +589,12 @@ def sense_into(
     beta_con: float,
     proximity_range: float,
     out: np.ndarray,
+    proximity_half_angle: float = math.pi,
 ) -> None:
     """Sense every follower ``i = 1..N`` of ``poses`` ((N+1) x 3) into ``out`` (N x SENSE_SIZE).
 
-    Brute force over every edge (no grid); :func:`sense_into_grid` culls.
+    Brute force over every edge (no grid); :func:`sense_into_grid` culls. The proximity
+    sector is ``theta_i ± proximity_half_angle`` (default ``pi``: all around).
     """
     cand = np.arange(edges.shape[0])
     for i in range(1, poses.shape[0]):
@@ -424,6 +614,7 @@ def sense_into(
             d_con,
             beta_con,
             proximity_range,
+            proximity_half_angle,
             out[i - 1],
         )
 
@@ -441,6 +632,7 @@ def sense_into_grid(
     beta_con: float,
     proximity_range: float,
     out: np.ndarray,
+    proximity_half_angle: float = math.pi,
 ) -> None:
     """:func:`sense_into` with grid culling (same results)."""
     cand = np.empty(edges.shape[0], dtype=np.int64)
@@ -464,6 +656,7 @@ def sense_into_grid(
             d_con,
             beta_con,
             proximity_range,
+            proximity_half_angle,
             out[i - 1],
         )
 
@@ -475,23 +668,29 @@ def sense(
     beta_con: float,
     proximity_range: float,
     grid: EdgeGrid | None = None,
+    *,
+    proximity_half_angle: float = math.pi,
 ) -> np.ndarray:
     """Sense all followers; returns an ``(N, SENSE_SIZE)`` float64 array of ``SENSE_*`` columns.
 
     Convenience entry point for tests and plots; the env calls the compiled kernel directly.
     ``grid`` (built over the same ``edges``) culls distant edges; without it every edge is
-    visited. Both give the same result.
+    visited. Both give the same result. ``proximity_half_angle``: the proximity sensor's
+    sector ``theta_i ± proximity_half_angle`` (default ``pi``: all around).
     """
     poses = np.ascontiguousarray(poses, dtype=np.float64)
     edges = np.ascontiguousarray(edges, dtype=np.float64).reshape(-1, 4)
     if poses.ndim != 2 or poses.shape[1] != 3 or poses.shape[0] < 2:
         raise ValueError(f"poses must have shape (N+1, 3) with N >= 1, got {poses.shape}")
+    half_angle = float(proximity_half_angle)
+    if not 0.0 < half_angle:
+        raise ValueError(f"proximity_half_angle must be > 0, got {proximity_half_angle}")
     out = np.empty((poses.shape[0] - 1, SENSE_SIZE), dtype=np.float64)
     boxes = edge_boxes(edges)
     if grid is None:
-        sense_into(poses, edges, boxes, d_con, beta_con, proximity_range, out)
+        sense_into(poses, edges, boxes, d_con, beta_con, proximity_range, out, half_angle)
     else:
         if grid.n_edges != edges.shape[0]:
             raise ValueError(f"grid indexes {grid.n_edges} edges, got {edges.shape[0]}")
-        sense_into_grid(poses, *grid.arrays, d_con, beta_con, proximity_range, out)
+        sense_into_grid(poses, *grid.arrays, d_con, beta_con, proximity_range, out, half_angle)
     return out

@@ -95,9 +95,12 @@ class CameraConfig:
 @dataclass(frozen=True)
 class ProximityConfig:
     """Proximity sensor (LiDAR) that measures the four clearances; ``range`` defaults to
-    ``d_con`` (the camera range)."""
+    ``d_con`` (the camera range). ``half_angle`` limits it to the sector ``±half_angle`` about
+    the robot's heading (boundary points at a bearing outside it are not sensed); None senses
+    all around."""
 
     range: float | None = None  # [m]
+    half_angle: float | None = None  # [rad] in (0, pi]; None (default): all around
 
 
 @dataclass(frozen=True)
@@ -203,6 +206,11 @@ class ScenarioConfig:
     def proximity_range(self) -> float:
         """Range at which the four clearances are capped (``d_con`` unless set)."""
         return self.camera.range if self.proximity.range is None else self.proximity.range
+
+    @property
+    def proximity_half_angle(self) -> float:
+        """Half-angle of the proximity sensor's sector (``pi``, all around, unless set)."""
+        return math.pi if self.proximity.half_angle is None else self.proximity.half_angle
 
 
 # --------------------------------------------------------------------------------------------
@@ -354,6 +362,12 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
         )
     prox = cfg.proximity_range
     _require(prox > r, f"{path}.proximity.range", f"must exceed the robot radius, got {prox}")
+    sector = cfg.proximity.half_angle
+    _require(
+        sector is None or 0 < sector <= math.pi,
+        f"{path}.proximity.half_angle",
+        f"must satisfy 0 < half_angle <= pi, got {sector}",
+    )
     sim = cfg.simulation
     _require(sim.control_period > 0, f"{path}.simulation.control_period", "must be > 0")
     _require(sim.physics_substeps >= 1, f"{path}.simulation.physics_substeps", "must be >= 1")
