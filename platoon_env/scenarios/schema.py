@@ -151,8 +151,8 @@ class RewardConfig:
     effort: float = 0.01  # penalty on u^2 + omega^2
     alive: float = 1.0  # bonus per step without violation
     violation: float = 100.0  # penalty when a violation occurs
-    wall: float = 1.0  # penalty on (1 - (clearance - r) / wall_margin)^2 near a wall
-    wall_margin: float = 0.25  # [m] clearance beyond r below which the wall term applies
+    wall: float = 5.0  # penalty on (1 - (clearance - r) / wall_margin)^2 near a wall
+    wall_margin: float = 0.4  # [m] clearance beyond r below which the wall term applies
 
 
 @dataclass(frozen=True)
