@@ -234,31 +234,10 @@ def sense_candidates(
         else:
             has_left = False
         if has_left and (lb_point < wall_l or (need_sight and lb_sight < sight_l)):
-            with_sight = need_sight and lb_sight < sight_l
-            if sectored:
-                near, sight = _sector_part_distances2(
-                    px,
-                    py,
-                    qx,
-                    qy,
-                    dx,
-                    dy,
-                    inv_d2,
-                    cx,
-                    cy,
-                    ex,
-                    ey,
-                    with_sight,
-                    rmx,
-                    rmy,
-                    rpx,
-                    rpy,
-                    convex,
-                )
-            else:
-                near, sight = _part_distances2(
-                    px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey, with_sight
-                )
+            near, sight = _sensed_part_distances2(
+                px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey,
+                need_sight and lb_sight < sight_l, sectored, rmx, rmy, rpx, rpy, convex,
+            )  # fmt: skip
             wall_l = min(wall_l, near)
             sight_l = min(sight_l, sight)
         # Right part: the closed half-plane cross <= 0.
@@ -276,31 +255,10 @@ def sense_candidates(
         else:
             has_right = False
         if has_right and (lb_point < wall_r or (need_sight and lb_sight < sight_r)):
-            with_sight = need_sight and lb_sight < sight_r
-            if sectored:
-                near, sight = _sector_part_distances2(
-                    px,
-                    py,
-                    qx,
-                    qy,
-                    dx,
-                    dy,
-                    inv_d2,
-                    cx,
-                    cy,
-                    ex,
-                    ey,
-                    with_sight,
-                    rmx,
-                    rmy,
-                    rpx,
-                    rpy,
-                    convex,
-                )
-            else:
-                near, sight = _part_distances2(
-                    px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey, with_sight
-                )
+            near, sight = _sensed_part_distances2(
+                px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey,
+                need_sight and lb_sight < sight_r, sectored, rmx, rmy, rpx, rpy, convex,
+            )  # fmt: skip
             wall_r = min(wall_r, near)
             sight_r = min(sight_r, sight)
     out[SENSE_D] = d
@@ -473,6 +431,36 @@ def _sector_part_distances2(
         )
         near, sight = min(near, near2), min(sight, sight2)
     return near, sight
+
+
+@njit(cache=True, inline="always")
+def _sensed_part_distances2(
+    px: float,
+    py: float,
+    qx: float,
+    qy: float,
+    dx: float,
+    dy: float,
+    inv_d2: float,
+    cx: float,
+    cy: float,
+    ex: float,
+    ey: float,
+    with_sight: bool,
+    sectored: bool,
+    rmx: float,
+    rmy: float,
+    rpx: float,
+    rpy: float,
+    convex: bool,
+) -> tuple[float, float]:
+    """:func:`_part_distances2` of the part ``[c, e]``, clipped to the proximity sector when
+    ``sectored`` (:func:`_sector_part_distances2`); the arguments are theirs."""
+    if sectored:
+        return _sector_part_distances2(
+            px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey, with_sight, rmx, rmy, rpx, rpy, convex
+        )
+    return _part_distances2(px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey, with_sight)
 
 
 @njit(cache=True, inline="always")
