@@ -59,23 +59,28 @@ from workspaces import (
 # Helpers
 
 
-@pytest.fixture(scope="module")
-def kernel_sense() -> SenseFn:
-    """The kernel under test, wrapped to take a shapely free space like the oracle does."""
+def _kernel_sense(
+    free_space: BaseGeometry,
+    poses: NDArray[np.float64],
+    d_con: float,
+    beta_con: float,
+    proximity_range: float,
+    half_angle: float = math.pi,
+) -> NDArray[np.float64]:
+    """The kernel under test, taking a shapely free space like the oracle does."""
     from platoon_env.geometry.sensing import sense
     from platoon_env.geometry.workspace import boundary_edges
 
-    def run(
-        free_space: BaseGeometry,
-        poses: NDArray[np.float64],
-        d_con: float,
-        beta_con: float,
-        proximity_range: float,
-    ) -> NDArray[np.float64]:
-        edges = boundary_edges(free_space)
-        return np.asarray(sense(poses, edges, d_con, beta_con, proximity_range))
+    edges = boundary_edges(free_space)
+    return np.asarray(
+        sense(poses, edges, d_con, beta_con, proximity_range, proximity_half_angle=half_angle)
+    )
 
-    return run
+
+@pytest.fixture(scope="module")
+def kernel_sense() -> SenseFn:
+    """The kernel under test (all-around proximity sensor)."""
+    return _kernel_sense
 
 
 @pytest.fixture(scope="module")
@@ -739,24 +744,8 @@ SectorSenseFn = Callable[
 
 @pytest.fixture(scope="module")
 def kernel_sense_sector() -> SectorSenseFn:
-    """:func:`kernel_sense` with a proximity sector of the given half-angle."""
-    from platoon_env.geometry.sensing import sense
-    from platoon_env.geometry.workspace import boundary_edges
-
-    def run(
-        free_space: BaseGeometry,
-        poses: NDArray[np.float64],
-        d_con: float,
-        beta_con: float,
-        proximity_range: float,
-        half_angle: float,
-    ) -> NDArray[np.float64]:
-        edges = boundary_edges(free_space)
-        return np.asarray(
-            sense(poses, edges, d_con, beta_con, proximity_range, proximity_half_angle=half_angle)
-        )
-
-    return run
+    """The kernel under test with a proximity sector of the given half-angle."""
+    return _kernel_sense
 
 
 def _check_sector_state(
