@@ -55,21 +55,36 @@ def _violations_at(ep: Episode, k: int) -> list[str | None]:
 def plot_snapshots(
     ax: Axes, scenario: Scenario, ep: Episode, n_snapshots: int = 6, title: str | None = None
 ) -> None:
-    """The platoon at ``n_snapshots`` evenly spaced instants over its traces (Fig. 5, 12)."""
+    """The platoon at ``n_snapshots`` evenly spaced instants over its traces (Fig. 5, 12).
+
+    Followers with a violation are drawn red in their snapshot; the causes of every snapshot
+    are listed together, with their times, in one box in the corner.
+    """
     cfg = scenario.config
     idx = np.unique(np.linspace(0, ep.times.size - 1, n_snapshots).round().astype(int))
+    notes: list[str] = []
     for j, k in enumerate(idx):
-        draw_scene(
+        violations = _violations_at(ep, int(k))
+        artists = draw_scene(
             ax,
             scenario.free_space,
             cfg,
             ep.poses[k],
             ep.sensed[k, :, SENSE_VISIBLE] > 0,
             float(ep.times[k]),
-            _violations_at(ep, int(k)),
+            violations,
             trail=ep.poses[: k + 1, :, :2] if j == len(idx) - 1 else None,
             background=j == 0,
         )
+        artists.violation_text.set_visible(False)  # one shared box below, not one per snapshot
+        notes += [
+            f"t = {ep.times[k]:.1f} s, R{i + 1}: {cause}"
+            for i, cause in enumerate(violations)
+            if cause is not None
+        ]
+    if notes:
+        artists.violation_text.set_text("\n".join(notes))
+        artists.violation_text.set_visible(True)
     ax.set_title(
         title or f"{cfg.name}: snapshots every {ep.times[idx[1]] - ep.times[idx[0]]:.0f} s"
         if len(idx) > 1

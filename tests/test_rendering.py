@@ -249,3 +249,33 @@ def test_missing_matplotlib_gives_install_hint(monkeypatch: pytest.MonkeyPatch) 
     monkeypatch.delitem(sys.modules, "platoon_env.rendering", raising=False)
     with pytest.raises(ImportError, match=r"pip install 'platoon-env\[plot\]'"):
         importlib.import_module("platoon_env.rendering")
+
+
+def test_snapshots_list_every_violation_in_one_box(corridor: dict) -> None:
+    """plot_snapshots: one visible violation box listing each snapshot's causes with its time
+    (they used to be drawn on top of each other, one box per snapshot)."""
+    import platoon_env
+    from platoon_env.plots import new_figure, plot_snapshots
+    from platoon_env.rollout import run_episode
+
+    class Spin:
+        """Followers turn on the spot: they lose their predecessor and keep violating."""
+
+        def reset(self, seed: int | None = None) -> None:
+            pass
+
+        def act(self, obs: dict) -> dict:
+            return {a: np.array([0.0, 1.0], dtype=np.float32) for a in obs}
+
+    env = platoon_env.make(corridor, terminate_on=[])
+    ep = run_episode(env, Spin(), seed=0, max_steps=600, record_signals=False)
+    fig = new_figure(8, 3)
+    ax = fig.add_subplot()
+    plot_snapshots(ax, env.scenario, ep, n_snapshots=4)
+    boxes = [t for t in ax.texts if t.get_visible() and "R" in t.get_text()]
+    assert len(boxes) == 1
+    lines = boxes[0].get_text().splitlines()
+    snapshot_times = {line.split(",")[0] for line in lines}
+    assert len(lines) >= 4 and len(snapshot_times) >= 2  # several snapshots, both followers
+    assert all(": out_of_fov" in line or ": occluded" in line or ": out_of_range" in line
+               for line in lines)  # fmt: skip
