@@ -7,9 +7,9 @@ import sys
 from pathlib import Path
 
 import numba
+import numpy as np
 import pytest
 
-import platoon_env
 from platoon_env import _numba_cache
 
 
@@ -30,14 +30,17 @@ def test_digest_follows_every_source_file(tmp_path: Path) -> None:
 
 
 def test_kernels_cache_in_the_source_versions_directory() -> None:
-    from platoon_env.simulator import platoon_step
+    import platoon_env
 
     if _numba_cache.CACHE_DIR is None:
         pytest.skip("NUMBA_CACHE_DIR is set, or no writable cache directory")
+    env = platoon_env.make("study_c")  # compiles (or loads) the step kernel
+    env.reset(seed=0)
+    env.step({a: np.zeros(2) for a in env.agents})
     package = Path(platoon_env.__file__).resolve().parent
     assert Path(numba.config.CACHE_DIR) == _numba_cache.CACHE_DIR
     assert _numba_cache.CACHE_DIR.name == _numba_cache.source_digest(package)
-    assert Path(platoon_step._cache._cache_path).is_relative_to(_numba_cache.CACHE_DIR)
+    assert list(_numba_cache.CACHE_DIR.rglob("simulator.platoon_step-*.nbi"))
 
 
 def test_users_numba_cache_dir_wins(tmp_path: Path) -> None:
