@@ -41,7 +41,8 @@ def make(scenario: ScenarioLike = "study_c", **overrides: Any) -> PlatoonParalle
             :data:`VIOLATION_CAUSES`), ``render_mode`` (``"rgb_array"``, ``"human"`` or None),
             ``followers`` (number of followers), ``perturb`` (seeded perturbation of the
             initial configuration on reset), ``u_max`` [m/s] and ``omega_max`` [rad/s]
-            (actuator limits: the action-space bounds).
+            (actuator limits: the action-space bounds), ``diagnostics`` (default True; False
+            keeps only ``violation``, ``violations`` and ``cost`` in ``info``, for speed).
     """
     return PlatoonParallelEnv(scenario, **overrides)
 

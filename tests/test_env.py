@@ -386,3 +386,28 @@ def test_reward_buffer_of_the_wrong_size_is_refused() -> None:
     for shape in [(2, len(REWARD_TERMS) - 1), (1, len(REWARD_TERMS))]:
         with pytest.raises(ValueError, match="REWARD_TERMS"):
             reward_terms_into(*args, np.zeros(shape))
+
+
+def test_info_without_diagnostics(corridor: dict[str, Any]) -> None:
+    """diagnostics=False: info keeps only the violation entries, equal to the full info's, and
+    nothing else in the step changes (observations, rewards, flags, poses)."""
+    full = platoon_env.make(corridor, terminate_on=[])
+    lean = platoon_env.make(corridor, terminate_on=[], diagnostics=False)
+    keys = {"violation", "violations", "cost"}
+    full.reset(seed=2)
+    _, lean_infos = lean.reset(seed=2)
+    assert all(set(info) == keys for info in lean_infos.values())
+    seen_violation = False
+    for _ in range(120):
+        act = {a: np.array([0.4, 1.2 * (k % 2) - 0.3]) for k, a in enumerate(full.agents)}
+        a, b = full.step(act), lean.step(act)
+        for agent in full.possible_agents:
+            np.testing.assert_array_equal(a[0][agent], b[0][agent])
+            assert a[1][agent] == b[1][agent] and a[2][agent] == b[2][agent]
+            assert a[3][agent] == b[3][agent]
+            assert set(b[4][agent]) == keys
+            assert {k: a[4][agent][k] for k in keys} == b[4][agent]
+            seen_violation |= b[4][agent]["cost"] == 1
+    np.testing.assert_array_equal(full.poses, lean.poses)
+    assert seen_violation
+    parallel_api_test(platoon_env.make(corridor, diagnostics=False), num_cycles=50)
