@@ -128,9 +128,11 @@ def parallel_env_culls() -> bool:
     return hasattr(platoon_env.make("study_c"), "_grid")
 
 
-def time_parallel_env(scenario: Any, actions: np.ndarray, seconds: float) -> float:
+def time_parallel_env(
+    scenario: Any, actions: np.ndarray, seconds: float, diagnostics: bool = True
+) -> float:
     """Env-steps/s of one ParallelEnv replaying ``actions`` (PettingZoo dict I/O)."""
-    env = platoon_env.make(scenario, terminate_on=())
+    env = platoon_env.make(scenario, terminate_on=(), diagnostics=diagnostics)
     agents = env.possible_agents
     dicts = [{a: row[i] for i, a in enumerate(agents)} for row in actions]
     env.reset(seed=0)
@@ -428,6 +430,21 @@ def main(argv: list[str] | None = None) -> int:
         )
     )
     print(f"ParallelEnv study_a: {_fmt(headline[-1].env_steps)} env-steps/s", flush=True)
+    headline.append(
+        Row(
+            "platoon study_a, ParallelEnv (dicts), diagnostics=False",
+            "study_a",
+            edges_a,
+            7,
+            None,
+            1,
+            time_parallel_env("study_a", study_a, seconds, diagnostics=False),
+        )
+    )
+    print(
+        f"ParallelEnv study_a, diagnostics=False: {_fmt(headline[-1].env_steps)} env-steps/s",
+        flush=True,
+    )
     for batch, th in dict.fromkeys([(1, 1), (32, 1), (big, 1), (big, threads)]):
         if th > 1 and th > mach["numba_threads"]:
             continue
