@@ -179,18 +179,9 @@ class BatchedPlatoonVecEnv(SlotVecEnv):
             self._env_perturb[j] = None
         return obs
 
-    def step_async(self, actions: np.ndarray) -> None:
-        """Store the slots' actions ``(num_envs, 2)`` for :meth:`step_wait`."""
-        actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, ACT_SIZE)
-        self._actions = (
-            self.action_range.to_physical(actions) if self.action_range is not None else actions
-        )
-
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
         """Step every env once (one compiled call); reset the envs whose episode ended."""
-        if self._actions is None:
-            raise RuntimeError("step_wait() called without step_async()")
-        actions, self._actions = self._actions, None
+        actions = self._take_actions()
         n = self.n_followers
         obs, rew, terminated, truncated, info = self.core.step(
             actions.reshape(self.n_envs, n, ACT_SIZE)

@@ -197,18 +197,24 @@ def parse_args(argv: Sequence[str] | None = None) -> TrainConfig:
 # ------------------------------------------------------------------------------------------------
 # Building blocks (also used by the tests)
 # ------------------------------------------------------------------------------------------------
-def make_env(cfg: TrainConfig) -> PlatoonParallelEnv:
-    """One training env: the scenario at the training control period, default termination.
-
-    Its ``info`` holds only the violation entries (``diagnostics=False``): training reads
-    nothing else, and the full dicts cost about a third of an env step.
-    """
-    overrides: dict[str, Any] = {"control_period": cfg.control_period, "diagnostics": False}
+def env_overrides(cfg: TrainConfig) -> dict[str, Any]:
+    """The ``platoon_env.make`` overrides of the training envs: the training control period and
+    whatever sub-steps and step limit ``cfg`` sets (default termination)."""
+    overrides: dict[str, Any] = {"control_period": cfg.control_period}
     if cfg.physics_substeps is not None:
         overrides["physics_substeps"] = cfg.physics_substeps
     if cfg.max_episode_steps is not None:
         overrides["max_episode_steps"] = cfg.max_episode_steps
-    return platoon_env.make(cfg.scenario, **overrides)
+    return overrides
+
+
+def make_env(cfg: TrainConfig) -> PlatoonParallelEnv:
+    """One training env with :func:`env_overrides`.
+
+    Its ``info`` holds only the violation entries (``diagnostics=False``): training reads
+    nothing else, and the full dicts cost about a third of an env step.
+    """
+    return platoon_env.make(cfg.scenario, diagnostics=False, **env_overrides(cfg))
 
 
 def build_vec_env(cfg: TrainConfig) -> PlatoonVecEnv | BatchedPlatoonVecEnv:
@@ -217,18 +223,13 @@ def build_vec_env(cfg: TrainConfig) -> PlatoonVecEnv | BatchedPlatoonVecEnv:
     if cfg.n_envs < 1:
         raise ValueError(f"n_envs must be >= 1, got {cfg.n_envs}")
     if cfg.batched:
-        overrides: dict[str, Any] = {"control_period": cfg.control_period}
-        if cfg.physics_substeps is not None:
-            overrides["physics_substeps"] = cfg.physics_substeps
-        if cfg.max_episode_steps is not None:
-            overrides["max_episode_steps"] = cfg.max_episode_steps
         return BatchedPlatoonVecEnv(
             cfg.scenario,
             cfg.n_envs,
             n_threads=cfg.env_threads,
             normalize_observations=cfg.normalize_observations,
             action_range=cfg.action_range,
-            **overrides,
+            **env_overrides(cfg),
         )
     fns: list[Callable[[], PlatoonParallelEnv]] = [lambda: make_env(cfg)] * cfg.n_envs
     return PlatoonVecEnv(

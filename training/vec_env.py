@@ -78,10 +78,13 @@ def observation_scale(space: spaces.Box) -> NDArray[np.float32]:
 class SlotVecEnv(VecEnv):
     """What both platoon adapters share: one slot per follower, env ``j`` seeded ``seed + j``.
 
-    Subclasses define :attr:`n_envs` and keep ``_env_seeds`` (one pending seed per env).
+    Subclasses define :attr:`n_envs` and keep ``_env_seeds`` (one pending seed per env),
+    ``action_range`` and ``_actions`` (the physical actions stored by :meth:`step_async`).
     """
 
     _env_seeds: list[int | None]
+    action_range: ActionRange | None
+    _actions: NDArray[np.float32] | None
 
     @property
     def n_envs(self) -> int:  # pragma: no cover - defined by every subclass
@@ -91,6 +94,20 @@ class SlotVecEnv(VecEnv):
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
         """Step every env once (defined by every subclass)."""
         raise NotImplementedError  # pragma: no cover
+
+    def step_async(self, actions: np.ndarray) -> None:
+        """Store the slots' actions ``(num_envs, 2)`` for :meth:`step_wait`."""
+        actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, ACT_SIZE)
+        self._actions = (
+            self.action_range.to_physical(actions) if self.action_range is not None else actions
+        )
+
+    def _take_actions(self) -> NDArray[np.float32]:
+        """The actions stored by :meth:`step_async` (once); raises if there are none."""
+        if self._actions is None:
+            raise RuntimeError("step_wait() called without step_async()")
+        actions, self._actions = self._actions, None
+        return actions
 
     def _check_slot(self, k: int) -> None:
         if not 0 <= k < self.num_envs:
@@ -242,18 +259,9 @@ class PlatoonVecEnv(SlotVecEnv):
         self._env_options = [{} for _ in self.envs]
         return self._obs.copy()
 
-    def step_async(self, actions: np.ndarray) -> None:
-        """Store the slots' actions ``(num_envs, 2)`` for :meth:`step_wait`."""
-        actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, ACT_SIZE)
-        self._actions = (
-            self.action_range.to_physical(actions) if self.action_range is not None else actions
-        )
-
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
         """Step every env once; auto-reset the envs whose episode ended."""
-        if self._actions is None:
-            raise RuntimeError("step_wait() called without step_async()")
-        actions, self._actions = self._actions, None
+        actions = self._take_actions()
         rewards = np.zeros(self.num_envs, dtype=np.float32)
         dones = np.zeros(self.num_envs, dtype=bool)
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
