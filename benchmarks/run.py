@@ -418,33 +418,11 @@ def main(argv: list[str] | None = None) -> int:
     notes.append(f"MPE: {mpe_note}")
     study_a = record_ppc_actions("study_a", record_steps)
     edges_a = int(platoon_env.make("study_a").scenario.workspace.edges.shape[0])
-    headline.append(
-        Row(
-            "platoon study_a, ParallelEnv (dicts)",
-            "study_a",
-            edges_a,
-            7,
-            None,
-            1,
-            time_parallel_env("study_a", study_a, seconds),
-        )
-    )
-    print(f"ParallelEnv study_a: {_fmt(headline[-1].env_steps)} env-steps/s", flush=True)
-    headline.append(
-        Row(
-            "platoon study_a, ParallelEnv (dicts), diagnostics=False",
-            "study_a",
-            edges_a,
-            7,
-            None,
-            1,
-            time_parallel_env("study_a", study_a, seconds, diagnostics=False),
-        )
-    )
-    print(
-        f"ParallelEnv study_a, diagnostics=False: {_fmt(headline[-1].env_steps)} env-steps/s",
-        flush=True,
-    )
+    for diagnostics, suffix in ((True, ""), (False, ", diagnostics=False")):
+        env_rate = time_parallel_env("study_a", study_a, seconds, diagnostics=diagnostics)
+        what = f"platoon study_a, ParallelEnv (dicts){suffix}"
+        headline.append(Row(what, "study_a", edges_a, 7, None, 1, env_rate))
+        print(f"ParallelEnv study_a{suffix}: {_fmt(env_rate)} env-steps/s", flush=True)
     for batch, th in dict.fromkeys([(1, 1), (32, 1), (big, 1), (big, threads)]):
         if th > 1 and th > mach["numba_threads"]:
             continue
