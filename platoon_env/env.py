@@ -90,7 +90,7 @@ if REWARD_TERMS != _UNPACKED_REWARD_TERMS:  # pragma: no cover - guards a refact
 
 #: ``(info["violation"], info["violations"], info["cost"])`` of every violation mask.
 _VIOLATION_INFO: tuple[tuple[str | None, tuple[str, ...], int], ...] = tuple(
-    (causes[0] if causes else None, causes, 1 if causes else 0) for causes in CAUSES_OF_MASK
+    (first_cause(mask), causes, 1 if causes else 0) for mask, causes in enumerate(CAUSES_OF_MASK)
 )
 
 #: The mask of every violation cause (the default ``terminate_on``).
