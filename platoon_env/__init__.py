@@ -25,34 +25,43 @@ from platoon_env.scenarios import (
     list_scenarios,
     load_scenario,
 )
-from platoon_env.scenarios.loader import ScenarioLike
+from platoon_env.scenarios.source import SourceLike
 
 __version__ = "0.1.0"
 
 
-def make(scenario: ScenarioLike = "study_c", **overrides: Any) -> PlatoonParallelEnv:
+def make(scenario: SourceLike = "study_c", **overrides: Any) -> PlatoonParallelEnv:
     """Build the PettingZoo ``ParallelEnv`` for ``scenario``.
 
     Args:
-        scenario: a shipped name (see :func:`list_scenarios`), a YAML path, or a dict in the
-            scenario schema.
-        **overrides: ``control_period`` [s], ``physics_substeps``, ``max_episode_steps``,
-            ``terminate_on`` (iterable of violation causes that end an episode; default all of
-            :data:`VIOLATION_CAUSES`), ``render_mode`` (``"rgb_array"``, ``"human"`` or None),
-            ``followers`` (number of followers), ``perturb`` (seeded perturbation of the
-            initial configuration on reset), ``u_max`` [m/s] and ``omega_max`` [rad/s]
-            (actuator limits: the action-space bounds), ``diagnostics`` (default True; False
-            keeps only ``violation``, ``violations`` and ``cost`` in ``info``, for speed).
+        scenario: a shipped name (see :func:`list_scenarios`), a YAML path, a dict in the
+            scenario schema (``docs/scenarios.md``), a built :class:`Scenario` or a
+            :class:`~platoon_env.scenarios.source.ScenarioSource`.
+        **overrides: validated by the scenario schema's own rules (a bad value is a
+            :class:`ScenarioError` naming the option; an unknown name a ``TypeError``):
+
+            * shortcuts (:data:`~platoon_env.scenarios.options.SCENARIO_OPTIONS`):
+              ``control_period`` [s], ``physics_substeps``, ``max_episode_steps``,
+              ``terminate_on`` (one cause or an iterable of the causes that end an episode;
+              default all of :data:`VIOLATION_CAUSES`), ``followers``, ``perturb`` (seeded
+              perturbation of the initial configuration on reset), ``u_max`` [m/s] and
+              ``omega_max`` [rad/s] (the action-space bounds);
+            * blocks (:data:`~platoon_env.scenarios.options.BLOCK_OPTIONS`): a mapping merged
+              into that block of the scenario, e.g. ``camera={"half_angle": 0.5}``,
+              ``formation={"d_des": 1.5}``, ``robot={"radius": 0.2}``;
+            * env options: ``render_mode`` (``"rgb_array"``, ``"human"`` or None),
+              ``diagnostics`` (default True; False keeps only ``violation``, ``violations``
+              and ``cost`` in ``info``, for speed).
     """
     return PlatoonParallelEnv(scenario, **overrides)
 
 
-def parallel_env(scenario: ScenarioLike = "study_c", **overrides: Any) -> PlatoonParallelEnv:
+def parallel_env(scenario: SourceLike = "study_c", **overrides: Any) -> PlatoonParallelEnv:
     """Alias of :func:`make`, as PettingZoo environment modules provide."""
     return make(scenario, **overrides)
 
 
-def env(scenario: ScenarioLike = "study_c", **overrides: Any) -> AECEnv:
+def env(scenario: SourceLike = "study_c", **overrides: Any) -> AECEnv:
     """The AEC form of the env (agents act in turn; the step happens after the last one)."""
     from pettingzoo.utils.conversions import parallel_to_aec
 

@@ -1,72 +1,31 @@
-"""The PettingZoo ``ParallelEnv`` of the platoon (DESIGN §6).
+"""The PettingZoo ``ParallelEnv`` of the platoon (``docs/api.md``).
 
-The class coordinates; the physics, sensing, safety and reward live in their own modules and
-one compiled call (:func:`platoon_env.simulator.platoon_step`) does the whole step.
+The class coordinates: it is the simulation core (:class:`platoon_env.core.PlatoonCore`) at
+``B = 1`` plus PettingZoo's dicts, the infos and rendering. The physics, sensing, safety, reward
+and the episode rules live in their own modules and run as one compiled call
+(:mod:`platoon_env.simulator`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from platoon_env.geometry.grid import EdgeGrid
-from platoon_env.geometry.sensing import SENSE_NAMES, SENSE_SIZE, SENSE_VISIBLE
-from platoon_env.initial import InitialSampler
-from platoon_env.observation import ACT_SIZE, OBS_SIZE, action_space, observation_space
+from platoon_env.core import PlatoonCore
+from platoon_env.geometry.sensing import SENSE_NAMES, SENSE_VISIBLE
+from platoon_env.observation import ACT_SIZE, action_space, observation_space
 from platoon_env.reward import REWARD_TERMS
-from platoon_env.safety import CAUSES_OF_MASK, causes_to_mask, first_cause
-from platoon_env.scenarios.loader import ScenarioLike, load_config, load_scenario
-from platoon_env.scenarios.scenario import Scenario, build_scenario, initial_violations
-from platoon_env.scenarios.schema import VIOLATION_CAUSES, ScenarioError
-from platoon_env.simulator import (
-    L_ARRIVED,
-    L_PROGRESS,
-    L_SIZE,
-    P_SUBSTEP,
-    kernel_params,
-    platoon_step,
-)
-
-
-def _apply_overrides(scenario: ScenarioLike, overrides: Mapping[str, Any]) -> Scenario:
-    """Load ``scenario`` and apply the keyword overrides of :func:`platoon_env.make`."""
-    if not overrides:
-        return load_scenario(scenario)
-    cfg = load_config(scenario)
-    sim = cfg.simulation
-    sim_changes = {
-        k: overrides[k]
-        for k in ("control_period", "physics_substeps", "max_episode_steps")
-        if overrides.get(k) is not None
-    }
-    if sim_changes:
-        cfg = dataclasses.replace(cfg, simulation=dataclasses.replace(sim, **sim_changes))
-    if overrides.get("terminate_on") is not None:
-        causes = tuple(overrides["terminate_on"])
-        causes_to_mask(causes)  # validates the names
-        cfg = dataclasses.replace(cfg, safety=dataclasses.replace(cfg.safety, terminate_on=causes))
-    if overrides.get("followers") is not None:
-        cfg = dataclasses.replace(cfg, followers=int(overrides["followers"]))
-    if overrides.get("perturb") is not None:
-        cfg = dataclasses.replace(
-            cfg, initial=dataclasses.replace(cfg.initial, perturb=bool(overrides["perturb"]))
-        )
-    robot_changes = {
-        k: overrides[k] for k in ("u_max", "omega_max") if overrides.get(k) is not None
-    }
-    if robot_changes:
-        cfg = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, **robot_changes))
-    free_space = scenario.free_space if isinstance(scenario, Scenario) else None
-    return build_scenario(cfg, free_space=free_space)
-
+from platoon_env.scenarios.options import check_bool
+from platoon_env.scenarios.scenario import Scenario
+from platoon_env.scenarios.source import SourceLike, scenario_source
+from platoon_env.simulator import step_serial
+from platoon_env.violations import VIOLATION_INFO, first_cause
 
 # _infos unpacks a row of the sensing array in this column order (faster than indexing by name).
 _UNPACKED_SENSE_NAMES = (
@@ -88,13 +47,18 @@ if REWARD_TERMS != _UNPACKED_REWARD_TERMS:  # pragma: no cover - guards a refact
     raise ImportError(f"env._infos expects reward terms {_UNPACKED_REWARD_TERMS}")
 
 
-#: ``(info["violation"], info["violations"], info["cost"])`` of every violation mask.
-_VIOLATION_INFO: tuple[tuple[str | None, tuple[str, ...], int], ...] = tuple(
-    (first_cause(mask), causes, 1 if causes else 0) for mask, causes in enumerate(CAUSES_OF_MASK)
+#: Attributes of PlatoonParallelEnv that are views of its core's arrays (see ``_views``).
+_VIEW_NAMES = (
+    "_poses",
+    "_actions",
+    "_violations",
+    "_sensed",
+    "_obs",
+    "_terms",
+    "_rewards",
+    "_episode",
+    "_run_args",
 )
-
-#: The mask of every violation cause (the default ``terminate_on``).
-ALL_CAUSES_MASK = causes_to_mask(VIOLATION_CAUSES)
 
 
 class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
@@ -143,98 +107,106 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
 
     def __init__(
         self,
-        scenario: ScenarioLike = "study_c",
+        scenario: SourceLike = "study_c",
         *,
-        control_period: float | None = None,
-        physics_substeps: int | None = None,
-        max_episode_steps: int | None = None,
-        terminate_on: Iterable[str] | None = None,
         render_mode: str | None = None,
-        followers: int | None = None,
-        perturb: bool | None = None,
-        u_max: float | None = None,
-        omega_max: float | None = None,
         diagnostics: bool = True,
+        **overrides: Any,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of {self.metadata['render_modes']} or None, "
                 f"got {render_mode!r}"
             )
-        overrides = {
-            "control_period": control_period,
-            "physics_substeps": physics_substeps,
-            "max_episode_steps": max_episode_steps,
-            "terminate_on": None if terminate_on is None else tuple(terminate_on),
-            "followers": followers,
-            "perturb": perturb,
-            "u_max": u_max,
-            "omega_max": omega_max,
-        }
-        self.scenario: Scenario = _apply_overrides(
-            scenario, {k: v for k, v in overrides.items() if v is not None}
-        )
-        cfg = self.scenario.config
+        #: Whether ``info`` carries the ground-truth diagnostics and reward terms.
+        self.diagnostics = check_bool("diagnostics", diagnostics, "make()")
+        self.source = scenario_source(scenario, overrides)
+        self._core = core = PlatoonCore(self.source, 1)
+        cfg = core.config
         self._renderer: Any = None
         self.render_mode = render_mode
-        #: Whether ``info`` carries the ground-truth diagnostics and reward terms.
-        self.diagnostics = bool(diagnostics)
         self.n_followers = cfg.followers
         self.possible_agents = [f"follower_{i}" for i in range(1, cfg.followers + 1)]
         self.agents: list[str] = []
         self.control_period = cfg.simulation.control_period
         self.physics_substeps = cfg.simulation.physics_substeps
-        self.max_episode_steps = self.scenario.max_episode_steps
         self.terminate_on = frozenset(cfg.safety.terminate_on)
-        self._terminate_mask = causes_to_mask(self.terminate_on)
-        obs_space = observation_space(cfg)
-        act_space = action_space(cfg)
-        self.observation_spaces = {a: obs_space for a in self.possible_agents}
-        self.action_spaces = {a: act_space for a in self.possible_agents}
-        self._act_low = act_space.low.astype(np.float64)
-        self._act_high = act_space.high.astype(np.float64)
-        xmin, ymin, xmax, ymax = self.scenario.workspace.bounds
-        if cfg.generator is not None:
-            from platoon_env.scenarios.procedural import LAYOUT_BOUNDS
-
-            xmin, ymin, xmax, ymax = LAYOUT_BOUNDS
+        # One space object per agent: seeding one agent's space must not seed another's.
+        self.observation_spaces = {a: observation_space(cfg) for a in self.possible_agents}
+        self.action_spaces = {a: action_space(cfg) for a in self.possible_agents}
+        xmin, ymin, xmax, ymax = self.source.bounds
         n1 = cfg.followers + 1
         self.state_space = spaces.Box(
             low=np.tile(np.array([xmin, ymin, -math.pi], dtype=np.float32), n1),
             high=np.tile(np.array([xmax, ymax, math.pi], dtype=np.float32), n1),
             dtype=np.float32,
         )
-        # Kernel inputs (float64, contiguous) and scratch buffers, allocated once.
-        self._params = kernel_params(cfg)
-        self._substep = float(self._params[P_SUBSTEP])  # [s] as a Python float, for sim_time
-        #: The procedural template (None for a fixed workspace) and the current layout number.
-        self._template = cfg if cfg.generator is not None else None
-        self.layout_index: int | None = 0 if cfg.generator is not None else None
-        self._use_scenario(self.scenario)
-        n = cfg.followers
-        self._poses = np.array(self.scenario.initial_poses, dtype=np.float64)
-        self._leader = np.zeros(L_SIZE)
-        self._actions = np.zeros((n, ACT_SIZE))
-        self._violations = np.zeros(n, dtype=np.int64)
-        self._sensed = np.zeros((n, SENSE_SIZE))
-        self._obs = np.zeros((n, OBS_SIZE), dtype=np.float32)
-        self._terms = np.zeros((n, len(REWARD_TERMS)))
-        self._rewards = np.zeros(n)
-        self.sim_time = 0.0
-        self.steps = 0
-        self._arrival_time: float | None = None
-        self.np_random, self._np_random_seed = seeding.np_random(None)
+        self._views()
+
+    def _views(self) -> None:
+        """Env 0's rows of the core's arrays (views, so reading them costs no copy)."""
+        core = self._core
+        self._poses = core.poses[0]
+        self._actions = core.actions[0]
+        self._violations = core.violations[0]
+        self._sensed = core.sensed[0]
+        self._obs = core.obs[0]
+        self._terms = core.terms[0]
+        self._rewards = core.rewards[0]
+        self._episode = core.episode
+        self._run_args = (
+            np.ones(1, dtype=bool),
+            self.physics_substeps,
+            core.params,
+            core.episode,
+            core.maps,
+            core.buffers,
+        )
 
     # ----------------------------------------------------------------------------------------
     # PettingZoo API
     # ----------------------------------------------------------------------------------------
     def observation_space(self, agent: str) -> spaces.Box:
-        """The (shared, cached) observation space of ``agent``."""
+        """The (cached) observation space of ``agent``."""
         return self.observation_spaces[agent]
 
     def action_space(self, agent: str) -> spaces.Box:
-        """The (shared, cached) action space of ``agent``."""
+        """The (cached) action space of ``agent``."""
         return self.action_spaces[agent]
+
+    @property
+    def scenario(self) -> Scenario:
+        """The current episode's scenario (for a procedural source: the layout drawn on reset)."""
+        return self._core.scenarios[0]
+
+    @property
+    def layout_index(self) -> int | None:
+        """The procedural layout number of the current episode (None for a fixed workspace)."""
+        return self.scenario.layout_index if self.source.procedural else None
+
+    @property
+    def np_random(self) -> np.random.Generator:
+        """This env's own RNG (seeded by ``reset(seed)``)."""
+        return self._core.rngs[0]
+
+    @np_random.setter
+    def np_random(self, rng: np.random.Generator) -> None:
+        self._core.rngs[0] = rng
+
+    @property
+    def sim_time(self) -> float:
+        """Simulated time of the episode [s]."""
+        return float(self._episode[0]["sim_time"])
+
+    @property
+    def steps(self) -> int:
+        """Steps taken in the episode."""
+        return int(self._episode[0]["steps"])
+
+    @property
+    def max_episode_steps(self) -> int:
+        """The current episode's step limit."""
+        return int(self._core.params[0]["max_episode_steps"])
 
     @property
     def poses(self) -> np.ndarray:
@@ -244,7 +216,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     @property
     def leader_arrived(self) -> bool:
         """Whether the leader has reached the end of its path."""
-        return bool(self._leader[L_ARRIVED])
+        return bool(self._episode[0]["leader_arrived"])
 
     @property
     def violation_masks(self) -> np.ndarray:
@@ -269,16 +241,10 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
 
         ``options``: ``{"perturb": bool}`` overrides the scenario's seeded perturbation of the
         initial configuration; ``{"poses": array (N+1, 3)}`` starts from given poses (they must
-        satisfy every constraint, else ``ScenarioError`` names the follower and constraint).
+        satisfy every constraint, else ``ScenarioError`` names the follower and constraint, and
+        the env is left as it was).
         """
-        if seed is not None:
-            self.np_random, self._np_random_seed = seeding.np_random(seed)
         options = dict(options or {})
-        if self._template is not None:
-            from platoon_env.scenarios.procedural import LAYOUTS_PER_SPLIT, generate_scenario
-
-            self.layout_index = int(self.np_random.integers(LAYOUTS_PER_SPLIT))
-            self._use_scenario(generate_scenario(self._template, self.layout_index))
         unknown = set(options) - {"perturb", "poses"}
         if unknown:
             # Gymnasium/PettingZoo envs ignore options they do not know (the official test
@@ -287,27 +253,20 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 f"reset(): ignoring unknown option(s) {', '.join(sorted(map(str, unknown)))}",
                 stacklevel=2,
             )
-        cfg = self.scenario.config
-        if options.get("poses") is not None:
-            poses = np.array(options["poses"], dtype=np.float64)
-            if poses.shape != self._poses.shape or not np.all(np.isfinite(poses)):
-                raise ValueError(f"options['poses'] must be finite with shape {self._poses.shape}")
-            problems = initial_violations(cfg, self.scenario.workspace, poses)
-            if problems:
-                raise ScenarioError("initial poses are infeasible: " + "; ".join(problems))
-        else:
-            perturb = options.get("perturb", cfg.initial.perturb)
-            poses = self._sampler.sample(self.np_random, bool(perturb))
-        self._poses[:] = poses
-        self._leader[L_PROGRESS] = self.scenario.initial_progress
-        self._leader[L_ARRIVED] = 0.0
-        self.sim_time = 0.0
-        self.steps = 0
-        self._arrival_time = None
+        perturb = options.get("perturb")
+        if perturb is not None:
+            perturb = check_bool("options['perturb']", perturb, "reset()")
+        if seed is not None:
+            seed = _check_seed(seed)
+        had_map = self.scenario
+        self._core.reset_env(0, seed, perturb=perturb, poses=options.get("poses"))
+        if self._core.maps is not self._run_args[4]:  # a bigger layout reallocated the bank
+            self._views()
+        if self.scenario is not had_map and self._renderer is not None:
+            self.close()  # the map changed: redraw from scratch
         self.agents = list(self.possible_agents)
-        self._actions[:] = 0.0
         # Zero-duration step: sensing of the initial configuration.
-        self._step_kernel(n_substeps=0)
+        self._core.run(None, 0)
         obs = self._obs.copy()
         infos = self._infos([0] * self.n_followers, None)
         return {a: obs[i] for i, a in enumerate(self.agents)}, infos
@@ -327,7 +286,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
             raise RuntimeError("step() called on a finished episode; call reset() first")
         # The actions as a float64 (N, 2) array. Fast path (this runs every step, so it is
         # inlined): a dict holding exactly the live agents' well-shaped actions; anything else
-        # goes through the checks of _read_actions, which name the misuse. The kernel clips
+        # goes through the checks of _read_actions, which name the misuse. The core clips
         # the actions and rejects NaN or inf before any state changes.
         try:
             if len(actions) != len(agents):
@@ -337,42 +296,24 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 raise ValueError
         except (KeyError, TypeError, ValueError):
             act = self._read_actions(actions)
-        done = platoon_step(
-            self._poses, act, self._leader, self._path, self._cum, *self._grid_arrays,
-            self._params, self.physics_substeps, self._terminate_mask, self._violations,
-            self._sensed, self._obs, self._terms, self._rewards,
-        )  # fmt: skip
-        if done < 0:  # nothing changed
+        self._actions[:] = act
+        ended = step_serial(*self._run_args)
+        if ended < 0:  # nothing changed
             raise ValueError(
-                f"action of {agents[-1 - done]!r} contains NaN or inf: {act[-1 - done].tolist()}"
+                f"action of {agents[-1 - ended]!r} contains NaN or inf: {act[-1 - ended].tolist()}"
             )
-        self._actions = act
-        self.sim_time += done * self._substep
-        self.steps += 1
-        masks = self._violations.tolist()
-        if self._terminate_mask == ALL_CAUSES_MASK:  # the default: any violation ends it
-            terminated = any(masks)
-        elif self._terminate_mask:
-            terminated = any(m & self._terminate_mask for m in masks)
-        else:  # terminate_on=(): violations are only reported
-            terminated = False
-        if self._arrival_time is None and self._leader[L_ARRIVED]:
-            self._arrival_time = self.sim_time
-        truncated = not terminated and (
-            self.steps >= self.max_episode_steps
-            or (
-                self._arrival_time is not None
-                and self.sim_time - self._arrival_time >= self._settle_time - 1e-9
-            )
-        )
+        terminated = truncated = bool(ended)
+        if ended:
+            terminated = bool(self._episode[0]["terminated"])
+            truncated = not terminated
         # zip without strict=True: the lengths are equal by construction, and the strict check
         # costs about 0.5 us per dict here (this runs every step).
         observations = dict(zip(agents, self._obs.copy()))  # noqa: B905
         rewards = dict(zip(agents, self._rewards.tolist()))  # noqa: B905
         terminations = dict.fromkeys(agents, terminated)
         truncations = dict.fromkeys(agents, truncated)
-        infos = self._infos(masks, self._terms.tolist())
-        if terminated or truncated:
+        infos = self._infos(self._violations.tolist(), self._terms.tolist())
+        if ended:
             self.agents = []
         if self.render_mode == "human":
             self.render()
@@ -408,48 +349,18 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state["_renderer"] = None  # figures are not picklable; redrawn on demand
+        # The row views would unpickle as copies detached from the core: rebuilt on load.
+        for name in _VIEW_NAMES:
+            state.pop(name, None)
         return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._views()
 
     # ----------------------------------------------------------------------------------------
     # Internals
     # ----------------------------------------------------------------------------------------
-    def _use_scenario(self, scenario: Scenario) -> None:
-        """Point the kernel at ``scenario``'s path and edges (same N and parameters)."""
-        self.scenario = scenario
-        # Own writable copies: numba types read-only array arguments more slowly on every call.
-        self._path = np.array(scenario.leader_path, dtype=np.float64)
-        self._cum = np.array(scenario.path_s, dtype=np.float64)
-        self._edges = scenario.workspace.edges
-        self._boxes = scenario.workspace.boxes
-        self._grid = EdgeGrid.build(self._edges, reach=scenario.config.proximity_range)
-        self._grid_arrays = self._grid.arrays
-        self._sampler = InitialSampler(scenario)
-        self.max_episode_steps = scenario.max_episode_steps
-        self._settle_time = scenario.config.leader.settle_time
-        self._d_des = scenario.config.formation.d_des
-        if self._renderer is not None:  # the map changed: redraw from scratch
-            self.close()
-
-    def _step_kernel(self, n_substeps: int, actions: np.ndarray | None = None) -> int:
-        return int(
-            platoon_step(
-                self._poses,
-                self._actions if actions is None else actions,
-                self._leader,
-                self._path,
-                self._cum,
-                *self._grid_arrays,
-                self._params,
-                n_substeps,
-                self._terminate_mask,
-                self._violations,
-                self._sensed,
-                self._obs,
-                self._terms,
-                self._rewards,
-            )
-        )
-
     def _read_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
         """The live agents' actions as a float64 (N, 2) array, or an error naming the misuse
         (not a dict, unknown or missing agent, wrong shape). :meth:`step` inlines the fast path
@@ -492,14 +403,14 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         infos: dict[str, dict[str, Any]] = {}
         if not self.diagnostics:
             for agent, mask in zip(self.agents, masks):  # noqa: B905 - equal lengths
-                first, causes, cost = _VIOLATION_INFO[mask]
+                first, causes, cost = VIOLATION_INFO[mask]
                 infos[agent] = {"violation": first, "violations": causes, "cost": cost}
             return infos
-        d_des = self._d_des
+        d_des = self._core.params[0]["d_des"]
         rows = zip(self.agents, self._sensed.tolist(), masks)  # noqa: B905 - equal lengths
         for i, (agent, row, mask) in enumerate(rows):
             d, beta, visible, _, wall_l, wall_r, sight_l, sight_r, clearance = row
-            first, causes, cost = _VIOLATION_INFO[mask]
+            first, causes, cost = VIOLATION_INFO[mask]
             if terms is None:
                 reward_terms = {}
             else:
@@ -529,3 +440,12 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 "reward_terms": reward_terms,
             }
         return infos
+
+
+def _check_seed(seed: Any) -> int:
+    """``seed`` as a Python int (numpy integers accepted), or a clear error."""
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+        raise TypeError(f"seed must be an integer or None, got {seed!r}")
+    if seed < 0:
+        raise ValueError(f"seed must be >= 0, got {seed}")
+    return int(seed)

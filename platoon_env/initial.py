@@ -2,97 +2,60 @@
 
 On ``reset(seed)`` the followers' positions and headings are perturbed uniformly (the scenario's
 ``initial`` block: ``position_noise`` [m] per coordinate, ``heading_noise`` [rad]) with the env's
-own RNG, until a draw satisfies every constraint of the initial configuration (DESIGN §3); after
-:data:`PERTURB_ATTEMPTS` infeasible draws the default configuration is used. The leader is not
-perturbed.
+own RNG, until a draw satisfies every constraint of the initial configuration
+(``docs/safety.md``); after :data:`PERTURB_ATTEMPTS` infeasible draws the default configuration
+is used. The leader is not perturbed.
 
-:class:`InitialSampler` does this for one scenario. Its feasibility test is compiled but takes
-exactly the decisions of :func:`platoon_env.scenarios.scenario.initial_violations` (the same
-sensing kernel, the same comparisons; the leader's clearance, which no draw changes, is computed
-once with shapely), so the same RNG gives the same poses whichever is used. The single env and
-the batched core (:mod:`platoon_env.batched`) both draw through it.
+A configuration is feasible when no follower violates any constraint there: the rule is
+:func:`platoon_env.safety.configuration_masks`, the one the step applies after every sub-step,
+so a start is never one that the first step would end. The leader (which no draw moves) must
+also keep a clearance above ``r``. :func:`platoon_env.scenarios.scenario.initial_violations`
+words the same decisions as messages.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from numba import njit
 
-from platoon_env.geometry.sensing import (
-    SENSE_BETA,
-    SENSE_CLEARANCE,
-    SENSE_D,
-    SENSE_OCCLUDED,
-    SENSE_SIZE,
-    sense_into,
-)
-from platoon_env.scenarios.scenario import Scenario
+from platoon_env.geometry.grid import EdgeGrid
+from platoon_env.geometry.sensing import SENSE_SIZE
+from platoon_env.records import Walls, constraint_params
+from platoon_env.safety import configuration_masks
+from platoon_env.scenarios.scenario import Scenario, initial_violations
 
 #: Attempts at drawing a feasible perturbed initial configuration before using the default one.
 PERTURB_ATTEMPTS = 50
 
 
-@njit(cache=True)
-def _feasible(
-    poses: np.ndarray,
-    edges: np.ndarray,
-    boxes: np.ndarray,
-    radius: float,
-    d_col: float,
-    d_con: float,
-    beta_con: float,
-    proximity_range: float,
-    sensed: np.ndarray,
-) -> bool:
-    """The followers' and pairs' part of ``initial_violations(...) == []``."""
-    sense_into(poses, edges, boxes, d_con, beta_con, proximity_range, sensed)
-    for i in range(sensed.shape[0]):
-        if not sensed[i, SENSE_D] > d_col:
-            return False
-        if not sensed[i, SENSE_D] < d_con:
-            return False
-        if not abs(sensed[i, SENSE_BETA]) < beta_con:
-            return False
-        if not sensed[i, SENSE_CLEARANCE] > radius:
-            return False
-        if sensed[i, SENSE_OCCLUDED] > 0:
-            return False
-    touch = 2 * radius
-    for j in range(poses.shape[0]):
-        for k in range(j + 1, poses.shape[0]):
-            if math.hypot(poses[j, 0] - poses[k, 0], poses[j, 1] - poses[k, 1]) <= touch:
-                return False
-    return True
-
-
 class InitialSampler:
-    """Draws initial configurations of one (fixed-workspace) scenario; see the module docstring.
+    """Draws initial configurations of one scenario; see the module docstring.
 
     Args:
-        scenario: the built scenario (``env.scenario``).
+        scenario: the built scenario.
+        walls: its boundary as :class:`~platoon_env.records.Walls` (default: built here).
+        params: a ``(1,)`` :data:`~platoon_env.records.PARAMS_DTYPE` array with at least the
+            constraint fields (default: :func:`~platoon_env.records.constraint_params`).
     """
 
-    def __init__(self, scenario: Scenario) -> None:
+    def __init__(
+        self, scenario: Scenario, walls: Walls | None = None, params: np.ndarray | None = None
+    ) -> None:
         self.scenario = scenario
         cfg = scenario.config
         self.base = np.array(scenario.initial_poses, dtype=np.float64)
         self._n = cfg.followers
         self._position_noise = cfg.initial.position_noise
         self._heading_noise = cfg.initial.heading_noise
-        self._radius = cfg.robot.radius
-        self._d_col = cfg.safety.d_col
-        self._d_con = cfg.camera.range
-        self._beta_con = cfg.camera.half_angle
-        self._proximity = cfg.proximity_range
-        self._edges = np.ascontiguousarray(scenario.workspace.edges, dtype=np.float64)
-        self._boxes = np.ascontiguousarray(scenario.workspace.boxes, dtype=np.float64)
+        if walls is None:
+            walls = EdgeGrid.build(scenario.workspace.edges, reach=cfg.proximity_range).walls
+        self._walls = walls
+        self._params = constraint_params(cfg) if params is None else params
         leader = self.base[0]
         self._leader_ok = (
-            scenario.workspace.clearance(float(leader[0]), float(leader[1])) > self._radius
+            scenario.workspace.clearance(float(leader[0]), float(leader[1])) > cfg.robot.radius
         )
         self._sensed = np.empty((self._n, SENSE_SIZE))
+        self._masks = np.empty(self._n, dtype=np.int64)
 
     def feasible(self, poses: np.ndarray) -> bool:
         """Whether ``poses`` (with the default leader pose) is a feasible initial configuration.
@@ -102,19 +65,19 @@ class InitialSampler:
         """
         if not self._leader_ok:
             return False
-        return bool(
-            _feasible(
-                np.ascontiguousarray(poses, dtype=np.float64),
-                self._edges,
-                self._boxes,
-                self._radius,
-                self._d_col,
-                self._d_con,
-                self._beta_con,
-                self._proximity,
-                self._sensed,
-            )
+        configuration_masks(
+            np.ascontiguousarray(poses, dtype=np.float64),
+            self._walls,
+            self._params[0],
+            self._sensed,
+            self._masks,
         )
+        return not self._masks.any()
+
+    def violations(self, poses: np.ndarray) -> list[str]:
+        """Every constraint that ``poses`` violates, as messages naming follower and rule."""
+        sc = self.scenario
+        return initial_violations(sc.config, sc.workspace, np.asarray(poses, dtype=np.float64))
 
     def sample(self, rng: np.random.Generator, perturb: bool) -> np.ndarray:
         """The initial poses ``(N+1, 3)`` of an episode, drawing from ``rng`` when perturbing."""

@@ -1,5 +1,5 @@
-"""Safety rules (eqs. 4-5, DESIGN §3): which constraint a follower violates, checked after every
-physics sub-step.
+"""Safety rules (eqs. 4-5, ``docs/safety.md``): which constraint a follower violates, checked
+after every physics sub-step.
 
 A violation of follower ``i`` has a cause (bit ``k`` of a mask is ``VIOLATION_CAUSES[k]``):
 
@@ -13,198 +13,139 @@ The primitives are those of :mod:`platoon_env.geometry.sensing`, so sensing and 
 agree on where the walls are. Distances are compared squared (``clearance² <= r²``), exactly as
 the sensing kernel reports them, so that the sub-step checks and the final sensing agree. In the
 last sub-step of a control period the simulator derives the mask from the sensing it computes
-anyway (:func:`sensed_violation`), instead of testing the same edges twice.
+anyway (:func:`sensed_violation`), instead of testing the same edges twice;
+:func:`configuration_masks` applies those same rules to a configuration at rest (the initial
+one, a scenario's), and :func:`describe_masks` words its violations.
+
+As in :mod:`platoon_env.geometry.sensing`, the kernels take poses as ``(x, y, theta)`` and points
+as ``(x, y)`` tuples, the workspace as a :class:`~platoon_env.records.Walls` and the parameters
+as one :data:`~platoon_env.records.PARAMS_DTYPE` record ``p``, read by name: ``p.radius`` (r),
+``p.d_col`` (eq. 4), ``p.d_con`` and ``p.beta_con`` (eq. 5).
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
 
 from platoon_env.geometry.grid import grid_candidates
 from platoon_env.geometry.primitives import (
-    box_distance2,
+    Point,
+    boxes_overlap,
+    point_box_distance2,
     point_segment_distance2,
     segments_intersect,
     wrap_angle,
 )
 from platoon_env.geometry.sensing import (
+    SENSE_BETA,
     SENSE_CLEARANCE,
+    SENSE_D,
     SENSE_D_SIGHT_LEFT,
     SENSE_D_SIGHT_RIGHT,
     SENSE_OCCLUDED,
+    SENSE_SIZE,
+    Pose,
+    sense_follower_grid,
 )
-from platoon_env.scenarios.schema import VIOLATION_CAUSES
-
-COLLISION_ROBOT = 1 << VIOLATION_CAUSES.index("collision_robot")
-COLLISION_OBSTACLE = 1 << VIOLATION_CAUSES.index("collision_obstacle")
-OCCLUDED = 1 << VIOLATION_CAUSES.index("occluded")
-OUT_OF_RANGE = 1 << VIOLATION_CAUSES.index("out_of_range")
-OUT_OF_FOV = 1 << VIOLATION_CAUSES.index("out_of_fov")
-
-
-def causes_to_mask(causes: tuple[str, ...] | list[str] | set[str] | frozenset[str]) -> int:
-    """Bit mask of a set of cause names (unknown names raise ``ValueError``)."""
-    mask = 0
-    for cause in causes:
-        if cause not in VIOLATION_CAUSES:
-            raise ValueError(
-                f"unknown violation cause {cause!r}; expected some of {', '.join(VIOLATION_CAUSES)}"
-            )
-        mask |= 1 << VIOLATION_CAUSES.index(cause)
-    return mask
-
-
-def _causes(mask: int) -> tuple[str, ...]:
-    return tuple(c for k, c in enumerate(VIOLATION_CAUSES) if mask & (1 << k))
-
-
-#: Cause names of every possible mask, in reporting priority order (a lookup table: masks are
-#: read every step; ``CAUSES_OF_MASK[m]`` is :func:`mask_to_causes` without the call).
-CAUSES_OF_MASK: tuple[tuple[str, ...], ...] = tuple(
-    _causes(m) for m in range(1 << len(VIOLATION_CAUSES))
+from platoon_env.records import Walls
+from platoon_env.violations import (
+    CAUSES_OF_MASK,
+    COLLISION_OBSTACLE,
+    COLLISION_ROBOT,
+    OCCLUDED,
+    OUT_OF_FOV,
+    OUT_OF_RANGE,
+    VIOLATION_CAUSES,
+    causes_to_mask,
+    first_cause,
+    mask_to_causes,
 )
 
-
-def mask_to_causes(mask: int) -> tuple[str, ...]:
-    """Cause names set in ``mask``, in reporting priority order."""
-    return CAUSES_OF_MASK[mask]
-
-
-def first_cause(mask: int) -> str | None:
-    """The highest-priority cause in ``mask`` (the one reported in ``info['violation']``)."""
-    for k, cause in enumerate(VIOLATION_CAUSES):
-        if mask & (1 << k):
-            return cause
-    return None
-
-
-@njit(cache=True)
-def near_boundary(px: float, py: float, limit: float, edges: np.ndarray, boxes: np.ndarray) -> bool:
-    """True when some boundary point lies within ``limit`` of ``p`` (clearance ``<= limit``)."""
-    limit2 = limit * limit
-    for e in range(edges.shape[0]):
-        if (
-            box_distance2(px, py, px, py, boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3])
-            > limit2
-        ):
-            continue
-        if (
-            point_segment_distance2(px, py, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3])
-            <= limit2
-        ):
-            return True
-    return False
-
-
-@njit(cache=True)
-def segment_hits_boundary(
-    ax: float, ay: float, bx: float, by: float, edges: np.ndarray, boxes: np.ndarray
-) -> bool:
-    """True when the closed segment ``[a, b]`` touches any boundary edge."""
-    x0, x1 = min(ax, bx), max(ax, bx)
-    y0, y1 = min(ay, by), max(ay, by)
-    for e in range(edges.shape[0]):
-        if boxes[e, 0] > x1 or boxes[e, 2] < x0 or boxes[e, 1] > y1 or boxes[e, 3] < y0:
-            continue
-        if segments_intersect(ax, ay, bx, by, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3]):
-            return True
-    return False
+__all__ = [
+    "CAUSES_OF_MASK",
+    "COLLISION_OBSTACLE",
+    "COLLISION_ROBOT",
+    "OCCLUDED",
+    "OUT_OF_FOV",
+    "OUT_OF_RANGE",
+    "VIOLATION_CAUSES",
+    "causes_to_mask",
+    "configuration_masks",
+    "configuration_problems",
+    "describe_masks",
+    "first_cause",
+    "mask_to_causes",
+    "robot_contacts",
+    "sensed_violation",
+    "violation_masks",
+    "violation_masks_grid",
+]
 
 
 @njit(cache=True, inline="always")
-def distance_bearing_causes(
-    d: float, beta: float, d_col: float, d_con: float, beta_con: float
-) -> int:
+def distance_bearing_causes(d: float, beta: float, p: np.record) -> int:
     """The causes read off ``d_i`` and ``beta_i`` alone: ``d_i <= d_col`` (eq. 4),
     ``d_i >= d_con`` and ``|beta_i| >= beta_con`` (eq. 5)."""
     mask = 0
-    if d <= d_col:
+    if d <= p.d_col:
         mask |= COLLISION_ROBOT
-    if d >= d_con:
+    if d >= p.d_con:
         mask |= OUT_OF_RANGE
-    if abs(beta) >= beta_con:
+    if abs(beta) >= p.beta_con:
         mask |= OUT_OF_FOV
     return mask
 
 
 @njit(cache=True)
-def pose_violation(
-    px: float,
-    py: float,
-    theta: float,
-    qx: float,
-    qy: float,
-    d_col: float,
-    d_con: float,
-    beta_con: float,
-) -> int:
-    """The causes that depend on the pair of poses only: ``d_i`` and ``beta_i`` (eqs. 2-5)."""
-    dx = qx - px
-    dy = qy - py
+def pose_violation(pose: Pose, pred: Point, p: np.record) -> int:
+    """The causes that depend on the pair of poses only: ``d_i`` and ``beta_i`` (eqs. 2-5) of
+    the follower at ``pose = (x, y, theta)`` behind the robot at ``pred``."""
+    dx = pred[0] - pose[0]
+    dy = pred[1] - pose[1]
     d = math.sqrt(dx * dx + dy * dy)  # as in sensing.sense_candidates
-    beta = wrap_angle(math.atan2(dy, dx) - theta)
-    return distance_bearing_causes(d, beta, d_col, d_con, beta_con)
+    beta = wrap_angle(math.atan2(dy, dx) - pose[2])
+    return distance_bearing_causes(d, beta, p)
 
 
 @njit(cache=True)
 def follower_violation(
-    px: float,
-    py: float,
-    theta: float,
-    qx: float,
-    qy: float,
-    ox: float,
-    oy: float,
-    edges: np.ndarray,
-    boxes: np.ndarray,
-    cand: np.ndarray,
-    n_cand: int,
-    radius: float,
-    d_col: float,
-    d_con: float,
-    beta_con: float,
+    pose: Pose, pred: Point, prev: Point, walls: Walls, cand: np.ndarray, p: np.record
 ) -> int:
-    """Violation mask of the follower at ``p`` (previously at ``o``) behind a robot at ``q``.
+    """Violation mask of the follower at ``pose`` (previously at ``prev``) behind a robot at
+    ``pred``.
 
-    Visits the edges ``cand[:n_cand]``, which must include every edge whose bounding box lies
-    within ``radius`` of ``p`` or overlaps the boxes of ``[o, p]`` and ``L_i = [p, q]``. Robot
-    contacts other than with the predecessor are added by :func:`robot_contacts`.
+    Visits the edges ``cand`` of ``walls``, which must include every edge whose bounding box
+    lies within ``p.radius`` of ``p_i`` or overlaps the boxes of ``[prev, p_i]`` and
+    ``L_i = [p_i, pred]``. Robot contacts other than with the predecessor are added by
+    :func:`robot_contacts`.
     """
-    mask = pose_violation(px, py, theta, qx, qy, d_col, d_con, beta_con)
-    r2 = radius * radius
-    mx0, mx1 = min(ox, px), max(ox, px)
-    my0, my1 = min(oy, py), max(oy, py)
-    sx0, sx1 = min(px, qx), max(px, qx)
-    sy0, sy1 = min(py, qy), max(py, qy)
+    edges, boxes = walls.edges, walls.boxes
+    mask = pose_violation(pose, pred, p)
+    px, py = pose[0], pose[1]
+    pt = (px, py)
+    r2 = p.radius * p.radius
+    motion_bounds = (min(prev[0], px), min(prev[1], py), max(prev[0], px), max(prev[1], py))
+    sight_bounds = (min(px, pred[0]), min(py, pred[1]), max(px, pred[0]), max(py, pred[1]))
     obstacle = False
     occluded = False
-    for k in range(n_cand):
+    for k in range(cand.shape[0]):
         e = cand[k]
-        bx0, by0, bx1, by1 = boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3]
-        ax, ay, bx, by = edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3]
+        ebox = (boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3])
+        a = (edges[e, 0], edges[e, 1])
+        b = (edges[e, 2], edges[e, 3])
         if not obstacle:
-            if box_distance2(px, py, px, py, bx0, by0, bx1, by1) <= r2 and (
-                point_segment_distance2(px, py, ax, ay, bx, by) <= r2
-            ):
+            if point_box_distance2(pt, ebox) <= r2 and point_segment_distance2(pt, a, b) <= r2:
                 obstacle = True
-            elif (
-                bx0 <= mx1
-                and bx1 >= mx0
-                and by0 <= my1
-                and by1 >= my0
-                and segments_intersect(ox, oy, px, py, ax, ay, bx, by)
-            ):
+            elif boxes_overlap(motion_bounds, ebox) and segments_intersect(prev, pt, a, b):
                 obstacle = True
         if (
             not occluded
-            and bx0 <= sx1
-            and bx1 >= sx0
-            and by0 <= sy1
-            and by1 >= sy0
-            and segments_intersect(px, py, qx, qy, ax, ay, bx, by)
+            and boxes_overlap(sight_bounds, ebox)
+            and segments_intersect(pt, pred, a, b)
         ):
             occluded = True
         if obstacle and occluded:
@@ -217,23 +158,14 @@ def follower_violation(
 
 
 @njit(cache=True)
-def sensed_violation(
-    d: float,
-    beta: float,
-    clearance2: float,
-    occluded: bool,
-    motion_hit: bool,
-    radius: float,
-    d_col: float,
-    d_con: float,
-    beta_con: float,
-) -> int:
-    """The violation mask from a follower's sensing (``d``, ``beta``, squared clearance,
-    occlusion) and the tunnelling check; same rules as :func:`follower_violation`."""
-    mask = distance_bearing_causes(d, beta, d_col, d_con, beta_con)
-    if clearance2 <= radius * radius or motion_hit:
+def sensed_violation(row: np.ndarray, clearance2: float, motion_hit: bool, p: np.record) -> int:
+    """The violation mask from a follower's sensing ``row`` (``SENSE_D``, ``SENSE_BETA``,
+    ``SENSE_OCCLUDED``), its squared clearance and the tunnelling check (``motion_hit``); the
+    same rules as :func:`follower_violation`."""
+    mask = distance_bearing_causes(row[SENSE_D], row[SENSE_BETA], p)
+    if clearance2 <= p.radius * p.radius or motion_hit:
         mask |= COLLISION_OBSTACLE
-    if occluded:
+    if row[SENSE_OCCLUDED] > 0.0:
         mask |= OCCLUDED
     return mask
 
@@ -261,17 +193,9 @@ def robot_contacts(poses: np.ndarray, radius: float, out: np.ndarray) -> None:
 def violation_masks_grid(
     poses: np.ndarray,
     prev_poses: np.ndarray,
-    edges: np.ndarray,
-    boxes: np.ndarray,
-    grid_params: np.ndarray,
-    cell_start: np.ndarray,
-    cell_edges: np.ndarray,
-    edge_cell: np.ndarray,
+    walls: Walls,
     cand: np.ndarray,
-    radius: float,
-    d_col: float,
-    d_con: float,
-    beta_con: float,
+    p: np.record,
     out: np.ndarray,
     start_sensed: np.ndarray,
     travel: np.ndarray,
@@ -287,10 +211,12 @@ def violation_masks_grid(
     edge tests are skipped (the result is the same, only cheaper). Pass an empty
     ``start_sensed`` (0 rows) to test every follower.
     """
+    radius = p.radius
     reach = radius * (1.0 + 1e-9) + 1e-9
     bounded = start_sensed.shape[0] > 0
     for i in range(1, poses.shape[0]):
-        px, py = poses[i, 0], poses[i, 1]
+        pose = (poses[i, 0], poses[i, 1], poses[i, 2])
+        px, py = pose[0], pose[1]
         qx, qy = poses[i - 1, 0], poses[i - 1, 1]
         if bounded:
             # Margins far above the rounding error of the distances involved.
@@ -302,74 +228,137 @@ def violation_masks_grid(
                 and row[SENSE_OCCLUDED] == 0.0
                 and min(row[SENSE_D_SIGHT_LEFT], row[SENSE_D_SIGHT_RIGHT]) > moved_sight
             ):
-                out[i - 1] = pose_violation(px, py, poses[i, 2], qx, qy, d_col, d_con, beta_con)
+                out[i - 1] = pose_violation(pose, (qx, qy), p)
                 continue
         ox, oy = prev_poses[i, 0], prev_poses[i, 1]
-        n = grid_candidates(
-            grid_params,
-            cell_start,
-            cell_edges,
-            edge_cell,
+        query = (
             min(min(px, qx), ox) - reach,
             min(min(py, qy), oy) - reach,
             max(max(px, qx), ox) + reach,
             max(max(py, qy), oy) + reach,
-            cand,
         )
-        out[i - 1] = follower_violation(
-            px,
-            py,
-            poses[i, 2],
-            qx,
-            qy,
-            ox,
-            oy,
-            edges,
-            boxes,
-            cand,
-            n,
-            radius,
-            d_col,
-            d_con,
-            beta_con,
-        )
+        n = grid_candidates(walls, query, cand)
+        out[i - 1] = follower_violation(pose, (qx, qy), (ox, oy), walls, cand[:n], p)
     robot_contacts(poses, radius, out)
 
 
 @njit(cache=True)
 def violation_masks(
-    poses: np.ndarray,
-    prev_poses: np.ndarray,
-    edges: np.ndarray,
-    boxes: np.ndarray,
-    radius: float,
-    d_col: float,
-    d_con: float,
-    beta_con: float,
-    out: np.ndarray,
+    poses: np.ndarray, prev_poses: np.ndarray, walls: Walls, p: np.record, out: np.ndarray
 ) -> None:
     """Violation bit mask of every follower after a sub-step, written to ``out`` (N,) int64.
 
     ``prev_poses`` are the poses before the sub-step (for the tunnelling check). Brute force
-    over every edge; the simulator uses the grid (:func:`violation_masks_grid`).
+    over every edge of ``walls`` (its grid is not read); the simulator uses the grid
+    (:func:`violation_masks_grid`).
     """
-    cand = np.arange(edges.shape[0])
+    cand = np.arange(walls.edges.shape[0])
     for i in range(1, poses.shape[0]):
         out[i - 1] = follower_violation(
-            poses[i, 0],
-            poses[i, 1],
-            poses[i, 2],
-            poses[i - 1, 0],
-            poses[i - 1, 1],
-            prev_poses[i, 0],
-            prev_poses[i, 1],
-            edges,
-            boxes,
+            (poses[i, 0], poses[i, 1], poses[i, 2]),
+            (poses[i - 1, 0], poses[i - 1, 1]),
+            (prev_poses[i, 0], prev_poses[i, 1]),
+            walls,
             cand,
-            cand.shape[0],
-            radius,
-            d_col,
-            d_con,
-            beta_con,
+            p,
         )
-    robot_contacts(poses, radius, out)
+    robot_contacts(poses, p.radius, out)
+
+
+@njit(cache=True)
+def configuration_masks(
+    poses: np.ndarray, walls: Walls, p: np.record, sensed: np.ndarray, out: np.ndarray
+) -> None:
+    """The constraints of a configuration at rest: the one source of truth of its rules.
+
+    Senses every follower of ``poses`` (N+1, 3) into ``sensed`` (N, SENSE_SIZE) without motion
+    and writes each follower's violation bit mask into ``out`` (N,) int64, by the rules of the
+    last sub-step of a step (:func:`sensed_violation`, then :func:`robot_contacts`):
+    ``d_i <= d_col`` or a robot contact, ``clearance² <= r²``, an occluded ``L_i``,
+    ``d_i >= d_con``, ``|beta_i| >= beta_con``. The leader's own clearance is not checked.
+    """
+    cand = np.empty(walls.edges.shape[0], dtype=np.int64)
+    for i in range(1, poses.shape[0]):
+        pose = (poses[i, 0], poses[i, 1], poses[i, 2])
+        clear2, hit = sense_follower_grid(
+            pose,
+            (poses[i - 1, 0], poses[i - 1, 1]),
+            (pose[0], pose[1]),
+            False,
+            walls,
+            cand,
+            p,
+            sensed[i - 1],
+        )
+        out[i - 1] = sensed_violation(sensed[i - 1], clear2, hit, p)
+    robot_contacts(poses, p.radius, out)
+
+
+def _field(p: np.void | np.ndarray, name: str) -> float:
+    """Field ``name`` of a params record (a record, or a ``(1,)`` array of one)."""
+    value = np.asarray(p[name]).reshape(-1)
+    return float(value[0])
+
+
+def describe_masks(
+    masks: np.ndarray,
+    sensed: np.ndarray,
+    p: np.void | np.ndarray,
+    poses: np.ndarray | None = None,
+) -> list[str]:
+    """One readable message per violated constraint in ``masks``, naming the follower.
+
+    ``masks`` (N,) and ``sensed`` (N, SENSE_SIZE) as :func:`configuration_masks` (or a step)
+    wrote them, ``p`` the params record (or a ``(1,)`` array of one); e.g.
+    ``follower_2: d_2 = 0.301 must exceed d_col = 0.3``. Empty when every mask is 0. With
+    ``poses`` (N+1, 3) robot contacts are reported as ``robots j and k overlap`` (every pair
+    with ``|p_j - p_k| <= 2r``, as :func:`robot_contacts` tests), otherwise per follower.
+    """
+    r, d_col = _field(p, "radius"), _field(p, "d_col")
+    d_con, b_con = _field(p, "d_con"), _field(p, "beta_con")
+    problems: list[str] = []
+    for i in range(1, len(masks) + 1):
+        mask, row, name = int(masks[i - 1]), sensed[i - 1], f"follower_{i}"
+        d, beta, clearance = row[SENSE_D], row[SENSE_BETA], row[SENSE_CLEARANCE]
+        if mask & COLLISION_ROBOT:
+            if d <= d_col:
+                problems.append(f"{name}: d_{i} = {d:.3f} must exceed d_col = {d_col}")
+            elif poses is None:
+                problems.append(f"{name}: its disk touches another robot's")
+        if mask & OUT_OF_RANGE:
+            problems.append(f"{name}: d_{i} = {d:.3f} must be below d_con = {d_con}")
+        if mask & OUT_OF_FOV:
+            problems.append(
+                f"{name}: |beta_{i}| = {abs(beta):.3f} must be below beta_con = {b_con}"
+            )
+        if mask & COLLISION_OBSTACLE:
+            # The mask compares the squared clearance; its square root may round up past r.
+            if clearance > r and clearance * clearance > r * r:
+                problems.append(f"{name}: its motion over the sub-step crossed an obstacle")
+            else:
+                problems.append(
+                    f"{name}: clearance {clearance:.3f} to the obstacles must exceed r = {r}"
+                )
+        if mask & OCCLUDED:
+            problems.append(f"{name}: the line of sight to robot {i - 1} crosses an obstacle")
+    if poses is not None and np.any(np.asarray(masks) & COLLISION_ROBOT):
+        xy = np.asarray(poses, dtype=np.float64)[:, :2]
+        touch2 = 4.0 * r * r
+        for j in range(xy.shape[0]):
+            for k in range(j + 1, xy.shape[0]):
+                gx, gy = xy[k, 0] - xy[j, 0], xy[k, 1] - xy[j, 1]
+                if gx * gx + gy * gy <= touch2:
+                    problems.append(f"robots {j} and {k} overlap")
+    return problems
+
+
+def configuration_problems(poses: np.ndarray, walls: Walls, p: np.void | np.ndarray) -> list[str]:
+    """The messages of :func:`describe_masks` for the configuration ``poses`` (N+1, 3) at rest
+    (:func:`configuration_masks`); empty when it satisfies every constraint of its followers."""
+    poses = np.ascontiguousarray(poses, dtype=np.float64)
+    record: Any = p[0] if isinstance(p, np.ndarray) and p.ndim == 1 else p
+    n = poses.shape[0] - 1
+    sensed = np.empty((n, SENSE_SIZE))
+    masks = np.zeros(n, dtype=np.int64)
+    configuration_masks(poses, walls, record, sensed, masks)
+    return describe_masks(masks, sensed, record, poses)

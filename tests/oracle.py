@@ -1,4 +1,4 @@
-"""A slow, independent shapely reference for the sensing model (DESIGN §2).
+"""A slow, independent shapely reference for the sensing model (``docs/sensing.md``).
 
 This is the test oracle for :func:`platoon_env.geometry.sensing.sense`. It shares no code with
 the kernel: it works on the free space ``W_f`` as a shapely geometry and answers every question

@@ -9,6 +9,7 @@ import pytest
 
 from platoon_env.dynamics.leader import leader_command, path_arclength, point_at
 from platoon_env.dynamics.unicycle import integrate, unicycle_arc
+from platoon_env.records import PARAMS_DTYPE
 
 
 def test_straight_line() -> None:
@@ -61,10 +62,12 @@ def test_leader_follows_path_and_stops_at_end() -> None:
     cum = path_arclength(path)
     x, y, th, s = 0.0, 0.0, 0.0, 0.0
     h = 0.01
+    p = np.zeros(1, dtype=PARAMS_DTYPE)[0]
+    p["leader_speed"], p["lookahead"], p["leader_turn_rate"], p["substep"] = 0.5, 0.5, 1.5, h
     max_dev = 0.0
     arrived = False
     for _ in range(6000):
-        u, w, s, arrived = leader_command(path, cum, x, y, th, s, 0.5, 0.5, 1.5, h)
+        u, w, s, arrived = leader_command((path, cum), (x, y, th), s, p)
         if arrived:
             break
         assert abs(w) <= 1.5 + 1e-12

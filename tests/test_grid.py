@@ -2,12 +2,14 @@
 
 Culling is checked three ways: the grid's candidates against a brute-force box-overlap test, the
 culled sensing against the shapely oracle (the same tolerances as ``test_sensing_oracle``) and
-against the brute-force kernel, and whole simulated steps with and without the grid.
+against the brute-force kernel, and rollouts of sub-steps through collisions, whose sensing and
+safety masks (with the grid) equal the brute-force kernels' after every sub-step.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -22,12 +24,24 @@ from workspaces import (
     sample_platoon,
 )
 
-import platoon_env
+from platoon_env.dynamics.unicycle import unicycle_arc
 from platoon_env.geometry.grid import EdgeGrid, edge_boxes, grid_candidates
-from platoon_env.geometry.sensing import SENSE_SIZE, sense
+from platoon_env.geometry.sensing import (
+    SENSE_SIZE,
+    sense,
+    sense_candidates,
+    sense_follower_grid,
+)
 from platoon_env.geometry.workspace import boundary_edges
-from platoon_env.reward import REWARD_TERMS
-from platoon_env.simulator import kernel_params, platoon_step, step_kernel
+from platoon_env.records import PARAMS_DTYPE
+from platoon_env.safety import (
+    robot_contacts,
+    sensed_violation,
+    violation_masks,
+    violation_masks_grid,
+)
+from platoon_env.scenarios.loader import load_scenario
+from platoon_env.scenarios.scenario import Scenario
 
 CELL_SIZES = (None, 0.3, 1.0, 7.0)
 SECTOR_HALF_ANGLES = (0.5, math.pi / 2, 2.27, 3.0)
@@ -55,7 +69,7 @@ def test_candidates_are_exactly_the_overlapping_cells(cell_size: float) -> None:
     for _ in range(300):
         x0, y0 = rng.uniform(-14, 14, size=2)
         w, h = np.exp(rng.uniform(math.log(1e-3), math.log(12.0), size=2))
-        n = grid_candidates(*grid.index_arrays, x0, y0, x0 + w, y0 + h, cand)
+        n = grid_candidates(grid.walls, (x0, y0, x0 + w, y0 + h), cand)
         got = cand[:n]
         assert len(set(got.tolist())) == n, "an edge was gathered twice"
         overlap = (
@@ -143,50 +157,104 @@ def test_poses_outside_the_grid() -> None:
     )
 
 
+def _params(scenario: Scenario) -> NDArray[np.void]:
+    """The ``(1,)`` params record of a scenario's safety and sensing parameters."""
+    cfg = scenario.config
+    params = np.zeros(1, dtype=PARAMS_DTYPE)
+    params["radius"] = cfg.robot.radius
+    params["d_col"] = cfg.safety.d_col
+    params["d_con"] = cfg.camera.range
+    params["beta_con"] = cfg.camera.half_angle
+    params["proximity_range"] = cfg.proximity_range
+    params["proximity_half_angle"] = cfg.proximity_half_angle
+    return params
+
+
+def _rollout(
+    scenario: Scenario,
+    steps: int,
+    substeps: int,
+    low: tuple[float, float],
+    high: tuple[float, float],
+    seed: int,
+) -> Iterator[tuple[int, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]]:
+    """Each follower holds a random ``[u, omega]`` for a control period of exact arcs (eq. 1),
+    the leader drives straight on at its speed, no termination. Yields
+    ``(k, prev, poses, travel)`` after each sub-step ``k`` (``substeps - 1``: the last of its
+    period): the poses before and after it, and how far each robot can have moved since the
+    period began (``sum |u| h``)."""
+    h = scenario.config.simulation.control_period / substeps
+    rng = np.random.default_rng(seed)
+    poses = np.array(scenario.initial_poses, dtype=np.float64)
+    for _ in range(steps):
+        act = rng.uniform(low, high, size=(poses.shape[0], 2))
+        act[0] = scenario.config.leader.speed, 0.0
+        travel = np.zeros(poses.shape[0])
+        for k in range(substeps):
+            prev = poses.copy()
+            for r in range(poses.shape[0]):
+                poses[r] = unicycle_arc(*prev[r], act[r, 0], act[r, 1], h)
+                travel[r] += abs(act[r, 0]) * h
+            yield k, prev, poses.copy(), travel.copy()
+
+
+def _sensed_masks(
+    poses: NDArray[np.float64],
+    prev: NDArray[np.float64],
+    grid: EdgeGrid,
+    p: np.record,
+    culled: bool,
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """The last sub-step's masks and sensing as the simulator derives them: sensing with the
+    tunnelling check, then :func:`sensed_violation` and :func:`robot_contacts`; with the grid
+    (``culled``) or over every edge (:func:`sense_candidates`)."""
+    n = poses.shape[0] - 1
+    masks, sensed = np.zeros(n, dtype=np.int64), np.zeros((n, SENSE_SIZE))
+    cand = np.empty(grid.n_edges, dtype=np.int64)
+    every = np.arange(grid.n_edges)
+    for i in range(1, n + 1):
+        args = (
+            (poses[i, 0], poses[i, 1], poses[i, 2]),
+            (poses[i - 1, 0], poses[i - 1, 1]),
+            (prev[i, 0], prev[i, 1]),
+            True,
+            grid.walls,
+            cand if culled else every,
+            p,
+            sensed[i - 1],
+        )
+        clear2, hit = (sense_follower_grid if culled else sense_candidates)(*args)
+        masks[i - 1] = sensed_violation(sensed[i - 1], clear2, hit, p)
+    robot_contacts(poses, float(p["radius"]), masks)
+    return masks, sensed
+
+
 @pytest.mark.parametrize("scenario", ["study_a", "study_b", "study_c"])
 def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
-    """Random actions, no termination: grid and brute-force kernels give the same steps,
-    and the sensing of :func:`sense` with the scenario's proximity sector (study B's ±130 deg)."""
-    env = platoon_env.make(scenario, terminate_on=())
-    env.reset(seed=0)
-    cfg = env.scenario.config
-    n = env.n_followers
-    params = kernel_params(cfg)
-    grid = EdgeGrid.build(env.scenario.workspace.edges, reach=cfg.proximity_range)
-    edges, boxes = env.scenario.workspace.edges, env.scenario.workspace.boxes
-    path = np.ascontiguousarray(env.scenario.leader_path)
-    cum = np.ascontiguousarray(env.scenario.path_s)
-    state = {key: (env.poses, np.array([env.scenario.initial_progress, 0.0])) for key in ("a", "b")}
-    out = {
-        key: (
-            np.zeros(n, dtype=np.int64),
-            np.zeros((n, SENSE_SIZE)),
-            np.zeros((n, 7), dtype=np.float32),
-        )
-        for key in ("a", "b")
-    }
-    terms, rewards = np.zeros((n, len(REWARD_TERMS))), np.zeros(n)
-    rng = np.random.default_rng(0)
-    for t in range(300):
-        act = rng.uniform([-0.3, -1.5], [1.0, 1.5], size=(n, 2))
-        poses, leader = state["a"]
-        viol, sensed, obs = out["a"]
-        platoon_step(
-            poses, act.copy(), leader, path, cum, *grid.arrays, params,
-            cfg.simulation.physics_substeps, 0, viol, sensed, obs, terms, rewards,
-        )  # fmt: skip
-        poses, leader = state["b"]
-        viol_b, sensed_b, obs_b = out["b"]
-        step_kernel(
-            poses, act.copy(), leader, path, cum, edges, boxes, params,
-            cfg.simulation.physics_substeps, 0, np.zeros((n + 1, 3)), np.zeros(n, np.int64),
-            viol_b, sensed_b, obs_b,
-        )  # fmt: skip
+    """Random actions, no termination: the grid and brute-force kernels give the same masks and
+    sensing at the end of every control period, and :func:`sense` agrees with the scenario's
+    proximity sector (study B's ±130 deg)."""
+    sc = load_scenario(scenario)
+    cfg = sc.config
+    params = _params(sc)
+    p = params[0]
+    grid = EdgeGrid.build(sc.workspace.edges, reach=cfg.proximity_range)
+    edges = sc.workspace.edges
+    substeps = cfg.simulation.physics_substeps
+    for t, (k, prev, poses, _) in enumerate(
+        _rollout(sc, 300, substeps, (-0.3, -1.5), (1.0, 1.5), seed=0)
+    ):
+        if k != substeps - 1:
+            continue
+        viol, sensed = _sensed_masks(poses, prev, grid, p, culled=True)
+        viol_b, sensed_b = _sensed_masks(poses, prev, grid, p, culled=False)
         assert np.array_equal(viol, viol_b), t
         np.testing.assert_allclose(sensed, sensed_b, rtol=0, atol=1e-12, err_msg=str(t))
-        np.testing.assert_array_equal(state["a"][0], state["b"][0])
+        brute = np.zeros_like(viol)
+        violation_masks(poses, prev, grid.walls, p, brute)
+        np.testing.assert_array_equal(viol, brute, err_msg=str(t))
         direct = sense(
-            state["a"][0], edges, cfg.camera.range, cfg.camera.half_angle,
+            poses, edges, cfg.camera.range, cfg.camera.half_angle,
             cfg.proximity_range, proximity_half_angle=cfg.proximity_half_angle,
         )  # fmt: skip
         np.testing.assert_allclose(sensed, direct, rtol=0, atol=1e-12, err_msg=str(t))
@@ -194,51 +262,37 @@ def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
 
 @pytest.mark.parametrize("scenario", ["corridor", "study_a"])
 def test_substep_checks_match_brute_force(scenario: str, corridor: dict[str, Any]) -> None:
-    """The kernel's sub-step safety masks (grid culling, followers far from walls skipped)
-    equal the brute-force :func:`violation_masks` after every sub-step, through collisions."""
-    from platoon_env.safety import violation_masks
-    from platoon_env.simulator import (
-        P_OMEGA_HIGH,
-        P_OMEGA_LOW,
-        P_U_HIGH,
-        P_U_LOW,
-        advance_substep,
-    )
-
-    env = platoon_env.make(corridor if scenario == "corridor" else scenario, terminate_on=())
-    env.reset(seed=1)
-    cfg = env.scenario.config
-    n, substeps = env.n_followers, 3
-    params = kernel_params(cfg)
-    radius, d_col = cfg.robot.radius, cfg.safety.d_col
-    d_con, beta_con = cfg.camera.range, cfg.camera.half_angle
-    grid = EdgeGrid.build(env.scenario.workspace.edges, reach=cfg.proximity_range)
-    edges, boxes = grid.edges, grid.boxes
-    path = np.ascontiguousarray(env.scenario.leader_path)
-    cum = np.ascontiguousarray(env.scenario.path_s)
-    poses = env.poses
-    leader = np.array([env.scenario.initial_progress, 0.0])
-    viol, sensed = np.zeros(n, dtype=np.int64), np.zeros((n, SENSE_SIZE))
-    obs, terms = np.zeros((n, 7), dtype=np.float32), np.zeros((n, len(REWARD_TERMS)))
-    rewards = np.zeros(n)
-    platoon_step(poses, np.zeros((n, 2)), leader, path, cum, *grid.arrays, params, 0, 0,
-                 viol, sensed, obs, terms, rewards)  # fmt: skip
-    rng = np.random.default_rng(2)
+    """The sub-step safety masks (grid culling, followers far from walls skipped by the bounds
+    of the period's starting sensing) and the last sub-step's masks read off the sensing equal
+    the brute-force :func:`violation_masks` after every sub-step, through collisions."""
+    sc = load_scenario(corridor if scenario == "corridor" else scenario)
+    params = _params(sc)
+    p = params[0]
+    grid = EdgeGrid.build(sc.workspace.edges, reach=sc.config.proximity_range)
+    n, substeps = sc.initial_poses.shape[0] - 1, 3
+    start = sense(
+        sc.initial_poses, grid.edges, float(p["d_con"]), float(p["beta_con"]),
+        float(p["proximity_range"]), grid, proximity_half_angle=float(p["proximity_half_angle"]),
+    )  # fmt: skip
+    cand = np.empty(grid.n_edges, dtype=np.int64)
     seen = 0
-    for t in range(250):
-        act = rng.uniform([-1.0, -3.0], [3.0, 3.0], size=(n, 2))
-        act = np.clip(act, params[[P_U_LOW, P_OMEGA_LOW]], params[[P_U_HIGH, P_OMEGA_HIGH]])
-        # Reference: the same sub-steps, every edge tested after each.
-        ref_poses, ref_leader, prev = poses.copy(), leader.copy(), np.zeros_like(poses)
-        expected = np.zeros(n, dtype=np.int64)
-        sub = np.zeros(n, dtype=np.int64)
-        for _ in range(substeps):
-            advance_substep(ref_poses, act, ref_leader, path, cum, params, prev)
-            violation_masks(ref_poses, prev, edges, boxes, radius, d_col, d_con, beta_con, sub)
-            expected |= sub
-        platoon_step(poses, act.copy(), leader, path, cum, *grid.arrays, params, substeps, 0,
-                     viol, sensed, obs, terms, rewards)  # fmt: skip
-        np.testing.assert_array_equal(poses, ref_poses)
-        np.testing.assert_array_equal(viol, expected, err_msg=f"step {t}")
-        seen |= int(np.bitwise_or.reduce(expected))
+    got, expected = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+    sub, ref = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+    for t, (k, prev, poses, travel) in enumerate(
+        _rollout(sc, 600, substeps, (-1.0, -3.0), (3.0, 3.0), seed=2)
+    ):
+        if k == 0:
+            got[:], expected[:] = 0, 0
+        # Reference: every edge tested after each sub-step.
+        violation_masks(poses, prev, grid.walls, p, ref)
+        if k < substeps - 1:
+            violation_masks_grid(poses, prev, grid.walls, cand, p, sub, start, travel)
+        else:
+            sub, start = _sensed_masks(poses, prev, grid, p, culled=True)
+        np.testing.assert_array_equal(sub, ref, err_msg=f"sub-step {t}")
+        got |= sub
+        expected |= ref
+        if k == substeps - 1:
+            np.testing.assert_array_equal(got, expected, err_msg=f"step {t // substeps}")
+            seen |= int(np.bitwise_or.reduce(expected))
     assert seen & 0b11, "the rollout should include collisions"

@@ -40,7 +40,7 @@ def test_kernels_cache_in_the_source_versions_directory() -> None:
     package = Path(platoon_env.__file__).resolve().parent
     assert Path(numba.config.CACHE_DIR) == _numba_cache.CACHE_DIR
     assert _numba_cache.CACHE_DIR.name == _numba_cache.source_digest(package)
-    assert list(_numba_cache.CACHE_DIR.rglob("simulator.platoon_step-*.nbi"))
+    assert list(_numba_cache.CACHE_DIR.rglob("simulator.step_env-*.nbi"))
 
 
 def test_users_numba_cache_dir_wins(tmp_path: Path) -> None:

@@ -22,7 +22,8 @@ from platoon_env.scenarios.procedural import (
     layout_kind,
 )
 from platoon_env.scenarios.scenario import Scenario, initial_violations
-from platoon_env.scenarios.schema import GeneratorConfig, ScenarioConfig
+from platoon_env.scenarios.schema import GeneratorConfig, ScenarioConfig, ScenarioError
+from platoon_env.scenarios.source import scenario_source
 
 TEMPLATE = load_config("procedural_train")
 #: 30 layout numbers spread over the whole index range.
@@ -94,8 +95,11 @@ def test_shipped_procedural_files(name: str, split: str) -> None:
     assert cfg.leader.path == () and cfg.workspace.free_space is None
     assert cfg.followers == 2 and cfg.robot.radius == 0.15 and cfg.formation.d_des == 1.0
     assert cfg.ppc is not None and cfg.ppc.delta == 0.5 and cfg.leader.speed == 0.25
-    sc = platoon_env.load_scenario(name)  # layout number 0 of its split
+    sc = scenario_source(name).initial()  # layout number 0 of its split
+    assert sc.layout_index == 0
     assert _same_layout(sc, generate_scenario(cfg, 0))
+    with pytest.raises(ScenarioError, match=r"procedural.*scenario_source"):
+        platoon_env.load_scenario(name)  # no single workspace to build
 
 
 @pytest.mark.parametrize("index", [-1, LAYOUTS_PER_SPLIT, 2.0, True, "3"])
@@ -163,6 +167,7 @@ def test_layouts_are_valid(kind: str, split: str) -> None:
         sc = generate_scenario(template, index)
         _check_layout(sc)
         assert sc.config.generator == template.generator
+        assert sc.layout_index == index
         if kind == "corridor":
             assert _max_turn(sc.leader_path) >= math.radians(30.0) - 1e-6, index
             side = _side_distances(sc) - sc.config.robot.radius
@@ -176,6 +181,7 @@ def test_fallback_when_sampling_fails(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(corridor_layouts, "sample_corridor", lambda rng, p: None)
     monkeypatch.setattr(room_layouts, "sample_rooms", lambda rng, p: None)
     sc = generate_scenario(TEMPLATE, 42)
+    assert sc.layout_index == 42 and sc.config.generator == TEMPLATE.generator
     assert box(*LAYOUT_BOUNDS).covers(sc.free_space)
     assert initial_violations(sc.config, sc.workspace, np.asarray(sc.initial_poses)) == []
     assert sc.path_s[-1] >= 15.0
@@ -205,6 +211,7 @@ def test_env_resets_to_seeded_layouts() -> None:
     index, edges = env.layout_index, env.scenario.workspace.edges.copy()
     assert index is not None and 0 <= index < LAYOUTS_PER_SPLIT
     assert _same_layout(env.scenario, generate_scenario(_template(split="test"), index))
+    assert env.scenario.layout_index == index
     env.reset(seed=4)
     env.reset(seed=3)
     assert env.layout_index == index

@@ -14,7 +14,7 @@ import yaml
 from gymnasium.utils.env_checker import check_env
 
 import platoon_env
-from platoon_env.scenarios import ScenarioError, load_scenario
+from platoon_env.scenarios import ScenarioError, load_scenario, scenario_source
 from platoon_env.scenarios.loader import load_config
 
 SCENARIOS = platoon_env.list_scenarios()
@@ -46,7 +46,7 @@ def test_paper_parameters(
 
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_shipped_scenarios_build(name: str) -> None:
-    sc = load_scenario(name)
+    sc = scenario_source(name).initial()  # a procedural one: its layout 0
     assert sc.free_space.is_valid and sc.free_space.area > 0
     assert sc.workspace.edges.shape[1] == 4
     assert sc.initial_poses.shape == (sc.config.followers + 1, 3)
@@ -122,7 +122,7 @@ def test_parameter_ranges(
 def test_proximity_sector(corridor: dict[str, Any]) -> None:
     """``proximity.half_angle``: optional (all around, pi, by default), any value in (0, pi];
     study B uses the paper's +-130 deg and the kernel receives it."""
-    from platoon_env.simulator import P_PROXIMITY_HALF_ANGLE, kernel_params
+    from platoon_env.core import params_of
 
     assert load_config(corridor).proximity.half_angle is None
     assert load_config(corridor).proximity_half_angle == math.pi
@@ -131,7 +131,7 @@ def test_proximity_sector(corridor: dict[str, Any]) -> None:
         assert load_config(corridor).proximity_half_angle == value
     study_b = load_config("study_b")
     assert study_b.proximity_half_angle == math.radians(130)
-    assert kernel_params(study_b)[P_PROXIMITY_HALF_ANGLE] == math.radians(130)
+    assert params_of(study_b, 1)["proximity_half_angle"] == math.radians(130)
     for name in ("study_a", "study_c"):
         assert load_config(name).proximity.half_angle is None
 

@@ -1,4 +1,4 @@
-"""The sensing model (DESIGN §2) against closed forms and against the shapely oracle.
+"""The sensing model (``docs/sensing.md``) against closed forms and against the shapely oracle.
 
 Three layers, as STYLE principle 6 asks:
 

@@ -32,22 +32,11 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
 
 from platoon_env.batched import BatchedPlatoon
 from platoon_env.observation import ACT_SIZE
-from platoon_env.safety import mask_to_causes
 from platoon_env.scenarios.loader import ScenarioLike
-from platoon_env.scenarios.schema import VIOLATION_CAUSES
+from platoon_env.violations import VIOLATION_INFO
 from training.vec_env import ActionRange, SlotVecEnv, observation_scale
 
 __all__ = ["BatchedPlatoonVecEnv"]
-
-#: ``(violation, violations, cost)`` of every possible violation mask.
-_INFO_OF_MASK: tuple[tuple[str | None, tuple[str, ...], int], ...] = tuple(
-    (
-        mask_to_causes(m)[0] if mask_to_causes(m) else None,
-        mask_to_causes(m),
-        1 if m else 0,
-    )
-    for m in range(1 << len(VIOLATION_CAUSES))
-)
 
 
 class BatchedPlatoonVecEnv(SlotVecEnv):
@@ -190,7 +179,7 @@ class BatchedPlatoonVecEnv(SlotVecEnv):
         rewards = rew.reshape(-1).astype(np.float32)
         ended = terminated | truncated
         dones = np.repeat(ended, n)
-        table = _INFO_OF_MASK
+        table = VIOLATION_INFO
         infos: list[dict[str, Any]] = []
         for m in info["violations"].reshape(-1).tolist():
             first, causes, cost = table[m]

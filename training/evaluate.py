@@ -189,11 +189,11 @@ def plot_scenario(scenario: str, episodes: dict[str, Episode], out: Path) -> lis
 
     names = sorted(episodes)
     eps = [episodes[k] for k in names]
-    sc = platoon_env.make(scenario).scenario
-    if sc.config.generator is not None:  # the layout of this seed
-        env = platoon_env.make(scenario)
-        env.reset(seed=eps[0].seed)
-        sc = env.scenario
+    # The workspace the plotted episodes ran on: reset with their seed draws it as they did
+    # (a procedural source's layout of that seed; a fixed source's one scenario, no draw).
+    env = platoon_env.make(scenario)
+    env.reset(seed=eps[0].seed)
+    sc = env.scenario
     xmin, ymin, xmax, ymax = sc.workspace.bounds
     aspect = (ymax - ymin) / max(xmax - xmin, 1e-9)
     width = 7.0

@@ -308,16 +308,16 @@ def run_metadata(
 ) -> dict[str, Any]:
     """The ``model.json`` content for ``model`` trained by ``cfg`` on ``venv``."""
     env = venv.envs[0]
+    # A procedural source's layouts each derive the limit from their own path: record only a
+    # set one.
+    procedural = env.source.procedural
     return {
         "algo": cfg.algo,
         "scenario": cfg.scenario,
         "seed": cfg.seed,
         "control_period": env.control_period,
         "physics_substeps": env.physics_substeps,
-        # A procedural scenario derives the limit from each layout's path: record only a set one.
-        "max_episode_steps": env.max_episode_steps
-        if getattr(env, "layout_index", None) is None  # BatchedPlatoon: fixed layouts only
-        else cfg.max_episode_steps,
+        "max_episode_steps": cfg.max_episode_steps if procedural else env.max_episode_steps,
         "terminate_on": sorted(env.terminate_on),
         "n_followers": env.n_followers,
         **adapter_metadata(venv),

@@ -45,13 +45,14 @@ def point_at(path: np.ndarray, cum: np.ndarray, s: float) -> tuple[float, float]
 
 @njit(cache=True)
 def project_progress(
-    path: np.ndarray, cum: np.ndarray, x: float, y: float, s_prev: float, window: float
+    path: np.ndarray, cum: np.ndarray, point: tuple[float, float], s_prev: float, window: float
 ) -> float:
-    """Arc length of the path point nearest to ``(x, y)`` in ``[s_prev, s_prev + window]``.
+    """Arc length of the path point nearest to ``point`` in ``[s_prev, s_prev + window]``.
 
     Searching only forward in a window keeps the progress monotone and unambiguous on paths
     that pass near themselves.
     """
+    x, y = point
     m = path.shape[0]
     best_d = math.inf
     best_s = s_prev
@@ -82,24 +83,25 @@ def project_progress(
 
 @njit(cache=True)
 def leader_command(
-    path: np.ndarray,
-    cum: np.ndarray,
-    x: float,
-    y: float,
-    theta: float,
+    route: tuple[np.ndarray, np.ndarray],
+    pose: tuple[float, float, float],
     s: float,
-    speed: float,
-    lookahead: float,
-    max_turn_rate: float,
-    h: float,
+    p: np.record,
 ) -> tuple[float, float, float, bool]:
-    """Pure-pursuit command ``(u, omega)`` for one sub-step of ``h`` seconds.
+    """Pure-pursuit command ``(u, omega)`` for one sub-step of ``h = p.substep`` seconds.
 
-    Returns ``(u, omega, s_new, arrived)``: the updated progress and whether the leader has
-    reached the end (then ``u = omega = 0``).
+    ``route`` is the path ``(M, 2)`` and its cumulative arc length; ``pose`` the leader's
+    ``(x, y, theta)``; ``s`` its progress; ``p`` a :data:`~platoon_env.records.PARAMS_DTYPE`
+    record (``leader_speed``, ``lookahead``, ``leader_turn_rate``, ``substep``). Returns
+    ``(u, omega, s_new, arrived)``: the updated progress and whether the leader has reached the
+    end (then ``u = omega = 0``).
     """
+    path, cum = route
+    x, y, theta = pose
+    speed, lookahead, h = p.leader_speed, p.lookahead, p.substep
+    max_turn_rate = p.leader_turn_rate
     total = cum[cum.shape[0] - 1]
-    s_new = project_progress(path, cum, x, y, s, 2.0 * lookahead + speed * h + 1.0)
+    s_new = project_progress(path, cum, (x, y), s, 2.0 * lookahead + speed * h + 1.0)
     ex, ey = path[path.shape[0] - 1, 0], path[path.shape[0] - 1, 1]
     to_end = math.hypot(ex - x, ey - y)
     if total - s_new <= ARRIVAL_TOLERANCE or to_end <= ARRIVAL_TOLERANCE:

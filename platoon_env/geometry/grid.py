@@ -11,18 +11,23 @@ monotone, so an edge whose bounding box overlaps the query box is always gathere
 then apply their own exact tests; culling never changes a result (the tests compare culled and
 brute-force sensing against the shapely oracle).
 
-Arrays (all contiguous, built once per workspace and read-only afterwards):
+The kernels read a workspace's boundary and its grid as one :class:`~platoon_env.records.Walls`
+(all arrays contiguous, built once per workspace and read-only afterwards):
 
-* ``params`` float64 ``[x0, y0, 1 / cell, nx, ny]`` (see the ``G_*`` indices);
+* ``edges`` ``(E, 4)`` ``[ax, ay, bx, by]`` and their bounding ``boxes`` ``(E, 4)``
+  ``[x0, y0, x1, y1]``;
+* ``grid``: a :data:`~platoon_env.records.MAP_INFO_DTYPE` record, read by name: the origin
+  ``x0, y0`` [m], ``inv_cell`` = 1 / cell side [1/m] and the cells per axis ``nx, ny`` (and the
+  sizes ``n_edges``, ``n_cells`` = ``nx * ny``, ``n_cell_edges``; ``n_path`` = 0 here);
 * ``cell_start`` int64 ``(nx * ny + 1,)``; cell ``(i, j)`` is number ``j * nx + i``;
 * ``cell_edges`` int64: edge indices, cell after cell;
 * ``edge_cell`` int64 ``(E, 2)``: the lowest cell ``(i, j)`` of each edge's bounding box, used to
   report an edge once per query although it is registered in several cells.
 
-:class:`EdgeGrid` also keeps its own copy of the edges and their boxes, so that
-:attr:`EdgeGrid.arrays` is the whole argument block ``(edges, boxes, params, cell_start,
-cell_edges, edge_cell)`` of the kernels. The arrays are left writable (numba types a read-only
-array argument through a slower path on every call) but are never written after the build.
+:class:`EdgeGrid` keeps its own copy of the edges and their boxes, so that
+:attr:`EdgeGrid.walls` is the whole argument of the kernels. The arrays are left writable (numba
+types a read-only array argument through a slower path on every call) but are never written
+after the build.
 """
 
 from __future__ import annotations
@@ -33,14 +38,13 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from platoon_env.geometry.primitives import box_distance2, point_segment_distance2
-
-G_X0 = 0
-G_Y0 = 1
-G_INV_CELL = 2
-G_NX = 3
-G_NY = 4
-G_SIZE = 5
+from platoon_env.geometry.primitives import (
+    Box,
+    Point,
+    point_box_distance2,
+    point_segment_distance2,
+)
+from platoon_env.records import MAP_INFO_DTYPE, Walls
 
 #: Upper bound on the number of cells of a default grid (memory stays a few MB).
 MAX_CELLS = 1 << 18
@@ -58,40 +62,28 @@ def _cell_index(v: float, origin: float, inv_cell: float, n: int) -> int:
 
 
 @njit(cache=True)
-def cell_range(
-    gp: np.ndarray, x0: float, y0: float, x1: float, y1: float
-) -> tuple[int, int, int, int]:
-    """Cells ``(i0, j0, i1, j1)`` (inclusive) overlapped by the box ``[x0, x1] x [y0, y1]``."""
-    nx = int(gp[G_NX])
-    ny = int(gp[G_NY])
-    inv = gp[G_INV_CELL]
+def cell_range(g: np.record, box: Box) -> tuple[int, int, int, int]:
+    """Cells ``(i0, j0, i1, j1)`` (inclusive) of grid ``g`` overlapped by ``box``
+    ``(x0, y0, x1, y1)``."""
     return (
-        _cell_index(x0, gp[G_X0], inv, nx),
-        _cell_index(y0, gp[G_Y0], inv, ny),
-        _cell_index(x1, gp[G_X0], inv, nx),
-        _cell_index(y1, gp[G_Y0], inv, ny),
+        _cell_index(box[0], g.x0, g.inv_cell, g.nx),
+        _cell_index(box[1], g.y0, g.inv_cell, g.ny),
+        _cell_index(box[2], g.x0, g.inv_cell, g.nx),
+        _cell_index(box[3], g.y0, g.inv_cell, g.ny),
     )
 
 
 @njit(cache=True)
-def grid_candidates(
-    gp: np.ndarray,
-    cell_start: np.ndarray,
-    cell_edges: np.ndarray,
-    edge_cell: np.ndarray,
-    x0: float,
-    y0: float,
-    x1: float,
-    y1: float,
-    out: np.ndarray,
-) -> int:
-    """Write the edges registered in the cells overlapping ``[x0, x1] x [y0, y1]`` to ``out``.
+def grid_candidates(walls: Walls, box: Box, out: np.ndarray) -> int:
+    """Write the edges registered in the cells overlapping ``box`` ``(x0, y0, x1, y1)`` to
+    ``out``.
 
     Each edge is reported once: in the first query cell (lowest ``i``, then ``j``) that its own
     bounding box covers. Returns the number of edges written. ``out`` needs room for every edge.
     """
-    i0, j0, i1, j1 = cell_range(gp, x0, y0, x1, y1)
-    nx = int(gp[G_NX])
+    i0, j0, i1, j1 = cell_range(walls.grid, box)
+    nx = walls.grid.nx
+    cell_start, cell_edges, edge_cell = walls.cell_start, walls.cell_edges, walls.edge_cell
     n = 0
     for j in range(j0, j1 + 1):
         for i in range(i0, i1 + 1):
@@ -105,69 +97,59 @@ def grid_candidates(
 
 
 @njit(cache=True)
-def covers_grid(gp: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> bool:
-    """Whether the box overlaps every cell (a query over it gathers every edge)."""
-    i0, j0, i1, j1 = cell_range(gp, x0, y0, x1, y1)
-    return i0 == 0 and j0 == 0 and i1 == int(gp[G_NX]) - 1 and j1 == int(gp[G_NY]) - 1
+def covers_grid(g: np.record, box: Box) -> bool:
+    """Whether ``box`` overlaps every cell of grid ``g`` (a query over it gathers every edge)."""
+    i0, j0, i1, j1 = cell_range(g, box)
+    return i0 == 0 and j0 == 0 and i1 == g.nx - 1 and j1 == g.ny - 1
 
 
 @njit(cache=True)
-def nearest_edge_distance2(
-    gp: np.ndarray,
-    cell_start: np.ndarray,
-    cell_edges: np.ndarray,
-    edge_cell: np.ndarray,
-    edges: np.ndarray,
-    boxes: np.ndarray,
-    px: float,
-    py: float,
-    radius: float,
-    cand: np.ndarray,
-) -> float:
-    """Squared distance from ``p`` to the nearest edge, known to be farther than ``radius``.
+def nearest_edge_distance2(walls: Walls, p: Point, reach: float, cand: np.ndarray) -> float:
+    """Squared distance from ``p`` to the nearest edge, known to be farther than ``reach``.
 
-    Searches boxes of half-side ``2 radius, 4 radius, ...`` until the nearest edge found lies
+    Searches boxes of half-side ``2 reach, 4 reach, ...`` until the nearest edge found lies
     within the box's inscribed disk (then no edge outside can be nearer) or the box covers the
     grid. ``cand`` is scratch space for ``E`` indices. ``inf`` when there is no edge.
     """
-    r = max(radius, 1e-6)
+    edges, boxes = walls.edges, walls.boxes
+    px, py = p
+    r = max(reach, 1e-6)
     best = math.inf
     for _ in range(128):
         r *= 2.0
-        x0, y0, x1, y1 = px - r, py - r, px + r, py + r
-        n = grid_candidates(gp, cell_start, cell_edges, edge_cell, x0, y0, x1, y1, cand)
+        query = (px - r, py - r, px + r, py + r)
+        n = grid_candidates(walls, query, cand)
         best = math.inf
         for k in range(n):
             e = cand[k]
-            lb = box_distance2(px, py, px, py, boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3])
+            lb = point_box_distance2(p, (boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3]))
             if lb < best:
                 best = min(
                     best,
                     point_segment_distance2(
-                        px, py, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3]
+                        p, (edges[e, 0], edges[e, 1]), (edges[e, 2], edges[e, 3])
                     ),
                 )
-        if best <= r * r or covers_grid(gp, x0, y0, x1, y1):
+        if best <= r * r or covers_grid(walls.grid, query):
             return best
     # Unreachable for finite coordinates; a full scan keeps the result exact regardless.
     best = math.inf
     for e in range(edges.shape[0]):
         best = min(
-            best,
-            point_segment_distance2(px, py, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3]),
+            best, point_segment_distance2(p, (edges[e, 0], edges[e, 1]), (edges[e, 2], edges[e, 3]))
         )
     return best
 
 
 @njit(cache=True)
-def _build(boxes: np.ndarray, gp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    nx = int(gp[G_NX])
-    ny = int(gp[G_NY])
+def _build(boxes: np.ndarray, g: np.record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    nx = g.nx
+    ny = g.ny
     n_edges = boxes.shape[0]
     edge_cell = np.zeros((n_edges, 2), dtype=np.int64)
     counts = np.zeros(nx * ny + 1, dtype=np.int64)
     for e in range(n_edges):
-        i0, j0, i1, j1 = cell_range(gp, boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3])
+        i0, j0, i1, j1 = cell_range(g, (boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3]))
         edge_cell[e, 0] = i0
         edge_cell[e, 1] = j0
         for j in range(j0, j1 + 1):
@@ -177,7 +159,7 @@ def _build(boxes: np.ndarray, gp: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     fill = cell_start[:-1].copy()
     cell_edges = np.empty(cell_start[-1], dtype=np.int64)
     for e in range(n_edges):
-        i0, j0, i1, j1 = cell_range(gp, boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3])
+        i0, j0, i1, j1 = cell_range(g, (boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3]))
         for j in range(j0, j1 + 1):
             for i in range(i0, i1 + 1):
                 c = j * nx + i
@@ -206,12 +188,13 @@ def edge_boxes(edges: np.ndarray) -> np.ndarray:
 class EdgeGrid:
     """The static grid of a workspace's boundary edges (see the module docstring).
 
-    Build it with :meth:`build`; pass :attr:`arrays` to the compiled kernels.
+    Build it with :meth:`build`; pass :attr:`walls` to the compiled kernels. ``info`` is a
+    ``(1,)`` :data:`~platoon_env.records.MAP_INFO_DTYPE` array (``n_path`` = 0).
     """
 
     edges: np.ndarray
     boxes: np.ndarray
-    params: np.ndarray
+    info: np.ndarray
     cell_start: np.ndarray
     cell_edges: np.ndarray
     edge_cell: np.ndarray
@@ -247,9 +230,15 @@ class EdgeGrid:
             nx = max(1, min(math.ceil(width / cell_size), MAX_CELLS))
             ny = max(1, min(math.ceil(height / cell_size), MAX_CELLS // nx))
             inv = 1.0 / cell_size
-        params = np.array([x0, y0, inv, float(nx), float(ny)], dtype=np.float64)
-        cell_start, cell_edges, edge_cell = _build(boxes, params)
-        return cls(edges, boxes, params, cell_start, cell_edges, edge_cell)
+        info = np.zeros(1, dtype=MAP_INFO_DTYPE)
+        g = info[0]
+        g["x0"], g["y0"], g["inv_cell"], g["nx"], g["ny"] = x0, y0, inv, nx, ny
+        cell_start, cell_edges, edge_cell = _build(boxes, g)
+        g["n_edges"] = edges.shape[0]
+        g["n_cells"] = nx * ny
+        g["n_cell_edges"] = cell_edges.shape[0]
+        g["n_path"] = 0
+        return cls(edges, boxes, info, cell_start, cell_edges, edge_cell)
 
     @classmethod
     def single_cell(cls, edges: np.ndarray) -> EdgeGrid:
@@ -257,28 +246,21 @@ class EdgeGrid:
         return cls.build(edges, cell_size=0.0)
 
     @property
-    def arrays(
-        self,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(edges, boxes, params, cell_start, cell_edges, edge_cell)``: the edge and grid
-        arguments of the kernels (:func:`~platoon_env.simulator.platoon_step` ...), in order."""
-        return self.edges, self.boxes, self.params, self.cell_start, self.cell_edges, self.edge_cell
-
-    @property
-    def index_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(params, cell_start, cell_edges, edge_cell)``: the arguments of
-        :func:`grid_candidates`."""
-        return self.params, self.cell_start, self.cell_edges, self.edge_cell
+    def walls(self) -> Walls:
+        """The :class:`~platoon_env.records.Walls` of the kernels (views, no copy)."""
+        return Walls(
+            self.edges, self.boxes, self.info[0], self.cell_start, self.cell_edges, self.edge_cell
+        )
 
     @property
     def shape(self) -> tuple[int, int]:
         """Number of cells ``(nx, ny)``."""
-        return int(self.params[G_NX]), int(self.params[G_NY])
+        return int(self.info[0]["nx"]), int(self.info[0]["ny"])
 
     @property
     def cell_size(self) -> float:
         """Side of a cell [m] (``inf`` for a single-cell grid)."""
-        inv = float(self.params[G_INV_CELL])
+        inv = float(self.info[0]["inv_cell"])
         return math.inf if inv == 0.0 else 1.0 / inv
 
     @property

@@ -1,9 +1,10 @@
 """Compiled 2D primitives: point/segment distances and segment intersection.
 
-All functions are numba ``njit`` scalar kernels used inside the per-step loops; they take plain
-floats so that no array is allocated in the hot path. Tests check them against shapely. The
-``*_distance2`` variants return squared distances: the per-step kernels compare and minimise
-those and take one square root at the end.
+All functions are numba ``njit`` scalar kernels used inside the per-step loops. Points and
+vectors are ``(x, y)`` tuples and axis-aligned boxes ``(x0, y0, x1, y1)`` tuples of floats:
+numba keeps them in registers, so no array is allocated in the hot path. The ``*_distance2``
+variants return squared distances: the per-step kernels compare and minimise those and take one
+square root at the end.
 """
 
 from __future__ import annotations
@@ -12,20 +13,25 @@ import math
 
 from numba import njit
 
+#: A point or vector ``(x, y)`` [m].
+Point = tuple[float, float]
+#: An axis-aligned box ``(x0, y0, x1, y1)`` [m], ``x0 <= x1``, ``y0 <= y1``.
+Box = tuple[float, float, float, float]
+
 
 @njit(cache=True, inline="always")
-def cross(ax: float, ay: float, bx: float, by: float) -> float:
+def cross(a: Point, b: Point) -> float:
     """z-component of the cross product ``a x b``."""
-    return ax * by - ay * bx
+    return a[0] * b[1] - a[1] * b[0]
 
 
 @njit(cache=True)
-def point_segment_distance(
-    px: float, py: float, ax: float, ay: float, bx: float, by: float
-) -> float:
+def point_segment_distance(p: Point, a: Point, b: Point) -> float:
     """Euclidean distance from point ``p`` to the closed segment ``[a, b]``."""
-    dx = bx - ax
-    dy = by - ay
+    px, py = p
+    ax, ay = a
+    dx = b[0] - ax
+    dy = b[1] - ay
     len2 = dx * dx + dy * dy
     if len2 <= 0.0:
         return math.hypot(px - ax, py - ay)
@@ -38,15 +44,14 @@ def point_segment_distance(
 
 
 @njit(cache=True)
-def point_segment_distance2(
-    px: float, py: float, ax: float, ay: float, bx: float, by: float
-) -> float:
+def point_segment_distance2(p: Point, a: Point, b: Point) -> float:
     """Squared Euclidean distance from point ``p`` to the closed segment ``[a, b]``."""
-    dx = bx - ax
-    dy = by - ay
+    ax, ay = a
+    dx = b[0] - ax
+    dy = b[1] - ay
     len2 = dx * dx + dy * dy
-    ex = px - ax
-    ey = py - ay
+    ex = p[0] - ax
+    ey = p[1] - ay
     if len2 <= 0.0:
         return ex * ex + ey * ey
     t = (ex * dx + ey * dy) / len2
@@ -60,71 +65,78 @@ def point_segment_distance2(
 
 
 @njit(cache=True)
-def _on_segment(px: float, py: float, ax: float, ay: float, bx: float, by: float) -> bool:
+def _on_segment(p: Point, a: Point, b: Point) -> bool:
     # p is known to be collinear with [a, b]; is it inside the bounding box?
-    return min(ax, bx) <= px <= max(ax, bx) and min(ay, by) <= py <= max(ay, by)
+    return min(a[0], b[0]) <= p[0] <= max(a[0], b[0]) and min(a[1], b[1]) <= p[1] <= max(a[1], b[1])
 
 
 @njit(cache=True)
-def segments_intersect(
-    ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float
-) -> bool:
+def segments_intersect(a: Point, b: Point, c: Point, d: Point) -> bool:
     """True when the closed segments ``[a, b]`` and ``[c, d]`` share a point (touching counts)."""
-    d1 = cross(bx - ax, by - ay, cx - ax, cy - ay)
-    d2 = cross(bx - ax, by - ay, dx - ax, dy - ay)
-    d3 = cross(dx - cx, dy - cy, ax - cx, ay - cy)
-    d4 = cross(dx - cx, dy - cy, bx - cx, by - cy)
+    ab = (b[0] - a[0], b[1] - a[1])
+    cd = (d[0] - c[0], d[1] - c[1])
+    d1 = cross(ab, (c[0] - a[0], c[1] - a[1]))
+    d2 = cross(ab, (d[0] - a[0], d[1] - a[1]))
+    d3 = cross(cd, (a[0] - c[0], a[1] - c[1]))
+    d4 = cross(cd, (b[0] - c[0], b[1] - c[1]))
     if ((d1 > 0.0 and d2 < 0.0) or (d1 < 0.0 and d2 > 0.0)) and (
         (d3 > 0.0 and d4 < 0.0) or (d3 < 0.0 and d4 > 0.0)
     ):
         return True
-    if d1 == 0.0 and _on_segment(cx, cy, ax, ay, bx, by):
+    if d1 == 0.0 and _on_segment(c, a, b):
         return True
-    if d2 == 0.0 and _on_segment(dx, dy, ax, ay, bx, by):
+    if d2 == 0.0 and _on_segment(d, a, b):
         return True
-    if d3 == 0.0 and _on_segment(ax, ay, cx, cy, dx, dy):
+    if d3 == 0.0 and _on_segment(a, c, d):
         return True
-    if d4 == 0.0 and _on_segment(bx, by, cx, cy, dx, dy):
+    if d4 == 0.0 and _on_segment(b, c, d):
         return True
     return False
 
 
 @njit(cache=True)
-def segment_segment_distance(
-    ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float
-) -> float:
+def segment_segment_distance(a: Point, b: Point, c: Point, d: Point) -> float:
     """Distance between the closed segments ``[a, b]`` and ``[c, d]`` (0 if they touch)."""
-    if segments_intersect(ax, ay, bx, by, cx, cy, dx, dy):
+    if segments_intersect(a, b, c, d):
         return 0.0
     return min(
-        point_segment_distance(ax, ay, cx, cy, dx, dy),
-        point_segment_distance(bx, by, cx, cy, dx, dy),
-        point_segment_distance(cx, cy, ax, ay, bx, by),
-        point_segment_distance(dx, dy, ax, ay, bx, by),
+        point_segment_distance(a, c, d),
+        point_segment_distance(b, c, d),
+        point_segment_distance(c, a, b),
+        point_segment_distance(d, a, b),
     )
 
 
 @njit(cache=True, inline="always")
-def box_distance(
-    ax0: float, ay0: float, ax1: float, ay1: float, bx0: float, by0: float, bx1: float, by1: float
-) -> float:
-    """Distance between two axis-aligned boxes ``[x0, x1] x [y0, y1]`` (0 if they overlap).
+def box_distance(a: Box, b: Box) -> float:
+    """Distance between two axis-aligned boxes ``(x0, y0, x1, y1)`` (0 if they overlap).
 
     A lower bound of the distance between any geometry inside them, used to skip edges.
     """
-    gx = max(0.0, max(ax0, bx0) - min(ax1, bx1))
-    gy = max(0.0, max(ay0, by0) - min(ay1, by1))
+    gx = max(0.0, max(a[0], b[0]) - min(a[2], b[2]))
+    gy = max(0.0, max(a[1], b[1]) - min(a[3], b[3]))
     return math.hypot(gx, gy)
 
 
 @njit(cache=True, inline="always")
-def box_distance2(
-    ax0: float, ay0: float, ax1: float, ay1: float, bx0: float, by0: float, bx1: float, by1: float
-) -> float:
+def box_distance2(a: Box, b: Box) -> float:
     """Squared :func:`box_distance` (no square root: used to skip edges cheaply)."""
-    gx = max(0.0, max(ax0, bx0) - min(ax1, bx1))
-    gy = max(0.0, max(ay0, by0) - min(ay1, by1))
+    gx = max(0.0, max(a[0], b[0]) - min(a[2], b[2]))
+    gy = max(0.0, max(a[1], b[1]) - min(a[3], b[3]))
     return gx * gx + gy * gy
+
+
+@njit(cache=True, inline="always")
+def point_box_distance2(p: Point, b: Box) -> float:
+    """Squared distance from point ``p`` to the box ``b`` (:func:`box_distance2` of the
+    degenerate box ``(p, p)``, the same operations)."""
+    return box_distance2((p[0], p[1], p[0], p[1]), b)
+
+
+@njit(cache=True, inline="always")
+def boxes_overlap(a: Box, b: Box) -> bool:
+    """Whether the closed boxes ``a`` and ``b`` share a point."""
+    return b[0] <= a[2] and b[2] >= a[0] and b[1] <= a[3] and b[3] >= a[1]
 
 
 @njit(cache=True, inline="always")

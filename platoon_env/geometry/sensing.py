@@ -1,4 +1,5 @@
-"""The sensing model (DESIGN §2, paper §2): camera and proximity sensor of every follower.
+"""The sensing model (``docs/sensing.md``, paper §2): camera and proximity sensor of every
+follower.
 
 One compiled kernel computes, for all followers at once, from the ground-truth poses and the
 obstacle-boundary edges ``∂W_f``:
@@ -23,6 +24,11 @@ obstacle-boundary edges ``∂W_f``:
 
 The same edge arrays and primitives serve the collision checks in :mod:`platoon_env.safety`, so
 no sensor sees a wall the robot could drive through. Tests compare against a shapely oracle.
+
+The kernels take points as ``(x, y)`` tuples and poses as ``(x, y, theta)``, the workspace as a
+:class:`~platoon_env.records.Walls` (its edges, their boxes and the edge grid) and the
+parameters as one :data:`~platoon_env.records.PARAMS_DTYPE` record ``p``, read by name:
+``p.d_con``, ``p.beta_con`` (eq. 5), ``p.proximity_range`` and ``p.proximity_half_angle``.
 
 Cost: each follower only visits the edges that a static grid (:mod:`platoon_env.geometry.grid`)
 lists near its line of sight (within the proximity range), and skips those whose bounding box
@@ -49,12 +55,16 @@ from platoon_env.geometry.grid import (
     nearest_edge_distance2,
 )
 from platoon_env.geometry.primitives import (
+    Point,
     box_distance2,
+    boxes_overlap,
     cross,
+    point_box_distance2,
     point_segment_distance2,
     segments_intersect,
     wrap_angle,
 )
+from platoon_env.records import PARAMS_DTYPE, Walls
 
 __all__ = [
     "SENSE_BETA",
@@ -71,10 +81,10 @@ __all__ = [
     "edge_boxes",
     "sense",
     "sense_candidates",
-    "sense_follower",
     "sense_follower_grid",
     "sense_into",
     "sense_into_grid",
+    "sensing_params",
 ]
 
 SENSE_D = 0
@@ -99,6 +109,14 @@ SENSE_NAMES: tuple[str, ...] = (
     "clearance",
 )
 
+#: A pose ``(x, y, theta)`` [m, m, rad].
+Pose = tuple[float, float, float]
+#: The line of sight ``L_i`` as the part kernels read it: ``(p, q, q - p, 1 / |q - p|²)`` (the
+#: last 0 when ``p = q``).
+Sight = tuple[Point, Point, Point, float]
+#: The proximity sector: ``(sectored, convex, r-, r+)``: whether it is narrower than all around,
+#: whether it is convex (half-angle ``<= pi/2``) and the unit directions of its two rays.
+Sector = tuple[bool, bool, Point, Point]
 
 #: Relative and absolute padding of query boxes, so that rounding never culls an edge that lies
 #: exactly at the proximity range.
@@ -108,48 +126,46 @@ _PAD_ABS = 1e-9
 
 @njit(cache=True)
 def sense_candidates(
-    px: float,
-    py: float,
-    theta: float,
-    qx: float,
-    qy: float,
-    ox: float,
-    oy: float,
+    pose: Pose,
+    pred: Point,
+    prev: Point,
     check_motion: bool,
-    edges: np.ndarray,
-    boxes: np.ndarray,
+    walls: Walls,
     cand: np.ndarray,
-    n_cand: int,
-    d_con: float,
-    beta_con: float,
-    proximity_range: float,
-    proximity_half_angle: float,
+    p: np.record,
     out: np.ndarray,
 ) -> tuple[float, bool]:
-    """Sense one follower at ``(px, py, theta)`` with predecessor at ``(qx, qy)`` (eqs. 2-3).
+    """Sense one follower at ``pose = (x, y, theta)`` behind its predecessor at ``pred``
+    (eqs. 2-3).
 
-    Visits the edges ``cand[:n_cand]`` only (they must include every edge within the proximity
-    range of ``L_i`` and every edge whose box overlaps ``L_i``'s); writes the ``SENSE_*``
-    columns into ``out``. The four clearances see only the boundary inside the proximity
-    sector ``theta ± proximity_half_angle`` (``>= pi``: all around). Returns
+    Visits the edges ``cand`` only (they must include every edge within the proximity range of
+    ``L_i`` and every edge whose box overlaps ``L_i``'s); writes the ``SENSE_*`` columns into
+    ``out``. The four clearances see only the boundary inside the proximity sector
+    ``theta ± p.proximity_half_angle`` (``>= pi``: all around). Returns
     ``(clearance², motion_hit)``: the squared clearance over the visited edges (exact whenever
-    it is ``<= proximity_range²`` or every edge was visited) and, when ``check_motion``, whether
-    the motion segment ``[o, p]`` of the last sub-step touches an edge (the tunnelling check of
-    :mod:`platoon_env.safety`).
+    it is ``<= p.proximity_range²`` or every edge was visited) and, when ``check_motion``,
+    whether the motion segment ``[prev, p_i]`` of the last sub-step touches an edge (the
+    tunnelling check of :mod:`platoon_env.safety`).
     """
+    edges, boxes = walls.edges, walls.boxes
+    proximity_range = p.proximity_range
+    half_angle = p.proximity_half_angle
+    px, py, theta = pose
+    qx, qy = pred
+    ox, oy = prev
+    pt = (px, py)
     dx = qx - px
     dy = qy - py
     d = math.sqrt(dx * dx + dy * dy)  # as in safety.pose_violation
     beta = wrap_angle(math.atan2(dy, dx) - theta)
     # Direction that defines left/right; degenerate only when the robots coincide.
-    lx, ly = dx, dy
+    line = (dx, dy)
     if d == 0.0:
-        lx, ly = math.cos(theta), math.sin(theta)
+        line = (math.cos(theta), math.sin(theta))
     inv_d2 = 1.0 / (dx * dx + dy * dy) if d > 0.0 else 0.0
-    sx0, sx1 = min(px, qx), max(px, qx)
-    sy0, sy1 = min(py, qy), max(py, qy)
-    mx0, mx1 = min(px, ox), max(px, ox)
-    my0, my1 = min(py, oy), max(py, oy)
+    sight = (pt, pred, (dx, dy), inv_d2)
+    sight_bounds = (min(px, qx), min(py, qy), max(px, qx), max(py, qy))
+    motion_bounds = (min(px, ox), min(py, oy), max(px, ox), max(py, oy))
     cap2 = proximity_range * proximity_range
     wall_l = cap2
     wall_r = cap2
@@ -162,109 +178,105 @@ def sense_candidates(
     # >= 0) and right of the ray theta + alpha (cross(v, r+) >= 0), v = b - p; their
     # intersection for alpha <= pi/2, their union (the complement of the blind cone behind the
     # robot) beyond. alpha >= pi: all around, and none of this runs.
-    sectored = proximity_half_angle < math.pi
-    convex = proximity_half_angle <= 0.5 * math.pi
-    rmx, rmy, rpx, rpy = 0.0, 0.0, 0.0, 0.0
+    sectored = half_angle < math.pi
+    convex = half_angle <= 0.5 * math.pi
+    ray_minus, ray_plus = (0.0, 0.0), (0.0, 0.0)
     # Occluded => d_l = d_r = 0 as long as L_i's crossing point is sensed, i.e. L_i lies in the
     # sector; otherwise the sight clearances come from the sensed boundary like the others.
     occlusion_zeroes_sight = True
     if sectored:
-        rmx = math.cos(theta - proximity_half_angle)
-        rmy = math.sin(theta - proximity_half_angle)
-        rpx = math.cos(theta + proximity_half_angle)
-        rpy = math.sin(theta + proximity_half_angle)
-        in_minus = cross(rmx, rmy, dx, dy) >= 0.0
-        in_plus = cross(dx, dy, rpx, rpy) >= 0.0
+        ray_minus = (math.cos(theta - half_angle), math.sin(theta - half_angle))
+        ray_plus = (math.cos(theta + half_angle), math.sin(theta + half_angle))
+        in_minus = cross(ray_minus, (dx, dy)) >= 0.0
+        in_plus = cross((dx, dy), ray_plus) >= 0.0
         occlusion_zeroes_sight = (in_minus and in_plus) if convex else (in_minus or in_plus)
-    for k in range(n_cand):
+    sector = (sectored, convex, ray_minus, ray_plus)
+    for k in range(cand.shape[0]):
         e = cand[k]
-        bx0, by0, bx1, by1 = boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3]
-        ax, ay, bx, by = edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3]
-        lb_point = box_distance2(px, py, px, py, bx0, by0, bx1, by1)
+        ebox = (boxes[e, 0], boxes[e, 1], boxes[e, 2], boxes[e, 3])
+        a = (edges[e, 0], edges[e, 1])
+        b = (edges[e, 2], edges[e, 3])
+        lb_point = point_box_distance2(pt, ebox)
         if lb_point < clear2:
-            clear2 = min(clear2, point_segment_distance2(px, py, ax, ay, bx, by))
+            clear2 = min(clear2, point_segment_distance2(pt, a, b))
         if (
             check_motion
             and not motion_hit
-            and bx0 <= mx1
-            and bx1 >= mx0
-            and by0 <= my1
-            and by1 >= my0
-            and segments_intersect(ox, oy, px, py, ax, ay, bx, by)
+            and boxes_overlap(motion_bounds, ebox)
+            and segments_intersect(prev, pt, a, b)
         ):
             motion_hit = True
-        sight_box = bx0 <= sx1 and bx1 >= sx0 and by0 <= sy1 and by1 >= sy0
-        if sight_box and not occluded and segments_intersect(px, py, qx, qy, ax, ay, bx, by):
+        sight_box = boxes_overlap(sight_bounds, ebox)
+        if sight_box and not occluded and segments_intersect(pt, pred, a, b):
             occluded = True
         # Once occluded, d_l = d_r = 0: only the wall clearances remain to be found.
         lb_sight = 0.0
         need_sight = False
         if not occluded or not occlusion_zeroes_sight:
             if not sight_box:
-                lb_sight = box_distance2(sx0, sy0, sx1, sy1, bx0, by0, bx1, by1)
+                lb_sight = box_distance2(sight_bounds, ebox)
             need_sight = lb_sight < max(sight_l, sight_r)
         if not (need_sight or lb_point < max(wall_l, wall_r)):
             continue
-        if sectored and lb_point == 0.0 and cross(bx - ax, by - ay, px - ax, py - ay) == 0.0:
+        ax, ay = a
+        bx, by = b
+        if sectored and lb_point == 0.0 and cross((bx - ax, by - ay), (px - ax, py - ay)) == 0.0:
             # p lies on the edge (the test of segments_intersect): the sector's apex is a
             # sensed boundary point on L_i, so all four clearances are 0. Clipping alone could
             # lose it to rounding when both directions along the edge are blind.
             wall_l = wall_r = sight_l = sight_r = 0.0
             continue
-        sa = cross(lx, ly, ax - px, ay - py)
-        sb = cross(lx, ly, bx - px, by - py)
+        sa = cross(line, (ax - px, ay - py))
+        sb = cross(line, (bx - px, by - py))
         # Split point on the line through L_i (only used when the edge straddles it).
-        smx, smy = ax, ay
+        split = a
         if (sa > 0.0 and sb < 0.0) or (sa < 0.0 and sb > 0.0):
             t = sa / (sa - sb)
-            smx = ax + t * (bx - ax)
-            smy = ay + t * (by - ay)
+            split = (ax + t * (bx - ax), ay + t * (by - ay))
         # Left part: the edge's points in the closed half-plane cross >= 0.
         has_left = True
         if sa >= 0.0 and sb >= 0.0:
-            cx, cy, ex, ey = ax, ay, bx, by
+            c, f = a, b
         elif sa > 0.0:  # sb < 0: straddles
-            cx, cy, ex, ey = ax, ay, smx, smy
+            c, f = a, split
         elif sb > 0.0:  # sa < 0: straddles
-            cx, cy, ex, ey = smx, smy, bx, by
+            c, f = split, b
         elif sa == 0.0:  # sb < 0: only the endpoint a lies on the line
-            cx, cy, ex, ey = ax, ay, ax, ay
+            c, f = a, a
         elif sb == 0.0:  # sa < 0: only b
-            cx, cy, ex, ey = bx, by, bx, by
+            c, f = b, b
         else:
             has_left = False
         if has_left and (lb_point < wall_l or (need_sight and lb_sight < sight_l)):
-            near, sight = _sensed_part_distances2(
-                px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey,
-                need_sight and lb_sight < sight_l, sectored, rmx, rmy, rpx, rpy, convex,
-            )  # fmt: skip
+            near, far = _sensed_part_distances2(
+                sight, c, f, need_sight and lb_sight < sight_l, sector
+            )
             wall_l = min(wall_l, near)
-            sight_l = min(sight_l, sight)
+            sight_l = min(sight_l, far)
         # Right part: the closed half-plane cross <= 0.
         has_right = True
         if sa <= 0.0 and sb <= 0.0:
-            cx, cy, ex, ey = ax, ay, bx, by
+            c, f = a, b
         elif sa < 0.0:  # sb > 0: straddles
-            cx, cy, ex, ey = ax, ay, smx, smy
+            c, f = a, split
         elif sb < 0.0:  # sa > 0: straddles
-            cx, cy, ex, ey = smx, smy, bx, by
+            c, f = split, b
         elif sa == 0.0:  # sb > 0
-            cx, cy, ex, ey = ax, ay, ax, ay
+            c, f = a, a
         elif sb == 0.0:  # sa > 0
-            cx, cy, ex, ey = bx, by, bx, by
+            c, f = b, b
         else:
             has_right = False
         if has_right and (lb_point < wall_r or (need_sight and lb_sight < sight_r)):
-            near, sight = _sensed_part_distances2(
-                px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey,
-                need_sight and lb_sight < sight_r, sectored, rmx, rmy, rpx, rpy, convex,
-            )  # fmt: skip
+            near, far = _sensed_part_distances2(
+                sight, c, f, need_sight and lb_sight < sight_r, sector
+            )
             wall_r = min(wall_r, near)
-            sight_r = min(sight_r, sight)
+            sight_r = min(sight_r, far)
     out[SENSE_D] = d
     out[SENSE_BETA] = beta
     out[SENSE_OCCLUDED] = 1.0 if occluded else 0.0
-    out[SENSE_VISIBLE] = 1.0 if (d < d_con and abs(beta) < beta_con and not occluded) else 0.0
+    out[SENSE_VISIBLE] = 1.0 if (d < p.d_con and abs(beta) < p.beta_con and not occluded) else 0.0
     out[SENSE_D_WALL_LEFT] = _capped(wall_l, cap2, proximity_range)
     out[SENSE_D_WALL_RIGHT] = _capped(wall_r, cap2, proximity_range)
     zero_sight = occluded and occlusion_zeroes_sight
@@ -275,60 +287,42 @@ def sense_candidates(
 
 
 @njit(cache=True, inline="always")
-def _part_distances2(
-    px: float,
-    py: float,
-    qx: float,
-    qy: float,
-    dx: float,
-    dy: float,
-    inv_d2: float,
-    cx: float,
-    cy: float,
-    ex: float,
-    ey: float,
-    with_sight: bool,
-) -> tuple[float, float]:
+def _clamped_foot2(w: Point, u: Point, inv_u: float) -> float:
+    """``|w - t u|²`` for ``t = clamp(w·u / |u|², 0, 1)``: the squared distance from a point to
+    a segment, ``w`` the point relative to the segment's start, ``u`` the segment's vector and
+    ``inv_u = 1 / |u|²`` (0 for a point)."""
+    wx, wy = w
+    ux, uy = u
+    t = min(1.0, max(0.0, (wx * ux + wy * uy) * inv_u))
+    wx -= t * ux
+    wy -= t * uy
+    return wx * wx + wy * wy
+
+
+@njit(cache=True, inline="always")
+def _part_distances2(sight: Sight, c: Point, e: Point, with_sight: bool) -> tuple[float, float]:
     """Squared distances from ``p`` and (if ``with_sight``) from ``L_i = [p, q]`` to ``[c, e]``.
 
-    ``(dx, dy) = q - p`` and ``inv_d2 = 1 / |q - p|²`` (0 when ``p = q``). The segments are known
+    ``sight = (p, q, q - p, 1 / |q - p|²)`` (the last 0 when ``p = q``). The segments are known
     not to cross when the second distance matters (a crossing means occluded, and then
     ``d_l = d_r = 0`` anyway), so it is attained at one of the four endpoints. Returns
     ``(near², sight²)``, ``sight² = inf`` without ``with_sight``.
     """
-    ux = ex - cx
-    uy = ey - cy
-    lu = ux * ux + uy * uy
+    (px, py), (qx, qy), dq, inv_d2 = sight
+    cx, cy = c
+    ex, ey = e
+    u = (ex - cx, ey - cy)
+    lu = u[0] * u[0] + u[1] * u[1]
     inv_u = 1.0 / lu if lu > 0.0 else 0.0
-    wx = px - cx
-    wy = py - cy
-    t = min(1.0, max(0.0, (wx * ux + wy * uy) * inv_u))
-    wx -= t * ux
-    wy -= t * uy
-    near = wx * wx + wy * wy
+    near = _clamped_foot2((px - cx, py - cy), u, inv_u)
     if not with_sight:
         return near, math.inf
     best = near
     # q to the part.
-    wx = qx - cx
-    wy = qy - cy
-    t = min(1.0, max(0.0, (wx * ux + wy * uy) * inv_u))
-    wx -= t * ux
-    wy -= t * uy
-    best = min(best, wx * wx + wy * wy)
+    best = min(best, _clamped_foot2((qx - cx, qy - cy), u, inv_u))
     # The part's endpoints to L_i.
-    wx = cx - px
-    wy = cy - py
-    t = min(1.0, max(0.0, (wx * dx + wy * dy) * inv_d2))
-    wx -= t * dx
-    wy -= t * dy
-    best = min(best, wx * wx + wy * wy)
-    wx = ex - px
-    wy = ey - py
-    t = min(1.0, max(0.0, (wx * dx + wy * dy) * inv_d2))
-    wx -= t * dx
-    wy -= t * dy
-    return near, min(best, wx * wx + wy * wy)
+    best = min(best, _clamped_foot2((cx - px, cy - py), dq, inv_d2))
+    return near, min(best, _clamped_foot2((ex - px, ey - py), dq, inv_d2))
 
 
 @njit(cache=True, inline="always")
@@ -347,7 +341,7 @@ def _half_plane_interval(g0: float, g1: float) -> tuple[float, float]:
 
 
 @njit(cache=True, inline="always")
-def _point_at(c: float, e: float, t: float) -> float:
+def _coordinate_at(c: float, e: float, t: float) -> float:
     """``c + t (e - c)``, exactly ``c`` at ``t = 0`` and ``e`` at ``t = 1``."""
     if t == 0.0:
         return c
@@ -356,39 +350,33 @@ def _point_at(c: float, e: float, t: float) -> float:
     return c + t * (e - c)
 
 
+@njit(cache=True, inline="always")
+def _point_at(c: Point, e: Point, t: float) -> Point:
+    """The point ``c + t (e - c)`` of ``[c, e]``, exactly ``c`` at ``t = 0`` and ``e`` at
+    ``t = 1``."""
+    return _coordinate_at(c[0], e[0], t), _coordinate_at(c[1], e[1], t)
+
+
 @njit(cache=True)
 def _sector_part_distances2(
-    px: float,
-    py: float,
-    qx: float,
-    qy: float,
-    dx: float,
-    dy: float,
-    inv_d2: float,
-    cx: float,
-    cy: float,
-    ex: float,
-    ey: float,
-    with_sight: bool,
-    rmx: float,
-    rmy: float,
-    rpx: float,
-    rpy: float,
-    convex: bool,
+    sight: Sight, c: Point, e: Point, with_sight: bool, sector: Sector
 ) -> tuple[float, float]:
     """:func:`_part_distances2` over the points of ``[c, e]`` inside the proximity sector.
 
-    The sector is the intersection (``convex``, half-angle ``<= pi/2``) or union of the closed
-    half-planes ``cross(r-, b - p) >= 0`` and ``cross(b - p, r+) >= 0``, ``r-`` / ``r+`` the
-    directions of its two rays from ``p``. Each gives an interval of the part's parameter; the
-    part's sensed points are one interval, or two when the part crosses the blind cone. Returns
-    ``(inf, inf)`` when none is sensed. The sensed pieces never cross ``L_i`` where
-    :func:`_part_distances2` needs that (see :func:`sense_candidates`).
+    The sector (``(sectored, convex, r-, r+)``) is the intersection (``convex``, half-angle
+    ``<= pi/2``) or union of the closed half-planes ``cross(r-, b - p) >= 0`` and
+    ``cross(b - p, r+) >= 0``, ``r-`` / ``r+`` the directions of its two rays from ``p``. Each
+    gives an interval of the part's parameter; the part's sensed points are one interval, or two
+    when the part crosses the blind cone. Returns ``(inf, inf)`` when none is sensed. The sensed
+    pieces never cross ``L_i`` where :func:`_part_distances2` needs that (see
+    :func:`sense_candidates`).
     """
-    vcx, vcy = cx - px, cy - py
-    vex, vey = ex - px, ey - py
-    lo1, hi1 = _half_plane_interval(cross(rmx, rmy, vcx, vcy), cross(rmx, rmy, vex, vey))
-    lo2, hi2 = _half_plane_interval(cross(vcx, vcy, rpx, rpy), cross(vex, vey, rpx, rpy))
+    _, convex, ray_minus, ray_plus = sector
+    px, py = sight[0]
+    vc = (c[0] - px, c[1] - py)
+    ve = (e[0] - px, e[1] - py)
+    lo1, hi1 = _half_plane_interval(cross(ray_minus, vc), cross(ray_minus, ve))
+    lo2, hi2 = _half_plane_interval(cross(vc, ray_plus), cross(ve, ray_plus))
     if convex:
         lo1, hi1 = max(lo1, lo2), min(hi1, hi2)
         lo2, hi2 = 1.0, 0.0
@@ -398,69 +386,26 @@ def _sector_part_distances2(
     elif lo2 <= hi2 and lo2 <= hi1 and lo1 <= hi2:  # overlapping: one piece
         lo1, hi1 = min(lo1, lo2), max(hi1, hi2)
         lo2, hi2 = 1.0, 0.0
-    near, sight = math.inf, math.inf
+    near, far = math.inf, math.inf
     if lo1 <= hi1:
-        near, sight = _part_distances2(
-            px,
-            py,
-            qx,
-            qy,
-            dx,
-            dy,
-            inv_d2,
-            _point_at(cx, ex, lo1),
-            _point_at(cy, ey, lo1),
-            _point_at(cx, ex, hi1),
-            _point_at(cy, ey, hi1),
-            with_sight,
-        )
+        near, far = _part_distances2(sight, _point_at(c, e, lo1), _point_at(c, e, hi1), with_sight)
     if lo2 <= hi2:
-        near2, sight2 = _part_distances2(
-            px,
-            py,
-            qx,
-            qy,
-            dx,
-            dy,
-            inv_d2,
-            _point_at(cx, ex, lo2),
-            _point_at(cy, ey, lo2),
-            _point_at(cx, ex, hi2),
-            _point_at(cy, ey, hi2),
-            with_sight,
+        near2, far2 = _part_distances2(
+            sight, _point_at(c, e, lo2), _point_at(c, e, hi2), with_sight
         )
-        near, sight = min(near, near2), min(sight, sight2)
-    return near, sight
+        near, far = min(near, near2), min(far, far2)
+    return near, far
 
 
 @njit(cache=True, inline="always")
 def _sensed_part_distances2(
-    px: float,
-    py: float,
-    qx: float,
-    qy: float,
-    dx: float,
-    dy: float,
-    inv_d2: float,
-    cx: float,
-    cy: float,
-    ex: float,
-    ey: float,
-    with_sight: bool,
-    sectored: bool,
-    rmx: float,
-    rmy: float,
-    rpx: float,
-    rpy: float,
-    convex: bool,
+    sight: Sight, c: Point, e: Point, with_sight: bool, sector: Sector
 ) -> tuple[float, float]:
-    """:func:`_part_distances2` of the part ``[c, e]``, clipped to the proximity sector when
-    ``sectored`` (:func:`_sector_part_distances2`); the arguments are theirs."""
-    if sectored:
-        return _sector_part_distances2(
-            px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey, with_sight, rmx, rmy, rpx, rpy, convex
-        )
-    return _part_distances2(px, py, qx, qy, dx, dy, inv_d2, cx, cy, ex, ey, with_sight)
+    """:func:`_part_distances2` of the part ``[c, e]``, clipped to the proximity sector when it
+    is narrower than all around (:func:`_sector_part_distances2`); the arguments are theirs."""
+    if sector[0]:
+        return _sector_part_distances2(sight, c, e, with_sight, sector)
+    return _part_distances2(sight, c, e, with_sight)
 
 
 @njit(cache=True, inline="always")
@@ -471,182 +416,91 @@ def _capped(value2: float, cap2: float, cap: float) -> float:
 
 @njit(cache=True)
 def sense_follower_grid(
-    px: float,
-    py: float,
-    theta: float,
-    qx: float,
-    qy: float,
-    ox: float,
-    oy: float,
+    pose: Pose,
+    pred: Point,
+    prev: Point,
     check_motion: bool,
-    edges: np.ndarray,
-    boxes: np.ndarray,
-    grid_params: np.ndarray,
-    cell_start: np.ndarray,
-    cell_edges: np.ndarray,
-    edge_cell: np.ndarray,
+    walls: Walls,
     cand: np.ndarray,
-    d_con: float,
-    beta_con: float,
-    proximity_range: float,
-    proximity_half_angle: float,
+    p: np.record,
     out: np.ndarray,
 ) -> tuple[float, bool]:
-    """:func:`sense_candidates` over the edges the grid lists near ``L_i`` (and ``[o, p]``).
+    """:func:`sense_candidates` over the edges the grid lists near ``L_i`` (and ``[prev, p_i]``).
 
     ``cand`` is scratch space for at least ``E`` edge indices. The clearance is exact: when no
     edge lies within the proximity range, a widening grid search finds the nearest one.
     """
+    px, py, _ = pose
+    qx, qy = pred
+    ox, oy = prev
+    proximity_range = p.proximity_range
     reach = proximity_range * (1.0 + _PAD_REL) + _PAD_ABS
-    x0 = min(min(px, qx), ox) - reach
-    y0 = min(min(py, qy), oy) - reach
-    x1 = max(max(px, qx), ox) + reach
-    y1 = max(max(py, qy), oy) + reach
-    n = grid_candidates(grid_params, cell_start, cell_edges, edge_cell, x0, y0, x1, y1, cand)
-    clear2, hit = sense_candidates(
-        px,
-        py,
-        theta,
-        qx,
-        qy,
-        ox,
-        oy,
-        check_motion,
-        edges,
-        boxes,
-        cand,
-        n,
-        d_con,
-        beta_con,
-        proximity_range,
-        proximity_half_angle,
-        out,
+    query = (
+        min(min(px, qx), ox) - reach,
+        min(min(py, qy), oy) - reach,
+        max(max(px, qx), ox) + reach,
+        max(max(py, qy), oy) + reach,
     )
-    if clear2 > proximity_range * proximity_range and not covers_grid(grid_params, x0, y0, x1, y1):
-        clear2 = nearest_edge_distance2(
-            grid_params, cell_start, cell_edges, edge_cell, edges, boxes, px, py, reach, cand
-        )
+    n = grid_candidates(walls, query, cand)
+    clear2, hit = sense_candidates(pose, pred, prev, check_motion, walls, cand[:n], p, out)
+    if clear2 > proximity_range * proximity_range and not covers_grid(walls.grid, query):
+        clear2 = nearest_edge_distance2(walls, (px, py), reach, cand)
         out[SENSE_CLEARANCE] = math.sqrt(clear2)
     return clear2, hit
 
 
 @njit(cache=True)
-def sense_follower(
-    px: float,
-    py: float,
-    theta: float,
-    qx: float,
-    qy: float,
-    edges: np.ndarray,
-    boxes: np.ndarray,
-    d_con: float,
-    beta_con: float,
-    proximity_range: float,
-    out: np.ndarray,
-    proximity_half_angle: float = math.pi,
-) -> None:
-    """Sense one follower against every edge (brute force); see :func:`sense_candidates`."""
-    cand = np.arange(edges.shape[0])
-    sense_candidates(
-        px,
-        py,
-        theta,
-        qx,
-        qy,
-        px,
-        py,
-        False,
-        edges,
-        boxes,
-        cand,
-        cand.shape[0],
-        d_con,
-        beta_con,
-        proximity_range,
-        proximity_half_angle,
-        out,
-    )
-
-
-@njit(cache=True)
-def sense_into(
-    poses: np.ndarray,
-    edges: np.ndarray,
-    boxes: np.ndarray,
-    d_con: float,
-    beta_con: float,
-    proximity_range: float,
-    out: np.ndarray,
-    proximity_half_angle: float = math.pi,
-) -> None:
+def sense_into(poses: np.ndarray, walls: Walls, p: np.record, out: np.ndarray) -> None:
     """Sense every follower ``i = 1..N`` of ``poses`` ((N+1) x 3) into ``out`` (N x SENSE_SIZE).
 
-    Brute force over every edge (no grid); :func:`sense_into_grid` culls. The proximity
-    sector is ``theta_i ± proximity_half_angle`` (default ``pi``: all around).
+    Brute force over every edge of ``walls`` (its grid is not read); :func:`sense_into_grid`
+    culls. The proximity sector is ``theta_i ± p.proximity_half_angle``.
     """
-    cand = np.arange(edges.shape[0])
+    cand = np.arange(walls.edges.shape[0])
     for i in range(1, poses.shape[0]):
         sense_candidates(
-            poses[i, 0],
-            poses[i, 1],
-            poses[i, 2],
-            poses[i - 1, 0],
-            poses[i - 1, 1],
-            poses[i, 0],
-            poses[i, 1],
+            (poses[i, 0], poses[i, 1], poses[i, 2]),
+            (poses[i - 1, 0], poses[i - 1, 1]),
+            (poses[i, 0], poses[i, 1]),
             False,
-            edges,
-            boxes,
+            walls,
             cand,
-            cand.shape[0],
-            d_con,
-            beta_con,
-            proximity_range,
-            proximity_half_angle,
+            p,
             out[i - 1],
         )
 
 
 @njit(cache=True)
-def sense_into_grid(
-    poses: np.ndarray,
-    edges: np.ndarray,
-    boxes: np.ndarray,
-    grid_params: np.ndarray,
-    cell_start: np.ndarray,
-    cell_edges: np.ndarray,
-    edge_cell: np.ndarray,
+def sense_into_grid(poses: np.ndarray, walls: Walls, p: np.record, out: np.ndarray) -> None:
+    """:func:`sense_into` with grid culling (same results)."""
+    cand = np.empty(walls.edges.shape[0], dtype=np.int64)
+    for i in range(1, poses.shape[0]):
+        sense_follower_grid(
+            (poses[i, 0], poses[i, 1], poses[i, 2]),
+            (poses[i - 1, 0], poses[i - 1, 1]),
+            (poses[i, 0], poses[i, 1]),
+            False,
+            walls,
+            cand,
+            p,
+            out[i - 1],
+        )
+
+
+def sensing_params(
     d_con: float,
     beta_con: float,
     proximity_range: float,
-    out: np.ndarray,
     proximity_half_angle: float = math.pi,
-) -> None:
-    """:func:`sense_into` with grid culling (same results)."""
-    cand = np.empty(edges.shape[0], dtype=np.int64)
-    for i in range(1, poses.shape[0]):
-        sense_follower_grid(
-            poses[i, 0],
-            poses[i, 1],
-            poses[i, 2],
-            poses[i - 1, 0],
-            poses[i - 1, 1],
-            poses[i, 0],
-            poses[i, 1],
-            False,
-            edges,
-            boxes,
-            grid_params,
-            cell_start,
-            cell_edges,
-            edge_cell,
-            cand,
-            d_con,
-            beta_con,
-            proximity_range,
-            proximity_half_angle,
-            out[i - 1],
-        )
+) -> np.ndarray:
+    """A ``(1,)`` :data:`~platoon_env.records.PARAMS_DTYPE` array holding the sensing
+    parameters (every other field 0); pass its record ``[0]`` to the kernels."""
+    params = np.zeros(1, dtype=PARAMS_DTYPE)
+    params["d_con"] = d_con
+    params["beta_con"] = beta_con
+    params["proximity_range"] = proximity_range
+    params["proximity_half_angle"] = proximity_half_angle
+    return params
 
 
 def sense(
@@ -673,12 +527,12 @@ def sense(
     half_angle = float(proximity_half_angle)
     if not 0.0 < half_angle:
         raise ValueError(f"proximity_half_angle must be > 0, got {proximity_half_angle}")
+    params = sensing_params(d_con, beta_con, proximity_range, half_angle)
     out = np.empty((poses.shape[0] - 1, SENSE_SIZE), dtype=np.float64)
-    boxes = edge_boxes(edges)
     if grid is None:
-        sense_into(poses, edges, boxes, d_con, beta_con, proximity_range, out, half_angle)
+        sense_into(poses, EdgeGrid.single_cell(edges).walls, params[0], out)
     else:
         if grid.n_edges != edges.shape[0]:
             raise ValueError(f"grid indexes {grid.n_edges} edges, got {edges.shape[0]}")
-        sense_into_grid(poses, *grid.arrays, d_con, beta_con, proximity_range, out, half_angle)
+        sense_into_grid(poses, grid.walls, params[0], out)
     return out

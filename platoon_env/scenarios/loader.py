@@ -73,7 +73,14 @@ def load_config(scenario: ScenarioLike) -> ScenarioConfig:
 
 
 def load_scenario(scenario: ScenarioLike) -> Scenario:
-    """Load, validate and build a scenario from a shipped name, a YAML path or a dict."""
+    """Load, validate and build a fixed scenario from a shipped name, a YAML path or a dict.
+
+    A :class:`Scenario` is returned as is. Raises :class:`ScenarioError` for a procedural
+    scenario (a ``generator`` block, e.g. ``procedural_train``): it has no single workspace;
+    :func:`platoon_env.scenarios.source.scenario_source` gives its
+    :class:`~platoon_env.scenarios.source.ProceduralSource` (``.initial()`` is layout 0,
+    ``.sample(rng)`` an episode's layout).
+    """
     if isinstance(scenario, Scenario):
         return scenario
     return build_scenario(load_config(scenario))

@@ -13,6 +13,13 @@ template's ``split``:
   ``LAYOUTS_PER_SPLIT``: the two splits never share a layout seed, so evaluation on ``test``
   uses workspaces that were never seen in training on ``train``.
 
+:class:`~platoon_env.scenarios.source.ProceduralSource` (what
+:func:`~platoon_env.scenarios.source.scenario_source` returns for such a template) draws one
+index per episode from the env's random stream and calls :func:`generate_scenario`;
+:func:`~platoon_env.scenarios.scenario.build_scenario` and
+:func:`~platoon_env.scenarios.loader.load_scenario` refuse a procedural template (it has no
+single workspace). This module imports :mod:`~platoon_env.scenarios.scenario`, never the reverse.
+
 Kinds of layout (``generator.kind``), each sampled by its own module:
 
 ``corridor`` (:mod:`~platoon_env.scenarios.corridor_layouts`)
@@ -131,7 +138,9 @@ def generate_scenario(template: ScenarioConfig, index: int) -> Scenario:
     Deterministic: the layout depends only on the split, the kind and ``index`` (and on the
     template's robot, formation, camera, PPC and leader parameters, which size it); any workspace
     or leader path already in ``template`` is ignored. The returned scenario keeps every other
-    field of ``template`` (name, robots, sensors, safety, PPC, simulation, generator block).
+    field of ``template`` (name, robots, sensors, safety, PPC, simulation, generator block), and
+    its :attr:`~platoon_env.scenarios.scenario.Scenario.layout_index` is ``index``.
+    :class:`~platoon_env.scenarios.source.ProceduralSource` draws ``index`` per episode.
 
     Raises ``ValueError`` for an index outside ``[0, LAYOUTS_PER_SPLIT)`` or an unknown split or
     kind, and :class:`ScenarioError` only if even the straight-corridor fallback is infeasible
@@ -152,10 +161,10 @@ def generate_scenario(template: ScenarioConfig, index: int) -> Scenario:
         if layout is None:
             continue
         try:
-            return build_scenario(_layout_config(template, layout))
+            return _build_layout(template, layout, int(index))
         except ScenarioError:
             continue
-    return build_scenario(_layout_config(template, _straight_corridor(params)))
+    return _build_layout(template, _straight_corridor(params), int(index))
 
 
 # --------------------------------------------------------------------------------------------
@@ -171,6 +180,19 @@ def _draw_kind(rng: np.random.Generator, kind: str) -> str:
     if kind == "mixed":
         return "corridor" if rng.random() < 0.5 else "rooms"
     return kind
+
+
+def _build_layout(template: ScenarioConfig, layout: Layout, index: int) -> Scenario:
+    """Build ``layout`` as a fixed scenario, then tag it as layout ``index`` of ``template``.
+
+    :func:`~platoon_env.scenarios.scenario.build_scenario` only builds fixed configs, so the
+    layout is built without the generator block; the block is put back on the returned
+    scenario's config (the geometry does not depend on it), so that the layout still names its
+    family and can serve as a template itself.
+    """
+    cfg = _layout_config(template, layout)
+    built = build_scenario(dataclasses.replace(cfg, generator=None))
+    return dataclasses.replace(built, config=cfg, layout_index=index)
 
 
 def _layout_config(template: ScenarioConfig, layout: Layout) -> ScenarioConfig:

@@ -3,21 +3,16 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 from shapely.geometry import Polygon
 
 from platoon_env.dynamics.leader import path_arclength, point_at
-from platoon_env.geometry.sensing import (
-    SENSE_BETA,
-    SENSE_CLEARANCE,
-    SENSE_D,
-    SENSE_OCCLUDED,
-    sense,
-)
+from platoon_env.geometry.grid import EdgeGrid
 from platoon_env.geometry.workspace import Workspace, build_free_space, check_leader_path
+from platoon_env.records import constraint_params
+from platoon_env.safety import configuration_problems
 from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError, check_ranges
 
 
@@ -26,11 +21,14 @@ class Scenario:
     """A scenario ready to simulate (``env.scenario``).
 
     Attributes:
-        config: the typed scenario (DESIGN §5).
+        config: the typed scenario (``docs/scenarios.md``).
         workspace: the free space and its boundary-edge arrays.
         leader_path: ``(M, 2)`` polyline of the leader; ``path_s`` its cumulative arc length.
         initial_poses: ``(N+1, 3)`` default initial configuration ``[x, y, theta]``, leader first.
         initial_progress: the leader's arc length along its path in that configuration.
+        layout_index: for a layout of a procedural scenario (built by
+            :func:`~platoon_env.scenarios.procedural.generate_scenario`), its number in the
+            template's split; None for a fixed workspace.
     """
 
     config: ScenarioConfig
@@ -39,6 +37,7 @@ class Scenario:
     path_s: np.ndarray
     initial_poses: np.ndarray
     initial_progress: float
+    layout_index: int | None = None
 
     @property
     def name(self) -> str:
@@ -63,10 +62,6 @@ class Scenario:
         """Number of followers ``N``."""
         return self.config.followers
 
-    def with_overrides(self, **changes: Any) -> Scenario:
-        """A copy with top-level config fields replaced (e.g. ``followers=1``), rebuilt."""
-        return build_scenario(replace(self.config, **changes), free_space=self.free_space)
-
 
 def default_max_steps(cfg: ScenarioConfig, path_length: float) -> int:
     """Steps for twice the leader's driving time, its settle time and 10 s more."""
@@ -77,7 +72,7 @@ def default_max_steps(cfg: ScenarioConfig, path_length: float) -> int:
 def default_initial_poses(
     cfg: ScenarioConfig, path: np.ndarray, cum: np.ndarray
 ) -> tuple[np.ndarray, float]:
-    """The default initial configuration (DESIGN §5).
+    """The default initial configuration (``docs/scenarios.md``).
 
     The last follower stands at the path's first point; walking forward along the path, each
     next robot stands where the chord to the previous one first reaches ``d_des``; the leader is
@@ -130,53 +125,44 @@ def default_initial_poses(
 def initial_violations(cfg: ScenarioConfig, workspace: Workspace, poses: np.ndarray) -> list[str]:
     """Which constraints of the initial configuration (after Problem 1) ``poses`` violates.
 
-    Returns messages naming the follower and the constraint; empty when feasible.
+    The followers' rules are the env's own (:func:`platoon_env.safety.configuration_masks`,
+    applied after every sub-step of a step); the leader, which the rules do not cover, must
+    keep a clearance above ``r``. Returns messages naming the robot and the constraint; empty
+    when feasible.
     """
     r = cfg.robot.radius
-    d_col, d_con, b_con = cfg.safety.d_col, cfg.camera.range, cfg.camera.half_angle
-    out = sense(poses, workspace.edges, d_con, b_con, cfg.proximity_range)
-    problems: list[str] = []
-    for i in range(1, poses.shape[0]):
-        row = out[i - 1]
-        name = f"follower_{i}"
-        if not row[SENSE_D] > d_col:
-            problems.append(f"{name}: d_{i} = {row[SENSE_D]:.3f} must exceed d_col = {d_col}")
-        if not row[SENSE_D] < d_con:
-            problems.append(f"{name}: d_{i} = {row[SENSE_D]:.3f} must be below d_con = {d_con}")
-        if not abs(row[SENSE_BETA]) < b_con:
-            problems.append(
-                f"{name}: |beta_{i}| = {abs(row[SENSE_BETA]):.3f} must be below beta_con = {b_con}"
-            )
-        if not row[SENSE_CLEARANCE] > r:
-            problems.append(
-                f"{name}: clearance {row[SENSE_CLEARANCE]:.3f} to the obstacles must exceed r = {r}"
-            )
-        if row[SENSE_OCCLUDED] > 0:
-            problems.append(f"{name}: the line of sight to robot {i - 1} crosses an obstacle")
+    walls = EdgeGrid.build(workspace.edges, reach=cfg.proximity_range).walls
+    problems = configuration_problems(poses, walls, constraint_params(cfg))
     leader_clear = workspace.clearance(float(poses[0, 0]), float(poses[0, 1]))
     if not leader_clear > r:
         problems.append(
             f"leader: clearance {leader_clear:.3f} to the obstacles must exceed r = {r}"
         )
-    for j in range(poses.shape[0]):
-        for k in range(j + 1, poses.shape[0]):
-            if np.hypot(*(poses[j, :2] - poses[k, :2])) <= 2 * r:
-                problems.append(f"robots {j} and {k} overlap")
     return problems
 
 
 def build_scenario(cfg: ScenarioConfig, free_space: Polygon | None = None) -> Scenario:
-    """Validate ``cfg`` and build its geometry and default initial configuration.
+    """Validate a fixed scenario's ``cfg``; build its geometry and default initial configuration.
+
+    ``free_space``, when given, is used instead of building ``cfg.workspace`` again (it must be
+    the polygon that ``cfg.workspace`` describes, e.g. the ``free_space`` of a scenario built from
+    the same workspace).
 
     Raises :class:`ScenarioError` for bad geometry, an unsafe leader path, or an infeasible
-    initial configuration (naming the follower and the constraint). A procedural scenario
-    (``generator`` block, no path yet) is built from its layout number 0.
+    initial configuration (naming the follower and the constraint), and for a procedural config
+    (one with a ``generator`` block): it has no single workspace to build.
+    :func:`platoon_env.scenarios.source.scenario_source` gives its
+    :class:`~platoon_env.scenarios.source.ProceduralSource`, which draws a layout per episode;
+    :func:`platoon_env.scenarios.procedural.generate_scenario` builds one numbered layout.
     """
+    if cfg.generator is not None:
+        raise ScenarioError(
+            f"scenario {cfg.name!r} is procedural (it has a 'generator' block), so it has no "
+            "single workspace to build: use platoon_env.scenarios.scenario_source(...) (a "
+            "ProceduralSource, which draws a layout per episode), or "
+            "platoon_env.scenarios.procedural.generate_scenario(cfg, index) for one layout"
+        )
     check_ranges(cfg)
-    if cfg.generator is not None and not cfg.leader.path:
-        from platoon_env.scenarios.procedural import generate_scenario
-
-        return generate_scenario(cfg, 0)
     if free_space is None:
         free_space = build_free_space(cfg.workspace)
     workspace = Workspace.from_free_space(free_space)

@@ -3,8 +3,10 @@
 A scenario file is YAML; :func:`platoon_env.scenarios.loader.load_scenario` safe-loads it and
 passes the resulting mapping to :func:`parse_scenario`, which builds these dataclasses, rejects
 unknown keys (naming their path, e.g. ``scenario.leader.sped``) and checks every numeric field.
-Geometric validation (polygons, leader-path clearance, feasibility of the initial configuration)
-happens in :mod:`platoon_env.scenarios.validation`, once the workspace geometry is built.
+:func:`config_to_mapping` is its exact inverse, so keyword overrides
+(:mod:`platoon_env.scenarios.options`) are checked by the same rules as a file. Geometric
+validation (polygons, leader-path clearance, feasibility of the initial configuration) happens in
+:func:`platoon_env.scenarios.scenario.build_scenario`, once the workspace geometry is built.
 
 Units are SI throughout: metres, seconds, radians.
 """
@@ -12,27 +14,49 @@ Units are SI throughout: metres, seconds, radians.
 from __future__ import annotations
 
 import math
+import numbers
 import types
 import typing
 from collections.abc import Mapping
-from dataclasses import MISSING, asdict, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass
 from typing import Any, TypeVar
+
+import numpy as np
+
+from platoon_env.violations import VIOLATION_CAUSES
 
 Point = tuple[float, float]
 Polygon = tuple[Point, ...]
 
-#: Violation causes, in the order in which a simultaneous violation is reported (DESIGN §3).
-VIOLATION_CAUSES: tuple[str, ...] = (
-    "collision_robot",
-    "collision_obstacle",
-    "occluded",
-    "out_of_range",
-    "out_of_fov",
-)
+
+#: [m/s or rad/s] Range of ``robot.u_max`` and ``robot.omega_max``. They are the bounds of the
+#: float32 action Box: far inside float32's range (no overflow to inf, no underflow to 0, no
+#: bound so small that ``low == high``) and far beyond any physical unicycle.
+ACTION_BOUND_RANGE: tuple[float, float] = (1e-6, 1e6)
+#: [s] Upper bound on ``simulation.control_period``. One action is held this long; beyond a
+#: second a follower crosses its whole sensing range between two decisions, and much larger
+#: (finite) values overflow the pose integration.
+MAX_CONTROL_PERIOD: float = 1.0
 
 
 class ScenarioError(ValueError):
-    """A scenario is malformed or infeasible. The message names the offending field."""
+    """A scenario is malformed or infeasible. The message names the offending field.
+
+    Attributes:
+        path: the dotted location of the offending field (e.g. ``scenario.robot.u_max``), or
+            None when the error is not about one field.
+        reason: the message without its location (e.g. ``must be > 0, got 0.0``), or None.
+    """
+
+    def __init__(self, message: str, *, path: str | None = None, reason: str | None = None):
+        super().__init__(message)
+        self.path = path
+        self.reason = reason
+
+
+def field_error(path: str, reason: str) -> ScenarioError:
+    """A :class:`ScenarioError` ``"{path}: {reason}"`` that keeps ``path`` and ``reason``."""
+    return ScenarioError(f"{path}: {reason}", path=path, reason=reason)
 
 
 @dataclass(frozen=True)
@@ -224,13 +248,23 @@ def _key_of(f: Any) -> str:
     return str(f.metadata.get("key", f.name))
 
 
+# Python callers (keyword overrides) may pass numpy scalars, so the numeric checks go by the
+# numbers ABCs; bools are numbers to Python but never to a scenario.
 def _parse_number(value: Any, path: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ScenarioError(f"{path}: expected a number, got {value!r}")
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise field_error(path, f"expected a number, got {value!r}")
     out = float(value)
     if not math.isfinite(out):
-        raise ScenarioError(f"{path}: must be finite, got {value!r}")
+        raise field_error(path, f"must be finite, got {value!r}")
     return out
+
+
+def _parse_int(value: Any, path: str) -> int:
+    # A float, even 2.0, is rejected: YAML ``followers: 2.0`` always was, and a silent
+    # int(2.7) == 2 is the bug this guards against.
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise field_error(path, f"expected an integer, got {value!r}")
+    return int(value)
 
 
 def _parse_value(tp: Any, value: Any, path: str) -> Any:
@@ -241,29 +275,28 @@ def _parse_value(tp: Any, value: Any, path: str) -> Any:
         if value is None:
             if len(non_none) < len(args):
                 return None
-            raise ScenarioError(f"{path}: must not be empty")
+            raise field_error(path, "must not be empty")
         return _parse_value(non_none[0], value, path)
     if tp is float:
         return _parse_number(value, path)
     if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ScenarioError(f"{path}: expected an integer, got {value!r}")
-        return int(value)
+        return _parse_int(value, path)
     if tp is bool:
-        if not isinstance(value, bool):
-            raise ScenarioError(f"{path}: expected true or false, got {value!r}")
-        return value
+        if not isinstance(value, (bool, np.bool_)):
+            raise field_error(path, f"expected a boolean (true or false), got {value!r}")
+        return bool(value)
     if tp is str:
         if not isinstance(value, str):
-            raise ScenarioError(f"{path}: expected a string, got {value!r}")
-        return value
+            raise field_error(path, f"expected a string, got {value!r}")
+        return str(value)
     if origin is tuple:
-        if not isinstance(value, (list, tuple)):
-            raise ScenarioError(f"{path}: expected a list, got {value!r}")
+        is_array = isinstance(value, np.ndarray) and value.ndim > 0
+        if not (is_array or isinstance(value, (list, tuple))):
+            raise field_error(path, f"expected a list, got {value!r}")
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_parse_value(args[0], v, f"{path}[{k}]") for k, v in enumerate(value))
         if len(value) != len(args):
-            raise ScenarioError(f"{path}: expected {len(args)} values, got {len(value)}")
+            raise field_error(path, f"expected {len(args)} values, got {len(value)}")
         pairs = enumerate(zip(args, value, strict=True))
         return tuple(_parse_value(a, v, f"{path}[{k}]") for k, (a, v) in pairs)
     if isinstance(tp, type) and hasattr(tp, "__dataclass_fields__"):
@@ -277,20 +310,20 @@ def parse_section(cls: type[T], data: Any, path: str) -> T:
     ``path`` is the dotted location of ``data`` in the file, used in every error message.
     """
     if not isinstance(data, Mapping):
-        raise ScenarioError(f"{path}: expected a mapping, got {data!r}")
+        raise field_error(path, f"expected a mapping, got {data!r}")
     hints = typing.get_type_hints(cls)
     known = {_key_of(f): f for f in fields(cls)}  # type: ignore[arg-type]
     unknown = sorted(str(k) for k in data if k not in known)
     if unknown:
-        raise ScenarioError(
-            f"{path}.{unknown[0]}: unknown key (expected one of {', '.join(sorted(known))})"
+        raise field_error(
+            f"{path}.{unknown[0]}", f"unknown key (expected one of {', '.join(sorted(known))})"
         )
     kwargs: dict[str, Any] = {}
     for key, f in known.items():
         if key in data:
             kwargs[f.name] = _parse_value(hints[f.name], data[key], f"{path}.{key}")
         elif f.default is MISSING and f.default_factory is MISSING:
-            raise ScenarioError(f"{path}.{key}: required key is missing")
+            raise field_error(f"{path}.{key}", "required key is missing")
     return cls(**kwargs)
 
 
@@ -308,22 +341,46 @@ def parse_scenario(data: Any, path: str = "scenario") -> ScenarioConfig:
 
 def _require(cond: bool, where: str, message: str) -> None:
     if not cond:
-        raise ScenarioError(f"{where}: {message}")
+        raise field_error(where, message)
 
 
 def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
-    """Check every scalar parameter against the ranges the model needs."""
+    """Check every scalar parameter against the ranges the model needs.
+
+    Every message names the field and the offending value. Beyond DESIGN §3 this bounds the
+    actuator limits to :data:`ACTION_BOUND_RANGE` and the control period to
+    ``(0, MAX_CONTROL_PERIOD]``.
+    """
     r = cfg.robot.radius
-    _require(cfg.followers >= 1, f"{path}.followers", f"must be >= 1, got {cfg.followers}")
-    _require(r > 0, f"{path}.robot.radius", f"must be > 0, got {r}")
-    _require(cfg.robot.u_max > 0, f"{path}.robot.u_max", "must be > 0")
-    _require(cfg.robot.omega_max > 0, f"{path}.robot.omega_max", "must be > 0")
-    _require(cfg.leader.speed > 0, f"{path}.leader.speed", "must be > 0")
-    _require(cfg.leader.lookahead > 0, f"{path}.leader.lookahead", "must be > 0")
-    _require(cfg.leader.max_turn_rate > 0, f"{path}.leader.max_turn_rate", "must be > 0")
-    _require(cfg.leader.settle_time >= 0, f"{path}.leader.settle_time", "must be >= 0")
+    _require(cfg.followers >= 1, f"{path}.followers", f"must be >= 1, got {cfg.followers!r}")
+    _require(r > 0, f"{path}.robot.radius", f"must be > 0, got {r!r}")
+    lo, hi = ACTION_BOUND_RANGE
+    for name in ("u_max", "omega_max"):
+        bound = getattr(cfg.robot, name)
+        _require(
+            lo <= bound <= hi,
+            f"{path}.robot.{name}",
+            f"must lie in [{lo:g}, {hi:g}] (a float32 action bound), got {bound!r}",
+        )
+    lead = cfg.leader
+    _require(lead.speed > 0, f"{path}.leader.speed", f"must be > 0, got {lead.speed!r}")
+    _require(lead.lookahead > 0, f"{path}.leader.lookahead", f"must be > 0, got {lead.lookahead!r}")
+    _require(
+        lead.max_turn_rate > 0,
+        f"{path}.leader.max_turn_rate",
+        f"must be > 0, got {lead.max_turn_rate!r}",
+    )
+    _require(
+        lead.settle_time >= 0,
+        f"{path}.leader.settle_time",
+        f"must be >= 0, got {lead.settle_time!r}",
+    )
     if cfg.generator is None:
-        _require(len(cfg.leader.path) >= 2, f"{path}.leader.path", "needs at least two points")
+        _require(
+            len(lead.path) >= 2,
+            f"{path}.leader.path",
+            f"needs at least two points, got {len(lead.path)}",
+        )
     else:
         gen = cfg.generator
         _require(
@@ -340,9 +397,9 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
     _require(
         0 < bc < math.pi / 2,
         f"{path}.camera.half_angle",
-        f"beta_con must satisfy 0 < beta_con < pi/2, got {bc}",
+        f"beta_con must satisfy 0 < beta_con < pi/2, got {bc!r}",
     )
-    _require(dcon > 0, f"{path}.camera.range", f"d_con must be > 0, got {dcon}")
+    _require(dcon > 0, f"{path}.camera.range", f"d_con must be > 0, got {dcon!r}")
     dcol, ddes = cfg.safety.d_col, cfg.formation.d_des
     _require(
         dcol >= 2 * r - 1e-12,
@@ -361,40 +418,91 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
             f"unknown cause {cause!r} (expected some of {', '.join(VIOLATION_CAUSES)})",
         )
     prox = cfg.proximity_range
-    _require(prox > r, f"{path}.proximity.range", f"must exceed the robot radius, got {prox}")
+    _require(
+        prox > r, f"{path}.proximity.range", f"must exceed the robot radius {r:g}, got {prox!r}"
+    )
     sector = cfg.proximity.half_angle
     _require(
         sector is None or 0 < sector <= math.pi,
         f"{path}.proximity.half_angle",
-        f"must satisfy 0 < half_angle <= pi, got {sector}",
+        f"must satisfy 0 < half_angle <= pi, got {sector!r}",
     )
     sim = cfg.simulation
-    _require(sim.control_period > 0, f"{path}.simulation.control_period", "must be > 0")
-    _require(sim.physics_substeps >= 1, f"{path}.simulation.physics_substeps", "must be >= 1")
+    _require(
+        0 < sim.control_period <= MAX_CONTROL_PERIOD,
+        f"{path}.simulation.control_period",
+        f"must lie in (0, {MAX_CONTROL_PERIOD:g}] s, got {sim.control_period!r}",
+    )
+    _require(
+        sim.physics_substeps >= 1,
+        f"{path}.simulation.physics_substeps",
+        f"must be >= 1, got {sim.physics_substeps!r}",
+    )
     _require(
         sim.max_episode_steps is None or sim.max_episode_steps >= 1,
         f"{path}.simulation.max_episode_steps",
-        "must be >= 1",
+        f"must be >= 1, got {sim.max_episode_steps!r}",
     )
     for name, value in asdict(cfg.reward).items():
-        _require(math.isfinite(value), f"{path}.reward.{name}", f"must be finite, got {value}")
-    _require(cfg.reward.wall_margin > 0, f"{path}.reward.wall_margin", "must be > 0")
+        _require(math.isfinite(value), f"{path}.reward.{name}", f"must be finite, got {value!r}")
+    margin = cfg.reward.wall_margin
+    _require(margin > 0, f"{path}.reward.wall_margin", f"must be > 0, got {margin!r}")
     ini = cfg.initial
-    _require(ini.position_noise >= 0, f"{path}.initial.position_noise", "must be >= 0")
-    _require(ini.heading_noise >= 0, f"{path}.initial.heading_noise", "must be >= 0")
+    for name in ("position_noise", "heading_noise"):
+        noise = getattr(ini, name)
+        _require(noise >= 0, f"{path}.initial.{name}", f"must be >= 0, got {noise!r}")
     if cfg.ppc is not None:
         p = cfg.ppc
         for name in ("lambda_", "rho_d_inf", "rho_beta_inf", "k_d", "k_beta", "delta"):
             key = "lambda" if name == "lambda_" else name
-            _require(getattr(p, name) > 0, f"{path}.ppc.{key}", "must be > 0")
-        _require(0 < p.epsilon < 1, f"{path}.ppc.epsilon", "must lie in (0, 1)")
+            value = getattr(p, name)
+            _require(value > 0, f"{path}.ppc.{key}", f"must be > 0, got {value!r}")
+        _require(0 < p.epsilon < 1, f"{path}.ppc.epsilon", f"must lie in (0, 1), got {p.epsilon!r}")
         _require(
             2 * p.rho_d_inf < min(ddes - dcol, dcon - ddes),
             f"{path}.ppc.rho_d_inf",
-            "2 * rho_d_inf must be smaller than both d_des - d_col and d_con - d_des",
+            "2 * rho_d_inf must be smaller than both d_des - d_col and d_con - d_des "
+            f"= {min(ddes - dcol, dcon - ddes):g}, got rho_d_inf = {p.rho_d_inf!r}",
         )
         _require(
             2 * p.rho_beta_inf < bc,
             f"{path}.ppc.rho_beta_inf",
-            "2 * rho_beta_inf must be < beta_con",
+            f"2 * rho_beta_inf must be < beta_con = {bc:g}, got rho_beta_inf = {p.rho_beta_inf!r}",
         )
+
+
+# --------------------------------------------------------------------------------------------
+# Unparsing: dataclasses -> the mapping parse_scenario reads.
+# --------------------------------------------------------------------------------------------
+
+
+def _to_plain(value: Any) -> Any:
+    if is_dataclass(value) and not isinstance(value, type):
+        return _section_to_mapping(value)
+    if isinstance(value, (tuple, list)):
+        return [_to_plain(v) for v in value]
+    if isinstance(value, np.generic):  # a config built in code may hold numpy scalars
+        return value.item()
+    return value
+
+
+def _section_to_mapping(section: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for f in fields(section):
+        value = getattr(section, f.name)
+        # An absent optional (None by default) is left out, as a file would leave it out.
+        if value is None and f.default is None:
+            continue
+        out[_key_of(f)] = _to_plain(value)
+    return out
+
+
+def config_to_mapping(cfg: ScenarioConfig) -> dict[str, Any]:
+    """The mapping form of ``cfg``: the exact inverse of :func:`parse_scenario`.
+
+    Keys are the file's (``ppc.lambda``, not ``lambda_``), tuples become lists, numpy scalars
+    become Python ones and None-valued optional fields and blocks (e.g. ``ppc``, ``generator``)
+    are omitted, so ``parse_scenario(config_to_mapping(cfg)) == cfg`` and the result is plain
+    YAML (``yaml.safe_dump`` writes it). Units are those of the schema: metres, seconds, radians.
+    """
+    return _section_to_mapping(cfg)

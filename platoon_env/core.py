@@ -1,0 +1,328 @@
+"""The one simulation core: the state of ``B`` envs, their maps, RNGs and resets.
+
+:class:`PlatoonCore` owns every array the compiled step (:mod:`platoon_env.simulator`) reads and
+writes — the records of :mod:`platoon_env.records` — and does what compiled code cannot: drawing
+each env's scenario from its :class:`~platoon_env.scenarios.source.ScenarioSource` and its
+initial configuration from its own seeded RNG, writing new maps into the map bank. The
+PettingZoo env (:class:`platoon_env.env.PlatoonParallelEnv`) is this core at ``B = 1`` plus
+dict I/O, infos and rendering; :class:`platoon_env.batched.BatchedPlatoon` is the same core at
+``B > 1`` with array I/O. Neither restates an episode rule.
+
+Map slots: a fixed scenario's ``B`` envs share slot 0; a procedural source gives every env a
+slot of its own, rewritten when the env draws a new layout. Slots are padded to the largest map
+seen so far (the arrays grow when a bigger layout arrives).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from gymnasium.utils import seeding
+
+from platoon_env.geometry.grid import EdgeGrid
+from platoon_env.geometry.sensing import SENSE_SIZE
+from platoon_env.initial import InitialSampler
+from platoon_env.observation import ACT_SIZE, OBS_SIZE, action_space
+from platoon_env.records import (
+    MAP_INFO_DTYPE,
+    PARAMS_DTYPE,
+    Buffers,
+    MapBank,
+    constraint_params,
+    new_episode,
+)
+from platoon_env.reward import REWARD_TERMS
+from platoon_env.safety import causes_to_mask
+from platoon_env.scenarios.scenario import Scenario
+from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError
+from platoon_env.scenarios.source import ScenarioSource
+from platoon_env.simulator import step_parallel, step_serial
+
+
+def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
+    """The :data:`~platoon_env.records.PARAMS_DTYPE` record of a scenario's config.
+
+    ``max_episode_steps`` is the scenario's resolved step limit (``Scenario.max_episode_steps``).
+    """
+    p = constraint_params(cfg)[0]
+    # Actuator limits exactly as the float32 action Box holds them.
+    space = action_space(cfg)
+    p["u_low"], p["omega_low"] = space.low.astype(np.float64)
+    p["u_high"], p["omega_high"] = space.high.astype(np.float64)
+    p["terminate_mask"] = causes_to_mask(cfg.safety.terminate_on)
+    p["leader_speed"] = cfg.leader.speed
+    p["lookahead"] = cfg.leader.lookahead
+    p["leader_turn_rate"] = cfg.leader.max_turn_rate
+    p["d_des"] = cfg.formation.d_des
+    # The distance error is normalised by d_con - d_des, the bearing error by beta_con.
+    p["reward_d_scale"] = cfg.camera.range - cfg.formation.d_des
+    p["wall_margin"] = cfg.reward.wall_margin
+    for term in REWARD_TERMS:
+        p[f"w_{term}"] = getattr(cfg.reward, term)
+    p["substep"] = cfg.simulation.control_period / cfg.simulation.physics_substeps
+    p["physics_substeps"] = cfg.simulation.physics_substeps
+    p["max_episode_steps"] = max_episode_steps
+    p["settle_time"] = cfg.leader.settle_time
+    return p
+
+
+def scenario_params(scenario: Scenario) -> np.ndarray:
+    """A ``(1,)`` params array of a built scenario (``[0]`` is the record a kernel takes)."""
+    out = np.zeros(1, dtype=PARAMS_DTYPE)
+    out[0] = params_of(scenario.config, scenario.max_episode_steps)
+    return out
+
+
+class _MapSlots:
+    """The padded arrays of a :class:`~platoon_env.records.MapBank` and the writes into them."""
+
+    def __init__(self, n_slots: int) -> None:
+        self.n_slots = n_slots
+        self.info = np.zeros(n_slots, dtype=MAP_INFO_DTYPE)
+        self._alloc(edges=1, cells=1, cell_edges=1, path=2)
+
+    def _alloc(self, edges: int, cells: int, cell_edges: int, path: int) -> None:
+        m = self.n_slots
+        old = getattr(self, "arrays", None)
+        self.edges = np.zeros((m, edges, 4))
+        self.boxes = np.zeros((m, edges, 4))
+        self.cell_start = np.zeros((m, cells + 1), dtype=np.int64)
+        self.cell_edges = np.zeros((m, cell_edges), dtype=np.int64)
+        self.edge_cell = np.zeros((m, edges, 2), dtype=np.int64)
+        self.path = np.zeros((m, path, 2))
+        self.path_s = np.zeros((m, path))
+        if old is not None:  # keep the slots already written
+            for new, prev in zip(self._fields(), old[1:], strict=True):
+                new[tuple(slice(0, k) for k in prev.shape)] = prev
+        self.arrays: tuple[np.ndarray, ...] = (self.info, *self._fields())
+
+    def _fields(self) -> tuple[np.ndarray, ...]:
+        return (
+            self.edges,
+            self.boxes,
+            self.cell_start,
+            self.cell_edges,
+            self.edge_cell,
+            self.path,
+            self.path_s,
+        )
+
+    def write(self, slot: int, scenario: Scenario, grid: EdgeGrid) -> None:
+        """Put ``scenario``'s boundary edges, edge grid and leader path into ``slot``."""
+        walls = grid.walls
+        n_e = walls.edges.shape[0]
+        n_c = walls.cell_start.shape[0] - 1
+        n_k = walls.cell_edges.shape[0]
+        n_p = scenario.leader_path.shape[0]
+        need = (n_e, n_c, n_k, n_p)
+        have = (
+            self.edges.shape[1],
+            self.cell_start.shape[1] - 1,
+            self.cell_edges.shape[1],
+            self.path.shape[1],
+        )
+        if any(n > h for n, h in zip(need, have, strict=True)):
+            # Grow by half again, so that a stream of procedural layouts reallocates rarely.
+            sizes = [max(h, n + n // 2) if n > h else h for n, h in zip(need, have, strict=True)]
+            self._alloc(*sizes)
+        info = self.info[slot]
+        info["n_edges"], info["n_cells"], info["n_cell_edges"], info["n_path"] = need
+        for name in ("x0", "y0", "inv_cell", "nx", "ny"):
+            info[name] = walls.grid[name]
+        self.edges[slot, :n_e] = walls.edges
+        self.boxes[slot, :n_e] = walls.boxes
+        self.cell_start[slot, : n_c + 1] = walls.cell_start
+        self.cell_edges[slot, :n_k] = walls.cell_edges
+        self.edge_cell[slot, :n_e] = walls.edge_cell
+        self.path[slot, :n_p] = scenario.leader_path
+        self.path_s[slot, :n_p] = scenario.path_s
+
+
+class PlatoonCore:
+    """``batch_size`` envs of one scenario source: their state, maps and RNGs.
+
+    Args:
+        source: where each env's scenario comes from (fixed, or a procedural generator).
+        batch_size: number of envs ``B``.
+        grid_cell_size: side [m] of the edge grid's cells (None: half the proximity range; 0:
+            one cell, no culling). Results do not depend on it.
+
+    Attributes (arrays shared with the compiled core; read them, do not replace them):
+        params: ``(B,)`` :data:`~platoon_env.records.PARAMS_DTYPE`; episode: ``(B,)``
+        :data:`~platoon_env.records.EPISODE_DTYPE`; poses, actions, violations, sensed, obs,
+        terms, rewards: the per-follower arrays of :class:`~platoon_env.records.Buffers`;
+        rngs: each env's ``numpy.random.Generator``; scenarios: each env's current scenario.
+    """
+
+    def __init__(
+        self, source: ScenarioSource, batch_size: int = 1, *, grid_cell_size: float | None = None
+    ) -> None:
+        if isinstance(batch_size, bool) or not isinstance(batch_size, int | np.integer):
+            raise TypeError(f"batch_size must be an integer, got {batch_size!r}")
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        if grid_cell_size is not None and not math.isfinite(grid_cell_size):
+            raise ValueError(f"grid_cell_size must be finite or None, got {grid_cell_size}")
+        self.source = source
+        self.batch_size = b = int(batch_size)
+        self.grid_cell_size = grid_cell_size
+        first = source.initial()
+        cfg = first.config
+        self.config: ScenarioConfig = cfg
+        self.n_followers = n = cfg.followers
+        self.physics_substeps = cfg.simulation.physics_substeps
+
+        self.params = np.zeros(b, dtype=PARAMS_DTYPE)
+        self.episode = new_episode(b)
+        self.poses = np.zeros((b, n + 1, 3))
+        self.actions = np.zeros((b, n, ACT_SIZE))
+        self.violations = np.zeros((b, n), dtype=np.int64)
+        self.sensed = np.zeros((b, n, SENSE_SIZE))
+        self.obs = np.zeros((b, n, OBS_SIZE), dtype=np.float32)
+        self.terms = np.zeros((b, n, len(REWARD_TERMS)))
+        self.rewards = np.zeros((b, n))
+        self.buffers = tuple(
+            Buffers(
+                self.poses,
+                self.actions,
+                self.violations,
+                self.sensed,
+                self.obs,
+                self.terms,
+                self.rewards,
+            )
+        )
+        self._slots = _MapSlots(b if source.procedural else 1)
+        self.rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(b)]
+        self.scenarios: list[Scenario] = [first] * b
+        self._samplers: list[InitialSampler] = []
+        sampler = self._install(0, first)
+        self._samplers = [sampler] * b
+        for k in range(1, b):
+            if source.procedural:
+                self._samplers[k] = self._install(k, first)
+            else:
+                self.params[k] = self.params[0]
+        self.poses[:] = first.initial_poses
+        self._all = np.ones(b, dtype=bool)
+        self.n_threads = 1
+
+    # ----------------------------------------------------------------------------------------
+    @property
+    def maps(self) -> tuple[np.ndarray, ...]:
+        """The :class:`~platoon_env.records.MapBank` arrays as the plain tuple the step takes."""
+        return self._slots.arrays
+
+    def map_bank(self) -> MapBank:
+        """The map bank as a named tuple (for reading; the step takes :attr:`maps`)."""
+        return MapBank(*self._slots.arrays)
+
+    def set_threads(self, n_threads: int) -> None:
+        """Use ``n_threads`` numba threads in :meth:`run` (1: a serial loop)."""
+        limit = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+        if isinstance(n_threads, bool) or not isinstance(n_threads, int | np.integer):
+            raise TypeError(f"n_threads must be an integer, got {n_threads!r}")
+        if not 1 <= n_threads <= limit:
+            raise ValueError(
+                f"n_threads must be in [1, {limit}] (numba's thread pool; set the environment "
+                f"variable NUMBA_NUM_THREADS before importing numba for more), got {n_threads}"
+            )
+        self.n_threads = int(n_threads)
+
+    def _install(self, b: int, scenario: Scenario) -> InitialSampler:
+        """Make ``scenario`` env ``b``'s: its map in the env's slot, its parameters."""
+        cfg = scenario.config
+        grid = EdgeGrid.build(
+            scenario.workspace.edges, self.grid_cell_size, reach=cfg.proximity_range
+        )
+        slot = b if self.source.procedural else 0
+        self._slots.write(slot, scenario, grid)
+        self.episode[b]["map_slot"] = slot
+        self.params[b] = params_of(cfg, scenario.max_episode_steps)
+        self.scenarios[b] = scenario
+        return InitialSampler(scenario, grid.walls, self.params[b : b + 1])
+
+    # ----------------------------------------------------------------------------------------
+    def reset_env(
+        self,
+        b: int,
+        seed: int | None = None,
+        *,
+        perturb: bool | None = None,
+        poses: np.ndarray | None = None,
+    ) -> None:
+        """Start env ``b``'s next episode (the caller then senses it with :meth:`run`).
+
+        ``seed`` reseeds the env's RNG; the scenario is drawn from the source, then the initial
+        configuration: ``poses`` (validated against the constraints, else ``ScenarioError``), or
+        the scenario's default one, perturbed unless ``perturb`` is False. A failed reset
+        changes nothing (not even the RNG's state).
+        """
+        if seed is not None:
+            rng = seeding.np_random(int(seed))[0]
+        else:
+            rng = self.rngs[b]
+        state = rng.bit_generator.state
+        try:
+            if self.source.procedural:
+                scenario = self.source.sample(rng)
+            else:
+                scenario = self.scenarios[b]
+            sampler = self._samplers[b]
+            if scenario is not self.scenarios[b]:
+                # Build the candidate's sampler without touching env b's map slot yet.
+                grid = EdgeGrid.build(
+                    scenario.workspace.edges,
+                    self.grid_cell_size,
+                    reach=scenario.config.proximity_range,
+                )
+                sampler = InitialSampler(
+                    scenario,
+                    grid.walls,
+                    np.array([params_of(scenario.config, scenario.max_episode_steps)]),
+                )
+            if poses is not None:
+                start = np.array(poses, dtype=np.float64)
+                if start.shape != self.poses[b].shape or not np.all(np.isfinite(start)):
+                    raise ValueError(
+                        f"options['poses'] must be finite with shape {self.poses[b].shape}"
+                    )
+                problems = sampler.violations(start)
+                if problems:
+                    raise ScenarioError("initial poses are infeasible: " + "; ".join(problems))
+            else:
+                default = scenario.config.initial.perturb
+                start = sampler.sample(rng, default if perturb is None else bool(perturb))
+        except BaseException:
+            rng.bit_generator.state = state
+            raise
+        self.rngs[b] = rng
+        if scenario is not self.scenarios[b]:
+            self._samplers[b] = self._install(b, scenario)
+        self.poses[b] = start
+        ep = self.episode[b]
+        ep["leader_progress"] = scenario.initial_progress
+        ep["leader_arrived"] = False
+        ep["sim_time"] = 0.0
+        ep["steps"] = 0
+        ep["arrival_time"] = math.nan
+        self.actions[b] = 0.0
+
+    def run(self, active: np.ndarray | None, n_substeps: int) -> int:
+        """Step (``n_substeps`` > 0) or sense (0) the ``active`` envs (None: all).
+
+        Returns how many envs ended, or ``-1 - (b * N + i)`` for a NaN/inf action of follower
+        ``i`` of env ``b`` (then nothing changed).
+        """
+        mask = self._all if active is None else active
+        args = (mask, n_substeps, self.params, self.episode, self._slots.arrays, self.buffers)
+        if self.n_threads == 1 or self.batch_size == 1:
+            return int(step_serial(*args))
+        previous = numba.get_num_threads()
+        numba.set_num_threads(self.n_threads)
+        try:
+            return int(step_parallel(*args))
+        finally:
+            numba.set_num_threads(previous)

@@ -1,0 +1,185 @@
+"""The named records that the compiled core passes around, so a parameter is read by its name.
+
+The core (:mod:`platoon_env.simulator`) steps ``B`` envs at once. What its kernels need comes in
+four records; each is either a numpy structured array (read by field name in compiled code,
+``p.d_con``) or a named tuple of arrays (``walls.edges``):
+
+==================  =====================================  =========================================
+record              type                                   holds
+==================  =====================================  =========================================
+``params``          ``(B,)`` array of :data:`PARAMS_DTYPE`  every physical, sensing, reward and
+                                                           episode-rule parameter of env ``b``
+``episode``         ``(B,)`` array of :data:`EPISODE_DTYPE` env ``b``'s scalar state: the leader's
+                                                           progress, time, steps, arrival, the
+                                                           step's outcome and its map slot
+``maps``            :class:`MapBank` (named tuple)         the boundary-edge arrays, edge grids and
+                                                           leader paths of ``M`` map slots, padded;
+                                                           :func:`walls_of` and :func:`path_of`
+                                                           give the views of one slot
+``buffers``         :class:`Buffers` (named tuple)         per-follower state and outputs: poses,
+                                                           actions, violations, sensing,
+                                                           observations, reward terms, rewards
+==================  =====================================  =========================================
+
+At the Python boundary the two named tuples travel as plain tuples of arrays (numba types a plain
+tuple of arrays about as fast as separate arguments, a named tuple several times slower; measured
+in ``benchmarks/README.md``) and are named again on entry (``MapBank(*maps)``).
+
+Inside compiled code a follower's geometry is read through :class:`Walls` (the edges, their
+bounding boxes and the static edge grid of :mod:`platoon_env.geometry.grid`, of one map).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numba import njit
+
+if TYPE_CHECKING:
+    from platoon_env.scenarios.schema import ScenarioConfig
+
+_F8 = np.float64
+_I8 = np.int64
+
+#: Parameters of one env, each read by its name in compiled code (``params[b].d_con``). Symbols
+#: are the paper's: ``r`` (robot radius), ``d_col`` (eq. 4), ``d_con``, ``beta_con`` (eq. 5),
+#: ``d_des`` (Problem 1).
+PARAMS_DTYPE = np.dtype(
+    [
+        # robot and actuators (eq. 1); the limits exactly as the float32 action Box holds them
+        ("radius", _F8),  # [m] r
+        ("u_low", _F8),  # [m/s]
+        ("u_high", _F8),  # [m/s]
+        ("omega_low", _F8),  # [rad/s]
+        ("omega_high", _F8),  # [rad/s]
+        # safety (eqs. 4-5) and the causes that end an episode (bit k: VIOLATION_CAUSES[k])
+        ("d_col", _F8),  # [m]
+        ("terminate_mask", _I8),
+        # camera: the field of view F_i (eq. 5)
+        ("d_con", _F8),  # [m]
+        ("beta_con", _F8),  # [rad]
+        # proximity sensor: range and sector half-angle (pi: all around)
+        ("proximity_range", _F8),  # [m]
+        ("proximity_half_angle", _F8),  # [rad]
+        # the scripted leader (pure pursuit)
+        ("leader_speed", _F8),  # [m/s]
+        ("lookahead", _F8),  # [m]
+        ("leader_turn_rate", _F8),  # [rad/s] bound on the leader's |omega|
+        # formation and reward (platoon_env.reward)
+        ("d_des", _F8),  # [m]
+        ("reward_d_scale", _F8),  # [m] d_con - d_des, normalises e_d
+        ("wall_margin", _F8),  # [m]
+        # the weight of each reward term, "w_" + its name in platoon_env.reward.REWARD_TERMS
+        # (this module imports nothing of the package: reward.py checks the names)
+        ("w_distance", _F8),
+        ("w_bearing", _F8),
+        ("w_effort", _F8),
+        ("w_alive", _F8),
+        ("w_violation", _F8),
+        ("w_wall", _F8),
+        # time and episode rules
+        ("substep", _F8),  # [s] control_period / physics_substeps
+        ("physics_substeps", _I8),
+        ("max_episode_steps", _I8),
+        ("settle_time", _F8),  # [s]
+    ],
+    align=True,
+)
+
+#: Scalar state of one env's episode (``episode[b]``; written by the core).
+EPISODE_DTYPE = np.dtype(
+    [
+        ("leader_progress", _F8),  # [m] the leader's arc length s along its path
+        ("leader_arrived", np.bool_),  # the leader has reached its path's end
+        ("sim_time", _F8),  # [s]
+        ("steps", _I8),  # steps taken in this episode
+        ("arrival_time", _F8),  # [s] sim_time when the leader arrived; NaN before
+        ("substeps", _I8),  # physics sub-steps simulated by the last call
+        ("terminated", np.bool_),  # the last step ended the episode by a violation
+        ("truncated", np.bool_),  # ... by the time limit or the leader's settle time
+        ("map_slot", _I8),  # which slot of the MapBank this env's workspace is in
+    ],
+    align=True,
+)
+
+#: One map slot's sizes and edge-grid geometry (:mod:`platoon_env.geometry.grid`): origin
+#: ``(x0, y0)`` [m], inverse cell side [1/m] and cells per axis.
+MAP_INFO_DTYPE = np.dtype(
+    [
+        ("n_edges", _I8),
+        ("n_cells", _I8),
+        ("n_cell_edges", _I8),
+        ("n_path", _I8),
+        ("x0", _F8),
+        ("y0", _F8),
+        ("inv_cell", _F8),
+        ("nx", _I8),
+        ("ny", _I8),
+    ],
+    align=True,
+)
+
+#: The boundary of one workspace as the geometry kernels read it: ``edges`` ``(E, 4)``
+#: ``[ax, ay, bx, by]``, their bounding ``boxes`` ``(E, 4)`` ``[x0, y0, x1, y1]``, and the edge
+#: grid: ``grid`` (a :data:`MAP_INFO_DTYPE` record), ``cell_start`` ``(cells + 1,)``,
+#: ``cell_edges`` and ``edge_cell`` ``(E, 2)`` (see :mod:`platoon_env.geometry.grid`).
+Walls = namedtuple("Walls", "edges boxes grid cell_start cell_edges edge_cell")
+
+#: ``M`` map slots, padded to the largest: ``info`` ``(M,)`` :data:`MAP_INFO_DTYPE`, ``edges``,
+#: ``boxes`` ``(M, E, 4)``, ``cell_start`` ``(M, C + 1)``, ``cell_edges`` ``(M, K)``,
+#: ``edge_cell`` ``(M, E, 2)``, the leader's ``path`` ``(M, P, 2)`` and its cumulative arc
+#: length ``path_s`` ``(M, P)``.
+MapBank = namedtuple("MapBank", "info edges boxes cell_start cell_edges edge_cell path path_s")
+
+#: Per-follower arrays of ``B`` envs with ``N`` followers: ``poses`` ``(B, N+1, 3)`` (leader
+#: first), ``actions`` ``(B, N, 2)``, ``violations`` ``(B, N)`` int64 bit masks, ``sensed``
+#: ``(B, N, SENSE_SIZE)`` ground-truth sensing, ``obs`` ``(B, N, OBS_SIZE)`` float32, ``terms``
+#: ``(B, N, len(REWARD_TERMS))`` and ``rewards`` ``(B, N)``.
+Buffers = namedtuple("Buffers", "poses actions violations sensed obs terms rewards")
+
+
+@njit(cache=True, inline="always")
+def walls_of(maps: MapBank, slot: int) -> Walls:
+    """The :class:`Walls` views of map ``slot`` (no copy)."""
+    info = maps.info[slot]
+    n_e = info.n_edges
+    return Walls(
+        maps.edges[slot, :n_e],
+        maps.boxes[slot, :n_e],
+        info,
+        maps.cell_start[slot, : info.n_cells + 1],
+        maps.cell_edges[slot, : info.n_cell_edges],
+        maps.edge_cell[slot, :n_e],
+    )
+
+
+@njit(cache=True, inline="always")
+def path_of(maps: MapBank, slot: int) -> tuple[np.ndarray, np.ndarray]:
+    """The leader's path ``(P, 2)`` and cumulative arc length ``(P,)`` of map ``slot``."""
+    n_p = maps.info[slot].n_path
+    return maps.path[slot, :n_p], maps.path_s[slot, :n_p]
+
+
+def new_episode(batch_size: int) -> np.ndarray:
+    """A zeroed ``(B,)`` :data:`EPISODE_DTYPE` array (arrival times NaN)."""
+    out = np.zeros(batch_size, dtype=EPISODE_DTYPE)
+    out["arrival_time"] = math.nan
+    return out
+
+
+def constraint_params(cfg: ScenarioConfig) -> np.ndarray:
+    """A ``(1,)`` :data:`PARAMS_DTYPE` array holding only what the constraint rules read
+    (``radius``, ``d_col``, ``d_con``, ``beta_con``, the proximity range and sector) — for
+    checking a configuration (:func:`platoon_env.safety.configuration_masks`) before an env
+    exists. :func:`platoon_env.core.params_of` fills every field."""
+    out = np.zeros(1, dtype=PARAMS_DTYPE)
+    out["radius"] = cfg.robot.radius
+    out["d_col"] = cfg.safety.d_col
+    out["d_con"] = cfg.camera.range
+    out["beta_con"] = cfg.camera.half_angle
+    out["proximity_range"] = cfg.proximity_range
+    out["proximity_half_angle"] = cfg.proximity_half_angle
+    return out
