@@ -123,16 +123,12 @@ def record_ppc_actions(scenario: Any, steps: int, seed: int = 0) -> np.ndarray:
     return np.stack(out)
 
 
-def parallel_env_culls() -> bool:
-    """Whether the ParallelEnv steps with the edge grid (it does once env.py passes one)."""
-    return hasattr(platoon_env.make("study_c"), "_grid")
-
-
 def time_parallel_env(
-    scenario: Any, actions: np.ndarray, seconds: float, diagnostics: bool = True
+    scenario: Any, actions: np.ndarray, seconds: float, diagnostics: bool = True, **realism: Any
 ) -> float:
-    """Env-steps/s of one ParallelEnv replaying ``actions`` (PettingZoo dict I/O)."""
-    env = platoon_env.make(scenario, terminate_on=(), diagnostics=diagnostics)
+    """Env-steps/s of one ParallelEnv replaying ``actions`` (PettingZoo dict I/O); ``realism``:
+    e.g. ``sensor_profile="aruco"``."""
+    env = platoon_env.make(scenario, terminate_on=(), diagnostics=diagnostics, **realism)
     agents = env.possible_agents
     dicts = [{a: row[i] for i, a in enumerate(agents)} for row in actions]
     env.reset(seed=0)
@@ -155,6 +151,7 @@ def time_batched(
     threads: int,
     seconds: float,
     grid_cell_size: float | None = None,
+    **realism: Any,
 ) -> float:
     """Env-steps/s of :class:`BatchedPlatoon` with ``batch`` envs replaying ``actions``."""
     core = BatchedPlatoon(
@@ -164,6 +161,7 @@ def time_batched(
         auto_reset=True,
         terminate_on=(),
         grid_cell_size=grid_cell_size,
+        **realism,
     )
     shape = (batch, core.n_followers, 2)
     core.reset(0)
@@ -418,23 +416,35 @@ def main(argv: list[str] | None = None) -> int:
     notes.append(f"MPE: {mpe_note}")
     study_a = record_ppc_actions("study_a", record_steps)
     edges_a = int(platoon_env.make("study_a").scenario.workspace.edges.shape[0])
-    for diagnostics, suffix in ((True, ""), (False, ", diagnostics=False")):
-        env_rate = time_parallel_env("study_a", study_a, seconds, diagnostics=diagnostics)
+    aruco = {"sensor_profile": "aruco"}
+    for diagnostics, realism, suffix in (
+        (True, {}, ""),
+        (False, {}, ", diagnostics=False"),
+        (True, aruco, ", aruco sensors"),
+    ):
+        env_rate = time_parallel_env(
+            "study_a", study_a, seconds, diagnostics=diagnostics, **realism
+        )
         what = f"platoon study_a, ParallelEnv (dicts){suffix}"
         headline.append(Row(what, "study_a", edges_a, 7, None, 1, env_rate))
         print(f"ParallelEnv study_a{suffix}: {_fmt(env_rate)} env-steps/s", flush=True)
-    for batch, th in dict.fromkeys([(1, 1), (32, 1), (big, 1), (big, threads)]):
+    batched_runs = [
+        (b, th, {}) for b, th in dict.fromkeys([(1, 1), (32, 1), (big, 1), (big, threads)])
+    ]
+    batched_runs.append((big, threads, aruco))
+    for batch, th, realism in batched_runs:
         if th > 1 and th > mach["numba_threads"]:
             continue
+        suffix = ", aruco sensors" if realism else ""
         headline.append(
             Row(
-                "platoon study_a, batched arrays",
+                f"platoon study_a, batched arrays{suffix}",
                 "study_a",
                 edges_a,
                 7,
                 batch,
                 th,
-                time_batched("study_a", study_a, batch, th, seconds),
+                time_batched("study_a", study_a, batch, th, seconds, **realism),
             )
         )
         print(
@@ -458,7 +468,6 @@ def main(argv: list[str] | None = None) -> int:
 
     # --- scaling ------------------------------------------------------------------------
     scaling: list[Row] = []
-    env_culls = parallel_env_culls()
     for n_edges in edge_counts:
         for n in followers:
             scenario = platoon_env.load_scenario(pillar_lane(n_edges, n))
@@ -473,7 +482,6 @@ def main(argv: list[str] | None = None) -> int:
                     None,
                     1,
                     time_parallel_env(scenario, acts, seconds),
-                    culling=env_culls,
                 )
             )
             for batch in batches:

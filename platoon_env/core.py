@@ -26,6 +26,7 @@ from platoon_env.geometry.sensing import SENSE_SIZE
 from platoon_env.initial import InitialSampler
 from platoon_env.observation import ACT_SIZE, OBS_SIZE, action_space
 from platoon_env.records import (
+    FRAME_SIZE,
     MAP_INFO_DTYPE,
     PARAMS_DTYPE,
     Buffers,
@@ -36,7 +37,7 @@ from platoon_env.records import (
 from platoon_env.reward import REWARD_TERMS
 from platoon_env.safety import causes_to_mask
 from platoon_env.scenarios.scenario import Scenario
-from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError
+from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError, latency_steps
 from platoon_env.scenarios.source import ScenarioSource
 from platoon_env.simulator import step_parallel, step_serial
 
@@ -61,10 +62,33 @@ def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
     p["wall_margin"] = cfg.reward.wall_margin
     for term in REWARD_TERMS:
         p[f"w_{term}"] = getattr(cfg.reward, term)
-    p["substep"] = cfg.simulation.control_period / cfg.simulation.physics_substeps
+    dt = cfg.simulation.control_period
+    p["control_period"] = dt
+    p["substep"] = dt / cfg.simulation.physics_substeps
     p["physics_substeps"] = cfg.simulation.physics_substeps
     p["max_episode_steps"] = max_episode_steps
     p["settle_time"] = cfg.leader.settle_time
+    cam, rob = cfg.camera, cfg.robot
+    p["noise_position"] = cam.noise.position
+    p["noise_position_per_m"] = cam.noise.position_per_m
+    p["noise_bearing"] = cam.noise.bearing
+    p["detection"] = cam.detection
+    p["detection_edge"] = cam.detection_edge
+    p["frame_period"] = 0.0 if cam.frame_rate is None else 1.0 / cam.frame_rate
+    p["latency_steps"] = latency_steps(cfg)
+    p["proximity_noise"] = cfg.proximity.noise
+    p["random_perception"] = (
+        cam.noise.position > 0
+        or cam.noise.position_per_m > 0
+        or cam.noise.bearing > 0
+        or cam.detection < 1
+        or cfg.proximity.noise > 0
+    )
+    p["perceive"] = p["random_perception"] or cam.frame_rate is not None or cam.latency > 0
+    p["lag_gain"] = 1.0 if rob.lag == 0 else -math.expm1(-dt / rob.lag)
+    p["accel_max"] = math.inf if rob.accel_max is None else rob.accel_max
+    p["alpha_max"] = math.inf if rob.alpha_max is None else rob.alpha_max
+    p["actuate"] = rob.lag > 0 or rob.accel_max is not None or rob.alpha_max is not None
     return p
 
 
@@ -178,20 +202,25 @@ class PlatoonCore:
         self.episode = new_episode(b)
         self.poses = np.zeros((b, n + 1, 3))
         self.actions = np.zeros((b, n, ACT_SIZE))
+        self.applied = np.zeros((b, n, ACT_SIZE))
         self.violations = np.zeros((b, n), dtype=np.int64)
         self.sensed = np.zeros((b, n, SENSE_SIZE))
         self.obs = np.zeros((b, n, OBS_SIZE), dtype=np.float32)
         self.terms = np.zeros((b, n, len(REWARD_TERMS)))
         self.rewards = np.zeros((b, n))
+        # The camera frames in flight: a ring of latency + 1 frames and the one last delivered.
+        self.frames = np.zeros((b, n, latency_steps(cfg) + 2, FRAME_SIZE))
         self.buffers = tuple(
             Buffers(
                 self.poses,
                 self.actions,
+                self.applied,
                 self.violations,
                 self.sensed,
                 self.obs,
                 self.terms,
                 self.rewards,
+                self.frames,
             )
         )
         self._slots = _MapSlots(b if source.procedural else 1)
@@ -301,14 +330,18 @@ class PlatoonCore:
         self.rngs[b] = rng
         if scenario is not self.scenarios[b]:
             self._samplers[b] = self._install(b, scenario)
-        self.poses[b] = start
         ep = self.episode[b]
+        if self.params[b]["random_perception"]:
+            # Drawn only with realism on, so that ideal episodes draw exactly as before.
+            ep["noise_state"] = rng.integers(0, 2**63, dtype=np.uint64)
+        self.poses[b] = start
         ep["leader_progress"] = scenario.initial_progress
         ep["leader_arrived"] = False
         ep["sim_time"] = 0.0
         ep["steps"] = 0
         ep["arrival_time"] = math.nan
         self.actions[b] = 0.0
+        self.applied[b] = 0.0
 
     def run(self, active: np.ndarray | None, n_substeps: int) -> int:
         """Step (``n_substeps`` > 0) or sense (0) the ``active`` envs (None: all).

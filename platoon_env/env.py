@@ -224,6 +224,12 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         return self._violations.copy()
 
     @property
+    def applied_velocities(self) -> np.ndarray:
+        """The ``[u, omega]`` (N, 2) the followers' actuators applied in the last step (the
+        clipped commands, unless ``robot.lag``/``accel_max``/``alpha_max`` are set; a copy)."""
+        return self._core.applied[0].copy()
+
+    @property
     def sensed(self) -> np.ndarray:
         """Ground-truth sensing ``(N, 9)`` of the last step (``SENSE_*`` columns; a copy)."""
         return self._sensed.copy()

@@ -1,8 +1,9 @@
 """Gymnasium single-agent view: one follower behind the scripted leader.
 
-Registered on ``import platoon_env`` as ``platoon_env/SingleFollower-<Study>-v0`` (see
-:data:`GYM_IDS`). Observation and action are those of the one follower of the parallel env; the
-reward is its reward; ``terminated`` and ``truncated`` follow the parallel env.
+Registered on ``import platoon_env`` as ``platoon_env/SingleFollower-<Study>-v0`` and, with the
+``aruco`` sensor profile, ``platoon_env/SingleFollower-<Study>-Aruco-v0`` (see :data:`GYM_IDS`).
+Observation and action are those of the one follower of the parallel env; the reward is its
+reward; ``terminated`` and ``truncated`` follow the parallel env.
 """
 
 from __future__ import annotations
@@ -13,13 +14,18 @@ import gymnasium as gym
 import numpy as np
 
 from platoon_env.env import PlatoonParallelEnv
-from platoon_env.scenarios.loader import ScenarioLike
+from platoon_env.scenarios.source import SourceLike
 
-#: Gymnasium id -> shipped scenario the single follower drives in.
-GYM_IDS: dict[str, str] = {
-    "platoon_env/SingleFollower-StudyA-v0": "study_a",
-    "platoon_env/SingleFollower-StudyB-v0": "study_b",
-    "platoon_env/SingleFollower-StudyC-v0": "study_c",
+#: Gymnasium id -> keyword arguments of :class:`SingleFollowerEnv`: the shipped scenario the
+#: single follower drives in, with ideal sensors or the ``aruco`` sensor profile
+#: (``docs/realism.md``).
+GYM_IDS: dict[str, dict[str, Any]] = {
+    f"platoon_env/SingleFollower-Study{study}{suffix}-v0": {
+        "scenario": f"study_{study.lower()}",
+        **({} if profile is None else {"sensor_profile": profile}),
+    }
+    for study in ("A", "B", "C")
+    for suffix, profile in (("", None), ("-Aruco", "aruco"))
 }
 
 
@@ -31,7 +37,7 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
 
-    def __init__(self, scenario: ScenarioLike = "study_c", **overrides: Any) -> None:
+    def __init__(self, scenario: SourceLike = "study_c", **overrides: Any) -> None:
         overrides["followers"] = 1
         self.parallel = PlatoonParallelEnv(scenario, **overrides)
         self.agent = self.parallel.possible_agents[0]
@@ -62,11 +68,11 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
 
 def register_gym_ids() -> None:
     """Register :data:`GYM_IDS` with Gymnasium (idempotent)."""
-    for env_id, scenario in GYM_IDS.items():
+    for env_id, kwargs in GYM_IDS.items():
         if env_id not in gym.registry:
             gym.register(
                 id=env_id,
                 entry_point="platoon_env.gym_env:SingleFollowerEnv",
-                kwargs={"scenario": scenario},
+                kwargs=dict(kwargs),
                 max_episode_steps=None,
             )

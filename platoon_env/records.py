@@ -81,10 +81,27 @@ PARAMS_DTYPE = np.dtype(
         ("w_violation", _F8),
         ("w_wall", _F8),
         # time and episode rules
+        ("control_period", _F8),  # [s]
         ("substep", _F8),  # [s] control_period / physics_substeps
         ("physics_substeps", _I8),
         ("max_episode_steps", _I8),
         ("settle_time", _F8),  # [s]
+        # perception (platoon_env.perception, docs/realism.md): what the follower is told
+        ("perceive", np.bool_),  # any camera or proximity realism below is on
+        ("random_perception", np.bool_),  # some of it draws random numbers
+        ("noise_position", _F8),  # [m] std of each body-frame coordinate ...
+        ("noise_position_per_m", _F8),  # [m/m] ... plus this much per metre of d
+        ("noise_bearing", _F8),  # [rad] std of the rotation of a reported position
+        ("detection", _F8),  # probability that a visible predecessor is reported in a frame
+        ("detection_edge", _F8),  # fraction of it lost at |beta| = beta_con (quadratic)
+        ("frame_period", _F8),  # [s] between camera frames; 0: a frame every control step
+        ("latency_steps", _I8),  # control periods between a frame and its report
+        ("proximity_noise", _F8),  # [m] std of each reported clearance
+        # actuators (platoon_env.dynamics.actuators): command -> applied velocity
+        ("actuate", np.bool_),  # any of the three below is on
+        ("lag_gain", _F8),  # 1 - exp(-control_period / lag); 1: no lag
+        ("accel_max", _F8),  # [m/s^2] bound on the change of the applied u; inf: none
+        ("alpha_max", _F8),  # [rad/s^2] bound on the change of the applied omega; inf: none
     ],
     align=True,
 )
@@ -101,6 +118,7 @@ EPISODE_DTYPE = np.dtype(
         ("terminated", np.bool_),  # the last step ended the episode by a violation
         ("truncated", np.bool_),  # ... by the time limit or the leader's settle time
         ("map_slot", _I8),  # which slot of the MapBank this env's workspace is in
+        ("noise_state", np.uint64),  # the env's perception noise stream (splitmix64 state)
     ],
     align=True,
 )
@@ -135,10 +153,17 @@ Walls = namedtuple("Walls", "edges boxes grid cell_start cell_edges edge_cell")
 MapBank = namedtuple("MapBank", "info edges boxes cell_start cell_edges edge_cell path path_s")
 
 #: Per-follower arrays of ``B`` envs with ``N`` followers: ``poses`` ``(B, N+1, 3)`` (leader
-#: first), ``actions`` ``(B, N, 2)``, ``violations`` ``(B, N)`` int64 bit masks, ``sensed``
+#: first), ``actions`` ``(B, N, 2)`` the commands (clipped), ``applied`` ``(B, N, 2)`` the
+#: velocities the actuators applied, ``violations`` ``(B, N)`` int64 bit masks, ``sensed``
 #: ``(B, N, SENSE_SIZE)`` ground-truth sensing, ``obs`` ``(B, N, OBS_SIZE)`` float32, ``terms``
-#: ``(B, N, len(REWARD_TERMS))`` and ``rewards`` ``(B, N)``.
-Buffers = namedtuple("Buffers", "poses actions violations sensed obs terms rewards")
+#: ``(B, N, len(REWARD_TERMS))``, ``rewards`` ``(B, N)``, and ``frames`` ``(B, N, K + 1,
+#: FRAME_SIZE)`` the camera frames in flight (a ring of ``K = latency_steps + 1``; row ``K``
+#: holds the frame last delivered), see :mod:`platoon_env.perception`.
+Buffers = namedtuple("Buffers", "poses actions applied violations sensed obs terms rewards frames")
+
+#: Columns of a camera frame: captured at that step (1/0), predecessor reported (1/0), x~, y~.
+FRAME_CAPTURED, FRAME_VISIBLE, FRAME_X, FRAME_Y = range(4)
+FRAME_SIZE = 4
 
 
 @njit(cache=True, inline="always")

@@ -111,7 +111,8 @@ def pose_violation(pose: Pose, pred: Point, p: np.record) -> int:
     return distance_bearing_causes(d, beta, p)
 
 
-@njit(cache=True)
+# Inlined, as sensing.sense_candidates, so that no call copies the Walls for every follower.
+@njit(cache=True, inline="always")
 def follower_violation(
     pose: Pose, pred: Point, prev: Point, walls: Walls, cand: np.ndarray, p: np.record
 ) -> int:

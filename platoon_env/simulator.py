@@ -10,8 +10,11 @@ Pipeline of env ``b``'s control period (HighwayEnv-style, fixed order), :func:`s
    :mod:`platoon_env.safety` (eqs. 4-5) after each; stop early when a violation of a cause in
    ``terminate_on`` occurs. In the last sub-step the safety masks come from the sensing computed
    anyway (clearance, occlusion, ``d``, ``beta``), so no edge is tested twice;
+   The followers move with the velocities their actuators apply
+   (:mod:`platoon_env.dynamics.actuators`: lag and rate limits, or the command itself);
 3. sensing of every follower (:mod:`platoon_env.geometry.sensing`) and the observation vectors
-   (:mod:`platoon_env.observation`);
+   (:mod:`platoon_env.observation`), turned into what the sensors report
+   (:mod:`platoon_env.perception`: frames, dropouts, noise, latency) when realism is on;
 4. the reward terms of :mod:`platoon_env.reward` and each follower's summed reward;
 5. the episode rules (:func:`episode_rules`): *terminated* when a follower violated a cause in
    ``terminate_on``; *truncated* otherwise when ``max_episode_steps`` steps were taken or the
@@ -32,6 +35,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from platoon_env.dynamics.actuators import actuate
 from platoon_env.dynamics.leader import leader_command
 from platoon_env.dynamics.unicycle import unicycle_arc
 from platoon_env.geometry.sensing import (
@@ -55,6 +59,7 @@ from platoon_env.observation import (
     OBS_X_REL,
     OBS_Y_REL,
 )
+from platoon_env.perception import perceive
 from platoon_env.records import Buffers, MapBank, Walls, path_of, walls_of
 from platoon_env.reward import reward_terms_into
 from platoon_env.safety import robot_contacts, sensed_violation, violation_masks_grid
@@ -96,8 +101,9 @@ def advance_substep(
 ) -> None:
     """One physics sub-step of ``h = p.substep``: the leader's pure-pursuit command along
     ``route`` (path, cumulative arc length) and exact arcs (eq. 1) for every robot of ``env``
-    (one env's :class:`~platoon_env.records.Buffers`). ``prev`` receives the poses before."""
-    poses, actions = env.poses, env.actions
+    (one env's :class:`~platoon_env.records.Buffers`; the followers move with their applied
+    velocities). ``prev`` receives the poses before."""
+    poses, actions = env.poses, env.applied
     h = p.substep
     for r in range(poses.shape[0]):
         prev[r, 0] = poses[r, 0]
@@ -136,7 +142,7 @@ def simulate(
     the sub-step safety checks use it to skip the edge tests of followers that cannot have
     reached a wall.
     """
-    poses, actions, violations, sensed = env.poses, env.actions, env.violations, env.sensed
+    poses, actions, violations, sensed = env.poses, env.applied, env.violations, env.sensed
     n = actions.shape[0]
     prev = np.empty_like(poses)
     sub_mask = np.empty(n, dtype=np.int64)
@@ -234,16 +240,21 @@ def step_env(
     env = Buffers(
         bufs.poses[b],
         bufs.actions[b],
+        bufs.applied[b],
         bufs.violations[b],
         bufs.sensed[b],
         bufs.obs[b],
         bufs.terms[b],
         bufs.rewards[b],
+        bufs.frames[b],
     )
     if n_substeps > 0:
         clip_actions(env.actions, p)
+        actuate(env.actions, env.applied, p)
     done = simulate(env, ep, walls_of(maps, ep.map_slot), path_of(maps, ep.map_slot), p, n_substeps)
     ep.substeps = done
+    if p.perceive:
+        perceive(env.sensed, env.obs, env.frames, ep, p, ep.steps + 1 if n_substeps > 0 else 0)
     if n_substeps == 0:
         ep.terminated = False
         ep.truncated = False

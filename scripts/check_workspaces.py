@@ -1,36 +1,44 @@
 """Check the shipped workspaces (study_a/b/c.yaml) and draw one PNG per study.
 
-For each scenario file this script
+Every rule applied here is the library's own; the script only measures and draws. For each
+scenario (a YAML file or a shipped name) it
 
-* parses it with :func:`platoon_env.scenarios.schema.parse_scenario` (unknown keys, ranges),
-* builds the free space with shapely (``free_space`` exterior/holes and/or ``bounds``, minus
-  ``obstacles``) and checks that every polygon is valid and the free space is one piece,
+* loads and builds it with :func:`platoon_env.scenarios.loader.load_config` and
+  :func:`platoon_env.scenarios.scenario.build_scenario`, so every check of the loader applies
+  (schema and ranges, valid polygons, a free space in one piece, the leader path's clearance of
+  at least ``r + LEADER_PATH_MARGIN`` by :func:`platoon_env.geometry.workspace.check_leader_path`,
+  a feasible default initial configuration); a rejected scenario is reported with the loader's
+  message. A procedural scenario is checked on its layout 0
+  (:func:`platoon_env.scenarios.procedural.generate_scenario`);
 * samples the leader path densely and measures its clearance to the obstacle boundary, the
   passage width across the path (perpendicular rays to the left and right), the stretches where
   a robot on the path has ``clearance - r < delta`` on *both* sides (where the PPC ``F_l`` and
-  ``F_r`` terms engage together), and the path curvature,
-* for a chain driving *on* the path with chord ``d_des`` between neighbours, measures the bearing
-  ``|beta|`` a follower would see (angle between the path tangent and the chord to its
-  predecessor) and the clearance of that line of sight,
-* places the default initial configuration (DESIGN §5: last follower at the path's first point,
-  consecutive robots ``d_des`` apart as chords, the leader furthest along) and checks its
-  clearances, lines of sight and distances,
-* simulates a pure-pursuit leader (lookahead and turn-rate bound from the file; an approximation
-  of the env's leader, good enough to see how much it cuts corners) and reports its clearance and
-  the run time,
+  ``F_r`` terms engage together), and the path curvature;
+* for a follower standing *on* the path, facing along it, with its predecessor on the path a
+  chord ``d_des`` ahead, senses the pair with the env's sensing
+  (:func:`platoon_env.geometry.sensing.sense`: the bearing ``|beta|``, the line-of-sight
+  clearances ``d_l``, ``d_r``) and applies the env's constraints to it
+  (:func:`platoon_env.scenarios.scenario.initial_violations`, the rules the env checks after
+  every sub-step): any violation a follower driving on the path would commit;
+* takes the default initial configuration the library builds (``Scenario.initial_poses``), checks
+  it with :func:`platoon_env.scenarios.scenario.initial_violations` and measures its clearances;
+* drives the env's own leader: :func:`platoon_env.make` with ``terminate_on=()``, stepped with
+  the followers standing still, reading ``env.poses[0]``; reports its run time, its clearance
+  and how far it cuts corners, and checks the driven trajectory with ``check_leader_path`` too;
 
-then writes ``<outdir>/<name>.png``. The exit status is 1 if a hard requirement fails.
+then writes ``<outdir>/<name>.png``. The exit status is 1 if a requirement fails.
 
 Usage::
 
-    python scripts/check_workspaces.py [--outdir /tmp/workspaces] [scenario.yaml ...]
+    python scripts/check_workspaces.py [--outdir /tmp/workspaces] [scenario.yaml | name ...]
 
-With no files, the three shipped studies are checked.
+With no scenarios, the three shipped studies are checked.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 from dataclasses import dataclass, field
@@ -38,28 +46,39 @@ from pathlib import Path
 
 import numpy as np
 import shapely
-import yaml
-from shapely.geometry import LineString, Point, Polygon, box
-from shapely.ops import unary_union
-from shapely.validation import explain_validity
+from shapely.geometry import LineString, Point
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from platoon_env.scenarios.schema import ScenarioConfig, parse_scenario  # noqa: E402
+import platoon_env  # noqa: E402
+from platoon_env.geometry.sensing import (  # noqa: E402
+    SENSE_BETA,
+    SENSE_CLEARANCE,
+    SENSE_D_SIGHT_LEFT,
+    SENSE_D_SIGHT_RIGHT,
+    sense,
+)
+from platoon_env.geometry.workspace import LEADER_PATH_MARGIN, check_leader_path  # noqa: E402
+from platoon_env.scenarios.loader import load_config  # noqa: E402
+from platoon_env.scenarios.procedural import generate_scenario  # noqa: E402
+from platoon_env.scenarios.scenario import (  # noqa: E402
+    Scenario,
+    build_scenario,
+    initial_violations,
+)
+from platoon_env.scenarios.schema import ScenarioError  # noqa: E402
 
 DATA_DIR = REPO / "platoon_env" / "scenarios" / "data"
 STUDIES = ("study_a", "study_b", "study_c")
 
-PATH_MARGIN = 0.15  # [m] the leader path keeps clearance >= r + PATH_MARGIN
-START_MARGIN = 0.10  # [m] robots of the initial configuration keep clearance >= r + START_MARGIN
-SAMPLE_STEP = 0.02  # [m] spacing of the dense samples along the path
+SAMPLE_STEP = 0.02  # [m] spacing of the dense samples along the path (measurement only)
 RAY_LENGTH = 10.0  # [m] perpendicular rays for the passage width are cut at this length
 
 
 @dataclass
 class Report:
-    """Numbers measured on one scenario and the list of failed hard requirements."""
+    """Numbers measured on one scenario and the list of failed requirements."""
 
     name: str
     values: dict[str, str] = field(default_factory=dict)
@@ -73,44 +92,56 @@ class Report:
             self.failures.append(message)
 
 
+@dataclass
+class LeaderRun:
+    """The env's leader driven to the end of its path (followers standing still)."""
+
+    trajectory: np.ndarray  # (T+1, 2) leader positions, one per control period
+    arrival_time: float | None  # [s] sim time at which the leader reached the path's end
+
+
 # --------------------------------------------------------------------------------------------
-# Geometry
+# Loading and driving, through the library
 # --------------------------------------------------------------------------------------------
 
 
-def build_free_space(cfg: ScenarioConfig, report: Report) -> shapely.Geometry:
-    """``W_f``: (free_space polygon ∩ bounds box) minus the union of the obstacles."""
-    ws = cfg.workspace
-    parts: list[shapely.Geometry] = []
-    if ws.free_space is not None:
-        poly = Polygon(ws.free_space.exterior, list(ws.free_space.holes))
-        report.require(poly.is_valid, f"free_space invalid: {explain_validity(poly)}")
-        parts.append(poly)
-    if ws.bounds is not None:
-        parts.append(box(*ws.bounds))
-    report.require(bool(parts), "workspace has neither bounds nor free_space")
-    region = parts[0] if len(parts) == 1 else parts[0].intersection(parts[1])
-    for k, coords in enumerate(ws.obstacles):
-        obstacle = Polygon(coords)
-        report.require(obstacle.is_valid, f"obstacles[{k}] invalid: {explain_validity(obstacle)}")
-        report.require(obstacle.area > 0, f"obstacles[{k}] has zero area")
-    if ws.obstacles:
-        region = region.difference(unary_union([Polygon(c) for c in ws.obstacles]))
-    report.require(region.is_valid, f"free space invalid: {explain_validity(region)}")
-    pieces = list(getattr(region, "geoms", [region]))
-    report.require(len(pieces) == 1, f"free space has {len(pieces)} disconnected pieces")
-    n_edges = sum(len(ring.coords) - 1 for ring in _rings(region))
-    report.add("free area", f"{region.area:.1f} m^2")
-    report.add("boundary edges", str(n_edges))
-    return region
+def load(source: str) -> tuple[Scenario, str]:
+    """The built scenario of ``source`` (layout 0 if procedural) and a note on what it is."""
+    cfg = load_config(source)
+    if cfg.generator is None:
+        return build_scenario(cfg), ""
+    gen = cfg.generator
+    return generate_scenario(cfg, 0), f"layout 0 of the {gen.kind} generator, {gen.split} split"
 
 
-def _rings(region: shapely.Geometry) -> list[shapely.LinearRing]:
-    rings = []
-    for poly in getattr(region, "geoms", [region]):
-        rings.append(poly.exterior)
-        rings.extend(poly.interiors)
-    return rings
+def drive_leader(scenario: Scenario) -> LeaderRun:
+    """Step the env with every follower standing still and record the leader (``poses[0]``).
+
+    ``terminate_on=()``: the followers' violations (they fall behind) do not end the episode,
+    which ends by the env's own truncation (the leader's settle time, or the step limit). A
+    procedural layout is passed as the fixed workspace it is (its config without the generator
+    block, built on its free space), so that the env does not draw another layout on reset.
+    """
+    if scenario.config.generator is not None:
+        fixed_cfg = dataclasses.replace(scenario.config, generator=None)
+        scenario = build_scenario(fixed_cfg, free_space=scenario.free_space)
+    env = platoon_env.make(scenario, terminate_on=(), perturb=False)
+    env.reset(seed=0)
+    still = {agent: np.zeros(2, dtype=np.float32) for agent in env.possible_agents}
+    trajectory = [env.poses[0, :2]]
+    arrival: float | None = None
+    while env.agents:
+        env.step(still)
+        trajectory.append(env.poses[0, :2])
+        if arrival is None and env.leader_arrived:
+            arrival = env.sim_time
+    env.close()
+    return LeaderRun(np.asarray(trajectory), arrival)
+
+
+# --------------------------------------------------------------------------------------------
+# Measurements (geometry only: no rule is decided here)
+# --------------------------------------------------------------------------------------------
 
 
 def resample(path: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -157,75 +188,33 @@ def chord_partner(pts: np.ndarray, chord: float) -> np.ndarray:
     return out
 
 
-def place_initial(pts: np.ndarray, n_robots: int, chord: float) -> np.ndarray:
-    """Robots on the path, last follower at its start, consecutive chords ``chord`` (tail first)."""
-    out = [pts[0]]
-    i = 0
-    for _ in range(n_robots - 1):
-        while i < len(pts) and np.hypot(*(pts[i] - out[-1])) < chord:
-            i += 1
-        if i >= len(pts):
-            raise ValueError("path too short for the initial configuration")
-        # refine between samples i-1 and i so that the chord is exact
-        a, b = pts[i - 1], pts[i]
-        lo, hi = 0.0, 1.0
-        for _ in range(40):
-            mid = 0.5 * (lo + hi)
-            if np.hypot(*(a + mid * (b - a) - out[-1])) < chord:
-                lo = mid
-            else:
-                hi = mid
-        out.append(a + hi * (b - a))
-    return np.array(out)
+def sense_pairs(scenario: Scenario, followers: np.ndarray, predecessors: np.ndarray) -> np.ndarray:
+    """The env's sensing (``SENSE_*`` columns) of each follower pose ``[x, y, theta]`` behind the
+    predecessor position at the same row, ``(K, SENSE_SIZE)``.
 
-
-def simulate_pure_pursuit(
-    pts: np.ndarray, s: np.ndarray, s0: float, cfg: ScenarioConfig, dt: float = 0.01
-) -> np.ndarray:
-    """Unicycle at constant speed steering at the path point ``lookahead`` ahead of its projection.
-
-    Starts at arc length ``s0`` facing along the path; stops within ``speed * dt`` of the end.
-    Returns the trajectory ``(n, 2)``.
+    :func:`sense` senses a chain (row ``i`` behind row ``i - 1``); the pairs are interleaved as
+    ``predecessor_0, follower_0, predecessor_1, ...`` and every other output row is kept.
     """
-    lead = cfg.leader
-    k0 = int(np.searchsorted(s, s0))
-    pos = pts[k0].astype(float).copy()
-    tan = tangents(pts)
-    theta = math.atan2(tan[k0, 1], tan[k0, 0])
-    k = k0
-    traj = [pos.copy()]
-    max_steps = int(10 * (s[-1] - s0) / lead.speed / dt) + 1000
-    for _ in range(max_steps):
-        lo, hi = k, min(len(pts), k + int(2.0 / SAMPLE_STEP))
-        k = lo + int(np.argmin(np.hypot(*(pts[lo:hi] - pos).T)))
-        if np.hypot(*(pts[-1] - pos)) < lead.speed * dt or k == len(pts) - 1:
-            break
-        target_s = s[k] + lead.lookahead
-        if target_s >= s[-1]:
-            target = pts[-1]
-        else:
-            target = pts[int(np.searchsorted(s, target_s))]
-        alpha = math.atan2(target[1] - pos[1], target[0] - pos[0]) - theta
-        alpha = (alpha + math.pi) % (2 * math.pi) - math.pi
-        dist = max(np.hypot(*(target - pos)), 1e-6)
-        omega = float(
-            np.clip(
-                2 * lead.speed * math.sin(alpha) / dist, -lead.max_turn_rate, lead.max_turn_rate
-            )
-        )
-        if abs(omega) < 1e-9:
-            pos += lead.speed * dt * np.array([math.cos(theta), math.sin(theta)])
-        else:
-            rad = lead.speed / omega
-            pos += rad * np.array(
-                [
-                    math.sin(theta + omega * dt) - math.sin(theta),
-                    -math.cos(theta + omega * dt) + math.cos(theta),
-                ]
-            )
-        theta += omega * dt
-        traj.append(pos.copy())
-    return np.array(traj)
+    cfg = scenario.config
+    chain = np.zeros((2 * len(followers), 3))
+    chain[0::2, :2] = predecessors
+    chain[1::2] = followers
+    out = sense(
+        chain,
+        scenario.workspace.edges,
+        cfg.camera.range,
+        cfg.camera.half_angle,
+        cfg.proximity_range,
+        proximity_half_angle=cfg.proximity_half_angle,
+    )
+    return out[0::2]
+
+
+def pair_problems(scenario: Scenario, follower: np.ndarray, predecessor: np.ndarray) -> list[str]:
+    """The constraints a follower at pose ``follower`` violates behind a robot at
+    ``predecessor`` (a configuration at rest, judged by the env's own rules)."""
+    chain = np.array([[predecessor[0], predecessor[1], 0.0], follower], dtype=np.float64)
+    return initial_violations(scenario.config, scenario.workspace, chain)
 
 
 # --------------------------------------------------------------------------------------------
@@ -233,42 +222,42 @@ def simulate_pure_pursuit(
 # --------------------------------------------------------------------------------------------
 
 
-def check(path_yaml: Path, outdir: Path) -> Report:
-    data = yaml.safe_load(path_yaml.read_text())
-    cfg = parse_scenario(data)
-    report = Report(cfg.name)
-    free = build_free_space(cfg, report)
+def check(source: str, outdir: Path) -> Report:
+    report = Report(Path(source).stem)
+    try:
+        scenario, note = load(source)
+    except ScenarioError as exc:
+        report.failures.append(f"scenario rejected by the loader: {exc}")
+        return report
+    cfg = scenario.config
+    report.name = cfg.name
+    if note:
+        report.add("procedural", note)
+    free = scenario.free_space
     boundary = free.boundary
     r = cfg.robot.radius
-    n_f = cfg.followers
     d_des = cfg.formation.d_des
     beta_con = cfg.camera.half_angle
     delta = cfg.ppc.delta if cfg.ppc is not None else 0.0
 
-    xmin, ymin, xmax, ymax = free.bounds
+    xmin, ymin, xmax, ymax = scenario.workspace.bounds
+    report.add("free area", f"{free.area:.1f} m^2")
+    report.add("boundary edges", str(len(scenario.workspace.edges)))
     report.add("map size", f"{xmax - xmin:.1f} x {ymax - ymin:.1f} m")
 
-    raw = np.asarray(cfg.leader.path, dtype=float)
-    seg_len = np.hypot(*np.diff(raw, axis=0).T)
-    report.require(bool(np.all(seg_len > 1e-9)), "leader.path has repeated points")
+    raw = np.asarray(scenario.leader_path, dtype=float)
     pts, s = resample(raw, SAMPLE_STEP)
     tan = tangents(pts)
-    report.add("path length", f"{s[-1]:.2f} m ({len(raw)} points)")
+    heading = np.arctan2(tan[:, 1], tan[:, 0])
+    report.add("path length", f"{scenario.path_s[-1]:.2f} m ({len(raw)} points)")
 
-    # --- clearance of the path itself
-    inside = shapely.contains_xy(free, pts[:, 0], pts[:, 1])
-    if not inside.all():
-        report.failures.append(f"path leaves the free space near {pts[~inside][0]}")
+    # --- clearance of the path itself (the loader has checked it with check_leader_path)
     clearance = shapely.distance(boundary, shapely.points(pts))
     k_min = int(np.argmin(clearance))
     report.add(
         "min path clearance",
         f"{clearance[k_min]:.3f} m at s={s[k_min]:.2f} ({pts[k_min, 0]:.2f}, {pts[k_min, 1]:.2f})"
-        f"; need >= r + {PATH_MARGIN} = {r + PATH_MARGIN:.2f}",
-    )
-    report.require(
-        clearance[k_min] >= r + PATH_MARGIN - 1e-9,
-        f"path clearance {clearance[k_min]:.3f} < r + {PATH_MARGIN} at s={s[k_min]:.2f}",
+        f"; need >= r + {LEADER_PATH_MARGIN} = {r + LEADER_PATH_MARGIN:.2f}",
     )
 
     # --- passage width across the path and where F_l and F_r engage together
@@ -299,91 +288,92 @@ def check(path_yaml: Path, outdir: Path) -> Report:
         if len(kappa)
         else "0 (a single segment)",
     )
-    seg_heading = np.unwrap(np.arctan2(*np.diff(raw, axis=0).T[::-1]))
+    seg = np.diff(raw, axis=0)
+    seg = seg[np.hypot(seg[:, 0], seg[:, 1]) > 0.0]
+    seg_heading = np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))
     vertex_turn = np.degrees(np.abs(np.diff(seg_heading)))
     report.add(
         "max turn at a path vertex", f"{vertex_turn.max():.1f} deg" if len(vertex_turn) else "0"
     )
 
-    # --- a chain driving on the path: bearing and line of sight of a follower d_des behind
+    # --- a follower on the path, facing along it, its predecessor a chord d_des ahead: the
+    # env's sensing and violation rules
     partner = chord_partner(pts, d_des)
     idx = np.nonzero(partner >= 0)[0]
-    chords = pts[partner[idx]] - pts[idx]
-    bearing = np.arctan2(chords[:, 1], chords[:, 0]) - np.arctan2(tan[idx, 1], tan[idx, 0])
-    bearing = np.abs((bearing + np.pi) % (2 * np.pi) - np.pi)
+    on_path = np.column_stack([pts[idx], heading[idx]])
+    sensed = sense_pairs(scenario, on_path, pts[partner[idx]])
+    bearing = np.abs(sensed[:, SENSE_BETA])
     k_b = int(np.argmax(bearing))
     report.add(
         "max on-path bearing",
         f"{bearing[k_b]:.3f} rad at s={s[idx[k_b]]:.2f} (beta_con = {beta_con:.3f})",
     )
-    report.require(
-        bearing[k_b] < beta_con,
-        f"a follower on the path would see its predecessor at {bearing[k_b]:.3f} rad >= beta_con",
-    )
-    sight = shapely.linestrings(np.stack([pts[idx], pts[partner[idx]]], axis=1))
-    sight_clear = shapely.distance(boundary, sight)
-    sight_clear[~shapely.within(sight, free)] = 0.0
-    k_s = int(np.argmin(sight_clear))
+    sight = np.minimum(sensed[:, SENSE_D_SIGHT_LEFT], sensed[:, SENSE_D_SIGHT_RIGHT])
+    k_s = int(np.argmin(sight))
     report.add(
-        "min on-path line-of-sight clearance",
-        f"{sight_clear[k_s]:.3f} m at s={s[idx[k_s]]:.2f} (chord {d_des} m)",
+        "min on-path line-of-sight clearance min(d_l, d_r)",
+        f"{sight[k_s]:.3f} m at s={s[idx[k_s]]:.2f} (chord {d_des} m)",
     )
-    report.require(sight_clear[k_s] > 0.05, "a line of sight along the path touches an obstacle")
+    bad = [
+        (float(s[k]), problems)
+        for k, pose in zip(idx, on_path, strict=True)
+        if (problems := pair_problems(scenario, pose, pts[partner[k]]))
+    ]
+    if bad:
+        at, problems = bad[0]
+        summary = f"{len(bad)} of {len(idx)} samples, first at s={at:.2f}: {'; '.join(problems)}"
+        report.failures.append(
+            f"a follower on the path, {d_des} m behind its predecessor, violates a constraint "
+            f"({summary})"
+        )
+    else:
+        summary = "none"
+    report.add("on-path violations", summary)
 
-    # --- default initial configuration
-    robots = place_initial(pts, n_f + 1, d_des)  # tail first, leader last
-    s_leader0 = s[int(np.argmin(np.hypot(*(pts - robots[-1]).T)))]
-    start_clear = shapely.distance(boundary, shapely.points(robots))
+    # --- the default initial configuration (leader first), as the library builds it
+    poses = np.asarray(scenario.initial_poses)
+    problems = initial_violations(cfg, scenario.workspace, poses)
+    for problem in problems:
+        report.failures.append(f"initial configuration: {problem}")
+    start = sense_pairs(scenario, poses[1:], poses[:-1, :2])
+    robot_clear = [scenario.workspace.clearance(*poses[0, :2]), *start[:, SENSE_CLEARANCE]]
+    start_sight = np.minimum(start[:, SENSE_D_SIGHT_LEFT], start[:, SENSE_D_SIGHT_RIGHT])
     report.add(
         "initial configuration",
-        f"leader starts at s={s_leader0:.2f}; min robot clearance {start_clear.min():.3f} m "
-        f"(need >= {r + START_MARGIN:.2f})",
+        f"{'feasible' if not problems else 'INFEASIBLE'}; leader starts at "
+        f"s={scenario.initial_progress:.2f}; min robot clearance {min(robot_clear):.3f} m "
+        f"(need > r = {r:.2f})",
     )
-    report.require(
-        bool(np.all(start_clear >= r + START_MARGIN))
-        and bool(shapely.contains_xy(free, robots[:, 0], robots[:, 1]).all()),
-        "a robot of the initial configuration is too close to an obstacle",
-    )
-    los = shapely.linestrings(np.stack([robots[:-1], robots[1:]], axis=1))
-    los_clear = shapely.distance(boundary, los)
-    report.require(
-        bool(np.all(shapely.within(los, free))) and bool(np.all(los_clear > 0.05)),
-        "a line of sight of the initial configuration touches an obstacle",
-    )
-    pair = np.hypot(*(robots[:, None, :] - robots[None, :, :]).transpose(2, 0, 1))
-    pair[np.diag_indices(len(robots))] = np.inf
-    report.require(pair.min() > cfg.safety.d_col, "two robots start closer than d_col")
-    # bearing of follower i if it faced along the path tangent (it faces its predecessor in the
-    # env, so this is only a measure of how straight the start stretch is)
-    start_bearing = []
-    for j in range(n_f):
-        k = int(np.argmin(np.hypot(*(pts - robots[j]).T)))
-        chord = robots[j + 1] - robots[j]
-        angle = math.atan2(chord[1], chord[0]) - math.atan2(tan[k, 1], tan[k, 0])
-        start_bearing.append(abs((angle + math.pi) % (2 * math.pi) - math.pi))
+    # bearing of follower i if it faced along the path tangent (it faces its predecessor, so
+    # this only measures how straight the start stretch is)
+    nearest = [int(np.argmin(np.hypot(*(pts - p[:2]).T))) for p in poses[1:]]
+    along = np.column_stack([poses[1:, :2], heading[nearest]])
+    start_bearing = np.abs(sense_pairs(scenario, along, poses[:-1, :2])[:, SENSE_BETA])
     report.add(
         "start stretch",
-        f"max bearing w.r.t. path tangent {max(start_bearing):.3f} rad, "
-        f"min line-of-sight clearance {los_clear.min():.3f} m",
+        f"max bearing w.r.t. path tangent {start_bearing.max():.3f} rad, "
+        f"min line-of-sight clearance min(d_l, d_r) {start_sight.min():.3f} m",
     )
-    report.require(max(start_bearing) < beta_con, "the start stretch is not straight enough")
 
-    # --- pure-pursuit leader
-    traj = simulate_pure_pursuit(pts, s, s_leader0, cfg)
+    # --- the env's leader
+    run = drive_leader(scenario)
+    traj = run.trajectory
     lead_clear = shapely.distance(boundary, shapely.points(traj))
-    duration = (len(traj) - 1) * 0.01
     deviation = shapely.distance(LineString(raw), shapely.points(traj)).max()
+    if run.arrival_time is None:
+        report.failures.append("the env's leader did not reach the end of its path")
+    driven = "did not arrive" if run.arrival_time is None else f"run {run.arrival_time:.1f} s"
     report.add(
-        "pure-pursuit leader",
-        f"run {duration:.1f} s at {cfg.leader.speed} m/s, min clearance {lead_clear.min():.3f} m, "
+        "env leader",
+        f"{driven} at {cfg.leader.speed} m/s, min clearance {lead_clear.min():.3f} m, "
         f"max deviation from path {deviation:.3f} m",
     )
-    report.require(
-        lead_clear.min() >= r + PATH_MARGIN - 0.05,
-        f"the pure-pursuit leader's clearance drops to {lead_clear.min():.3f} m",
-    )
+    try:
+        check_leader_path(free, traj, r, where="the env's leader as driven")
+    except ScenarioError as exc:
+        report.failures.append(str(exc))
 
-    draw(cfg, free, pts, both, robots, traj, clearance, report, outdir / f"{cfg.name}.png")
+    draw(scenario, pts, both, traj, clearance, report, outdir / f"{cfg.name}.png")
     return report
 
 
@@ -392,7 +382,15 @@ def check(path_yaml: Path, outdir: Path) -> Report:
 # --------------------------------------------------------------------------------------------
 
 
-def draw(cfg, free, pts, both, robots, traj, clearance, report: Report, out: Path) -> None:
+def draw(
+    scenario: Scenario,
+    pts: np.ndarray,
+    both: np.ndarray,
+    traj: np.ndarray,
+    clearance: np.ndarray,
+    report: Report,
+    out: Path,
+) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -400,7 +398,9 @@ def draw(cfg, free, pts, both, robots, traj, clearance, report: Report, out: Pat
     from matplotlib.patches import Circle, Wedge
     from matplotlib.patches import Polygon as MplPolygon
 
-    xmin, ymin, xmax, ymax = free.bounds
+    cfg = scenario.config
+    free = scenario.free_space
+    xmin, ymin, xmax, ymax = scenario.workspace.bounds
     pad = 0.5
     aspect = (ymax - ymin + 2 * pad) / (xmax - xmin + 2 * pad)
     fig, ax = plt.subplots(figsize=(12, max(4.0, 12 * aspect) + 1.2))
@@ -434,10 +434,8 @@ def draw(cfg, free, pts, both, robots, traj, clearance, report: Report, out: Pat
         ax.plot(*poly.exterior.xy, color="k", lw=0.8)
     sc = ax.scatter(pts[:, 0], pts[:, 1], c=clearance, s=3, cmap="viridis", zorder=3)
     fig.colorbar(sc, ax=ax, shrink=0.6, label="path clearance [m]")
-    ax.plot(*np.asarray(cfg.leader.path).T, "o", ms=2, color="tab:blue", zorder=4)
-    ax.plot(
-        traj[:, 0], traj[:, 1], "--", color="tab:red", lw=0.8, zorder=4, label="pure-pursuit leader"
-    )
+    ax.plot(*np.asarray(scenario.leader_path).T, "o", ms=2, color="tab:blue", zorder=4)
+    ax.plot(traj[:, 0], traj[:, 1], "--", color="tab:red", lw=0.8, zorder=4, label="env leader")
     if both.any():
         ax.plot(
             pts[both, 0],
@@ -448,24 +446,27 @@ def draw(cfg, free, pts, both, robots, traj, clearance, report: Report, out: Pat
             zorder=5,
             label="clearance - r < delta on both sides",
         )
+    # the default initial configuration, leader first; each follower's field of view about its
+    # heading and its line of sight to its predecessor
+    poses = np.asarray(scenario.initial_poses)
     r, beta, rng = cfg.robot.radius, cfg.camera.half_angle, cfg.camera.range
-    for j, p in enumerate(robots):
-        leader = j == len(robots) - 1
-        ax.add_patch(Circle(p, r, color="tab:blue" if leader else "k", zorder=6))
-        if not leader:
-            head = math.degrees(math.atan2(*(robots[j + 1] - p)[::-1]))
-            ax.add_patch(
-                Wedge(
-                    p,
-                    rng,
-                    head - math.degrees(beta),
-                    head + math.degrees(beta),
-                    color="tab:green",
-                    alpha=0.12,
-                    zorder=2,
-                )
+    for i, (x, y, theta) in enumerate(poses):
+        ax.add_patch(Circle((x, y), r, color="tab:blue" if i == 0 else "k", zorder=6))
+        if i == 0:
+            continue
+        head = math.degrees(theta)
+        ax.add_patch(
+            Wedge(
+                (x, y),
+                rng,
+                head - math.degrees(beta),
+                head + math.degrees(beta),
+                color="tab:green",
+                alpha=0.12,
+                zorder=2,
             )
-            ax.plot(*np.stack([p, robots[j + 1]]).T, color="tab:green", lw=0.8, zorder=6)
+        )
+        ax.plot(*np.stack([poses[i, :2], poses[i - 1, :2]]).T, color="tab:green", lw=0.8, zorder=6)
     ax.annotate("start", pts[0], xytext=(5, -12), textcoords="offset points")
     ax.annotate("end", pts[-1], xytext=(5, 5), textcoords="offset points")
     ax.set_xlim(xmin - pad, xmax + pad)
@@ -476,7 +477,7 @@ def draw(cfg, free, pts, both, robots, traj, clearance, report: Report, out: Pat
     ax.grid(which="both", lw=0.2, color="0.8")
     ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.06), ncol=3, fontsize=8)
     lines = [
-        f"{cfg.name}: {report.values['path length']}, {report.values['pure-pursuit leader']}",
+        f"{cfg.name}: {report.values['path length']}, leader {report.values['env leader']}",
         f"min clearance {report.values['min path clearance']}",
         f"narrowest passage {report.values['narrowest passage']}; "
         f"max curvature {report.values['max curvature']}",
@@ -491,7 +492,10 @@ def draw(cfg, free, pts, both, robots, traj, clearance, report: Report, out: Pat
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "files", nargs="*", type=Path, help="scenario files (default: the shipped study_a/b/c.yaml)"
+        "files",
+        nargs="*",
+        help="scenario files or shipped names (default: the shipped study_a/b/c.yaml); a "
+        "procedural scenario is checked on its layout 0",
     )
     parser.add_argument(
         "--outdir",
@@ -500,7 +504,7 @@ def main(argv: list[str] | None = None) -> int:
         help="where the PNGs are written (default: /tmp/workspaces)",
     )
     args = parser.parse_args(argv)
-    files = args.files or [DATA_DIR / f"{name}.yaml" for name in STUDIES]
+    files = args.files or [str(DATA_DIR / f"{name}.yaml") for name in STUDIES]
     failed = False
     for f in files:
         report = check(f, args.outdir)

@@ -240,3 +240,32 @@ def test_vec_env_trains_ppo() -> None:
     model = PPO("MlpPolicy", venv, n_steps=16, batch_size=32, n_epochs=1, seed=0, device="cpu")
     model.learn(total_timesteps=64)
     assert model.num_timesteps >= 64
+
+
+@pytest.mark.parametrize("scenario", ["study_a", "study_b", "study_c"])
+def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
+    """Random actions, no termination: the core with the edge grid and with one cell (every
+    edge visited) gives the same steps, and its sensing is that of :func:`sense` (with the
+    scenario's proximity sector, study B's ±130 deg)."""
+    from platoon_env.geometry.sensing import sense
+
+    culled = BatchedPlatoon(scenario, 1, terminate_on=())
+    brute = BatchedPlatoon(scenario, 1, terminate_on=(), grid_cell_size=0.0)
+    culled.reset(0)
+    brute.reset(0)
+    cfg = culled.scenario.config
+    edges = culled.scenario.workspace.edges
+    rng = np.random.default_rng(0)
+    n = culled.n_followers
+    for t in range(300):
+        act = rng.uniform([-0.3, -1.5], [1.0, 1.5], size=(1, n, 2))
+        _, _, _, _, info_a = culled.step(act)
+        _, _, _, _, info_b = brute.step(act)
+        np.testing.assert_array_equal(info_a["violations"], info_b["violations"], err_msg=str(t))
+        np.testing.assert_array_equal(culled.poses, brute.poses, err_msg=str(t))
+        np.testing.assert_allclose(culled.sensed, brute.sensed, rtol=0, atol=1e-12)
+        direct = sense(
+            culled.poses[0], edges, cfg.camera.range, cfg.camera.half_angle,
+            cfg.proximity_range, proximity_half_angle=cfg.proximity_half_angle,
+        )  # fmt: skip
+        np.testing.assert_allclose(culled.sensed[0], direct, rtol=0, atol=1e-12, err_msg=str(t))

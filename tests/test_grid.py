@@ -33,7 +33,7 @@ from platoon_env.geometry.sensing import (
     sense_follower_grid,
 )
 from platoon_env.geometry.workspace import boundary_edges
-from platoon_env.records import PARAMS_DTYPE
+from platoon_env.records import constraint_params
 from platoon_env.safety import (
     robot_contacts,
     sensed_violation,
@@ -157,19 +157,6 @@ def test_poses_outside_the_grid() -> None:
     )
 
 
-def _params(scenario: Scenario) -> NDArray[np.void]:
-    """The ``(1,)`` params record of a scenario's safety and sensing parameters."""
-    cfg = scenario.config
-    params = np.zeros(1, dtype=PARAMS_DTYPE)
-    params["radius"] = cfg.robot.radius
-    params["d_col"] = cfg.safety.d_col
-    params["d_con"] = cfg.camera.range
-    params["beta_con"] = cfg.camera.half_angle
-    params["proximity_range"] = cfg.proximity_range
-    params["proximity_half_angle"] = cfg.proximity_half_angle
-    return params
-
-
 def _rollout(
     scenario: Scenario,
     steps: int,
@@ -236,7 +223,7 @@ def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
     proximity sector (study B's ±130 deg)."""
     sc = load_scenario(scenario)
     cfg = sc.config
-    params = _params(sc)
+    params = constraint_params(sc.config)
     p = params[0]
     grid = EdgeGrid.build(sc.workspace.edges, reach=cfg.proximity_range)
     edges = sc.workspace.edges
@@ -266,7 +253,7 @@ def test_substep_checks_match_brute_force(scenario: str, corridor: dict[str, Any
     of the period's starting sensing) and the last sub-step's masks read off the sensing equal
     the brute-force :func:`violation_masks` after every sub-step, through collisions."""
     sc = load_scenario(corridor if scenario == "corridor" else scenario)
-    params = _params(sc)
+    params = constraint_params(sc.config)
     p = params[0]
     grid = EdgeGrid.build(sc.workspace.edges, reach=sc.config.proximity_range)
     n, substeps = sc.initial_poses.shape[0] - 1, 3

@@ -16,6 +16,7 @@ from platoon_env.scenarios.loader import list_scenarios, load_config
 from platoon_env.scenarios.options import (
     BLOCK_OPTIONS,
     OVERRIDE_OPTIONS,
+    PROFILE_OPTION,
     SCENARIO_OPTIONS,
     apply_overrides,
     check_bool,
@@ -65,7 +66,7 @@ def test_option_name_tuples() -> None:
         "workspace",
         "generator",
     }
-    assert OVERRIDE_OPTIONS == SCENARIO_OPTIONS + BLOCK_OPTIONS
+    assert OVERRIDE_OPTIONS == (*SCENARIO_OPTIONS, *BLOCK_OPTIONS, PROFILE_OPTION)
 
 
 # --- the bad overrides of the issue, one each -----------------------------------------------

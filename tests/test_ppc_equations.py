@@ -18,6 +18,8 @@ from baselines import Policy, PPCPolicy
 from baselines.ppc import (
     CLEARANCE_FLOOR,
     EPS_MAX,
+    PPC_KERNEL_DTYPE,
+    PPC_SET_DTYPE,
     RHO_NAMES,
     SIGNAL_NAMES,
     F,
@@ -521,6 +523,28 @@ def test_closed_loop_unicycle_pair_stays_in_funnels() -> None:
     assert policy.funnel_exits[0] == 0
 
 
+def test_kernel_constants_by_name() -> None:
+    """The compiled core's constants: one PPC_KERNEL_DTYPE record and one PPC_SET_DTYPE record per
+    performance function, filled from the parameters."""
+    policy = PPCPolicy(make_env(2))
+    params, sets = policy._kernel_params, policy._kernel_sets
+    assert params.dtype == PPC_KERNEL_DTYPE and params.shape == (1,)
+    assert sets.dtype == PPC_SET_DTYPE and sets.shape == (4,)
+    p = params[0]
+    assert (p["r"], p["d_des"], p["delta"], p["lambda_"]) == (R, D_DES, DELTA, LAM)
+    assert (p["k_d"], p["k_beta"], p["dt"]) == (K_D, K_B, DT)
+    assert (p["clearance_floor"], p["eps_max"]) == (CLEARANCE_FLOOR, EPS_MAX)
+    assert p["f_scale"] == pytest.approx(1 / (1 - EPS**2))
+    assert p["f_offset"] == pytest.approx(EPS**2 / (1 - EPS**2))
+    np.testing.assert_array_equal(sets["rho_min"], RHO_MIN)
+    np.testing.assert_array_equal(sets["rho_max"], RHO_MAX)
+    rho_inf = np.array([-RHO_D_INF, RHO_D_INF, -RHO_B_INF, RHO_B_INF])
+    np.testing.assert_allclose(sets["lam_target"], LAM * rho_inf)
+    # Proj's normalised position x = rho inv_half - mid_inv_half is -1 / +1 on the bounds
+    np.testing.assert_allclose(RHO_MIN * sets["inv_half"] - sets["mid_inv_half"], -1.0)
+    np.testing.assert_allclose(RHO_MAX * sets["inv_half"] - sets["mid_inv_half"], 1.0)
+
+
 def test_compiled_core_matches_the_pure_functions() -> None:
     """The compiled per-step core (``_ppc_step``) against the pure-function pipeline on 1,000
     random observations of 1,000 of 1,200 followers, in random order, from random performance
@@ -564,7 +588,15 @@ def test_compiled_core_matches_the_pure_functions() -> None:
     obs[:, 2] = np.where(visible, d * np.sin(beta), 0.0)
     obs[:, 3:] = clear
 
-    cmd = _ppc_step(obs, idx, policy._rho, policy._sets, policy._scal, policy._sig, policy._counts)
+    cmd = _ppc_step(
+        obs,
+        idx,
+        policy._kernel_params,
+        policy._kernel_sets,
+        policy._rho,
+        policy._sig,
+        policy._counts,
+    )
 
     # the pure-function pipeline, vectorised over the 1,000 followers
     rho = rho0[:, idx]

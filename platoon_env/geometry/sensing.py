@@ -124,7 +124,9 @@ _PAD_REL = 1e-9
 _PAD_ABS = 1e-9
 
 
-@njit(cache=True)
+# Inlined into its callers (as numba IR): a call would pass the Walls and the candidate slice
+# through memory for every follower, measurably slower than the former scalar arguments.
+@njit(cache=True, inline="always")
 def sense_candidates(
     pose: Pose,
     pred: Point,

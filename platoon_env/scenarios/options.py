@@ -12,9 +12,13 @@ Two kinds of option:
   (``safety.terminate_on``: one cause name, or an iterable of them); ``followers``;
   ``perturb`` (``initial.perturb``); ``u_max`` [m/s] and ``omega_max`` [rad/s] (``robot.*``).
 * **Blocks** (:data:`BLOCK_OPTIONS`): a mapping for a top-level block of the schema, merged key
-  by key (one level deep: a nested mapping such as ``workspace["free_space"]`` replaces the
-  scenario's) into the scenario's block, e.g. ``camera={"half_angle": 0.5}``. Keys are the
-  file's keys (``ppc={"lambda": 0.5}``).
+  by key into the scenario's block, nested mappings too (``camera={"noise": {"position":
+  0.01}}`` keeps the other noise fields), e.g. ``camera={"half_angle": 0.5}``. In
+  ``workspace`` a given key replaces the scenario's (a new outline or obstacle list). Keys are
+  the file's keys (``ppc={"lambda": 0.5}``).
+* **A sensor profile** (:data:`PROFILE_OPTION`, ``sensor_profile="aruco"``): a shipped name or
+  a YAML file of :mod:`platoon_env.scenarios.profiles`, whose camera, proximity and robot
+  blocks are merged before the block options (so those override single fields of it).
 
 A value of None, for either kind, means "not overridden".
 
@@ -71,8 +75,12 @@ BLOCK_OPTIONS: tuple[str, ...] = tuple(
     name for name, tp in typing.get_type_hints(ScenarioConfig).items() if _is_block(tp)
 )
 
-#: Every option :func:`apply_overrides` accepts: the shortcuts, then the blocks.
-OVERRIDE_OPTIONS: tuple[str, ...] = SCENARIO_OPTIONS + BLOCK_OPTIONS
+#: The option naming a sensor profile (:mod:`platoon_env.scenarios.profiles`): its blocks are
+#: merged first, so the block options given beside it override single fields of it.
+PROFILE_OPTION = "sensor_profile"
+
+#: Every option :func:`apply_overrides` accepts: the shortcuts, the blocks and the profile.
+OVERRIDE_OPTIONS: tuple[str, ...] = (*SCENARIO_OPTIONS, *BLOCK_OPTIONS, PROFILE_OPTION)
 
 _ROOT = "scenario"
 
@@ -128,6 +136,19 @@ def _relabel(
     )
 
 
+def _merged(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``update`` merged in, nested mappings key by key (``camera={"noise":
+    {"position": 0.01}}`` keeps the other noise fields)."""
+    out = dict(base)
+    for key, value in update.items():
+        old = out.get(key)
+        if isinstance(value, Mapping) and isinstance(old, Mapping):
+            out[key] = _merged(old, value)
+        else:
+            out[key] = value
+    return out
+
+
 def apply_overrides(
     cfg: ScenarioConfig, overrides: Mapping[str, Any], *, where: str = "make()"
 ) -> ScenarioConfig:
@@ -158,6 +179,16 @@ def apply_overrides(
         return cfg
     data = config_to_mapping(cfg)
     labels: dict[str, str] = {}  # file path -> option label, to reword parse errors
+    if PROFILE_OPTION in given:
+        from platoon_env.scenarios.profiles import load_profile  # TODO(lead): top-level import
+
+        profile = load_profile(given[PROFILE_OPTION])
+        for name, fields in profile.items():
+            data[name] = _merged(data.get(name, {}), fields)
+            for key in fields:
+                labels[f"{_ROOT}.{name}.{key}"] = (
+                    f"{PROFILE_OPTION} {given[PROFILE_OPTION]!r}: {name}.{key}"
+                )
     for name in BLOCK_OPTIONS:
         if name not in given:
             continue
@@ -170,7 +201,11 @@ def apply_overrides(
         labels[f"{_ROOT}.{name}"] = name
         for key in block:
             labels[f"{_ROOT}.{name}.{key}"] = f"{name}.{key}"
-        data[name] = {**data.get(name, {}), **block}
+        data[name] = (
+            {**data.get(name, {}), **block}
+            if name == "workspace"  # a new outline or obstacle list replaces the old one
+            else _merged(data.get(name, {}), block)
+        )
     for name in SCENARIO_OPTIONS:
         if name not in given:
             continue
@@ -199,6 +234,7 @@ def apply_overrides(
 __all__ = [
     "BLOCK_OPTIONS",
     "OVERRIDE_OPTIONS",
+    "PROFILE_OPTION",
     "SCENARIO_OPTIONS",
     "apply_overrides",
     "check_bool",

@@ -39,6 +39,10 @@ ACTION_BOUND_RANGE: tuple[float, float] = (1e-6, 1e6)
 MAX_CONTROL_PERIOD: float = 1.0
 
 
+#: Longest camera latency, in control periods (the core keeps a frame history this long).
+MAX_LATENCY_STEPS = 1000
+
+
 class ScenarioError(ValueError):
     """A scenario is malformed or infeasible. The message names the offending field.
 
@@ -105,15 +109,38 @@ class RobotConfig:
     radius: float  # [m] r
     u_max: float = 10.0  # [m/s] |u| bound of the action space
     omega_max: float = 10.0  # [rad/s] |omega| bound of the action space
+    #: Actuator dynamics (``docs/realism.md``); the defaults apply a command at once.
+    accel_max: float | None = None  # [m/s^2] bound on the change of the applied u; None: none
+    alpha_max: float | None = None  # [rad/s^2] bound on the change of the applied omega
+    lag: float = 0.0  # [s] first-order time constant from command to applied velocity
+
+
+@dataclass(frozen=True)
+class CameraNoiseConfig:
+    """Gaussian errors of a reported detection (``docs/realism.md``): each body-frame coordinate
+    gets noise of std ``position + position_per_m * d``, then the point is rotated by an angle of
+    std ``bearing``."""
+
+    position: float = 0.0  # [m]
+    position_per_m: float = 0.0  # [m per m of d]
+    bearing: float = 0.0  # [rad]
 
 
 @dataclass(frozen=True)
 class CameraConfig:
     """Forward camera: field of view ``F_i``, a sector of half-angle ``beta_con`` and radius
-    ``d_con``."""
+    ``d_con``, and what it reports (``docs/realism.md``; the defaults are an ideal camera)."""
 
     half_angle: float  # [rad] beta_con
     range: float  # [m] d_con
+    noise: CameraNoiseConfig = CameraNoiseConfig()
+    #: Probability that a truly visible predecessor is reported in a frame ...
+    detection: float = 1.0
+    #: ... lowered towards the edge of the field of view: ``detection * (1 - detection_edge *
+    #: (|beta| / beta_con)^2)``.
+    detection_edge: float = 0.0
+    frame_rate: float | None = None  # [Hz]; None: a frame every control step
+    latency: float = 0.0  # [s] a frame reports what was seen this long ago
 
 
 @dataclass(frozen=True)
@@ -125,6 +152,7 @@ class ProximityConfig:
 
     range: float | None = None  # [m]
     half_angle: float | None = None  # [rad] in (0, pi]; None (default): all around
+    noise: float = 0.0  # [m] std of each reported clearance (clipped to [0, range])
 
 
 @dataclass(frozen=True)
@@ -469,6 +497,7 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
             f"{path}.ppc.rho_beta_inf",
             f"2 * rho_beta_inf must be < beta_con = {bc:g}, got rho_beta_inf = {p.rho_beta_inf!r}",
         )
+    _check_realism(cfg, path)
 
 
 # --------------------------------------------------------------------------------------------
@@ -506,3 +535,70 @@ def config_to_mapping(cfg: ScenarioConfig) -> dict[str, Any]:
     YAML (``yaml.safe_dump`` writes it). Units are those of the schema: metres, seconds, radians.
     """
     return _section_to_mapping(cfg)
+
+
+def _check_realism(cfg: ScenarioConfig, path: str) -> None:
+    """Ranges of the sensing and actuation realism (``docs/realism.md``)."""
+    cam, noise = cfg.camera, cfg.camera.noise
+    for name in ("position", "position_per_m", "bearing"):
+        value = getattr(noise, name)
+        _require(value >= 0, f"{path}.camera.noise.{name}", f"must be >= 0, got {value!r}")
+    _require(
+        0 <= cam.detection <= 1,
+        f"{path}.camera.detection",
+        f"must be a probability in [0, 1], got {cam.detection!r}",
+    )
+    _require(
+        0 <= cam.detection_edge <= 1,
+        f"{path}.camera.detection_edge",
+        f"must lie in [0, 1], got {cam.detection_edge!r}",
+    )
+    dt = cfg.simulation.control_period
+    if cam.frame_rate is not None:
+        _require(
+            0 < cam.frame_rate <= 1.0 / dt + 1e-9,
+            f"{path}.camera.frame_rate",
+            f"must lie in (0, 1 / control_period = {1.0 / dt:g}] Hz, got {cam.frame_rate!r}",
+        )
+    steps = cam.latency / dt
+    _require(
+        cam.latency >= 0 and abs(steps - round(steps)) <= 1e-6 * max(1.0, steps),
+        f"{path}.camera.latency",
+        f"must be >= 0 and a whole number of control periods ({dt:g} s), got {cam.latency!r}",
+    )
+    _require(
+        steps <= MAX_LATENCY_STEPS,
+        f"{path}.camera.latency",
+        f"must be at most {MAX_LATENCY_STEPS} control periods, got {cam.latency!r}",
+    )
+    prox = cfg.proximity.noise
+    _require(prox >= 0, f"{path}.proximity.noise", f"must be >= 0, got {prox!r}")
+    rob = cfg.robot
+    for name in ("accel_max", "alpha_max"):
+        value = getattr(rob, name)
+        _require(
+            value is None or value > 0,
+            f"{path}.robot.{name}",
+            f"must be > 0 or null (no bound), got {value!r}",
+        )
+    _require(rob.lag >= 0, f"{path}.robot.lag", f"must be >= 0, got {rob.lag!r}")
+
+
+def latency_steps(cfg: ScenarioConfig) -> int:
+    """The camera latency in whole control periods."""
+    return round(cfg.camera.latency / cfg.simulation.control_period)
+
+
+def has_realism(cfg: ScenarioConfig) -> bool:
+    """Whether any sensing or actuation realism differs from the ideal defaults."""
+    cam, rob = cfg.camera, cfg.robot
+    return (
+        cam.noise != CameraNoiseConfig()
+        or cam.detection != 1.0
+        or cam.frame_rate is not None
+        or cam.latency != 0.0
+        or cfg.proximity.noise != 0.0
+        or rob.accel_max is not None
+        or rob.alpha_max is not None
+        or rob.lag != 0.0
+    )

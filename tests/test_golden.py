@@ -1,0 +1,67 @@
+"""Realism off, the env is bit for bit what it was before the one-core refactor and realism.
+
+The digests below were computed with commit 4d03db7 (before the refactor into
+:mod:`platoon_env.core` and before sensing/actuation realism) by the same rollout function:
+seeded random actions, every observation, reward, flag, cause and pose hashed. A change that
+alters any bit of an ideal-sensing episode fails here. (Floating-point results are those of
+this project's CI machine type; numba compiles for the host CPU.)
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Any
+
+import numpy as np
+import pytest
+
+import platoon_env
+
+GOLDEN: list[tuple[str, int, dict[str, Any], str]] = [
+    ("study_a", 0, {}, "08785068f34ef7ab"),
+    ("study_b", 1, {}, "676cea05f981c348"),
+    ("study_c", 2, {"terminate_on": ()}, "679f83f409541019"),
+    ("study_c", 3, {}, "04d9455c44c2d849"),
+    ("procedural_train", 4, {}, "fcc6d4d61bffd862"),
+    ("procedural_test", 5, {"max_episode_steps": 50}, "b96f728c79628a55"),
+]
+
+
+def rollout_digest(name: str, seed: int, steps: int = 400, **overrides: Any) -> str:
+    """SHA-256 (16 hex digits) of a seeded random-action rollout, through resets."""
+    env = platoon_env.make(name, **overrides)
+    h = hashlib.sha256()
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    for a in env.agents:
+        h.update(obs[a].tobytes())
+    for _ in range(steps):
+        act = {a: rng.uniform([-0.3, -1.0], [1.0, 1.0]) for a in env.agents}
+        obs, rew, term, trunc, info = env.step(act)
+        for a in obs:
+            h.update(obs[a].tobytes())
+            h.update(np.float64(rew[a]).tobytes())
+            h.update(repr((term[a], trunc[a], info[a]["violation"])).encode())
+        h.update(env.poses.tobytes())
+        if not env.agents:
+            obs, _ = env.reset()
+            for a in env.agents:
+                h.update(obs[a].tobytes())
+    return h.hexdigest()[:16]
+
+
+@pytest.mark.parametrize(("name", "seed", "overrides", "digest"), GOLDEN)
+def test_ideal_episodes_unchanged(
+    name: str, seed: int, overrides: dict[str, Any], digest: str
+) -> None:
+    assert rollout_digest(name, seed, **overrides) == digest
+
+
+def test_explicit_ideal_realism_is_the_default() -> None:
+    """Spelling out the ideal values (or the 'ideal' profile) changes nothing."""
+    ideal = {
+        "camera": {"noise": {"position": 0.0, "bearing": 0.0}, "detection": 1.0, "latency": 0.0},
+        "proximity": {"noise": 0.0},
+        "robot": {"lag": 0.0, "accel_max": None},
+    }
+    assert rollout_digest("study_c", 3, **ideal) == "04d9455c44c2d849"
