@@ -1,6 +1,7 @@
 r"""The comparison baseline: a saturated tracking law with a leader-loss mode, after ref. [32].
 
-Equation and section numbers refer to ``paper/coordination-of-multiple-robotic-vehicles.md``.
+Equation and section numbers refer to the paper *Coordination of Multiple Robotic Vehicles in
+Obstacle-Cluttered Environments*.
 The paper describes its reference [32] in three places, and this module implements that
 description (not [32]'s own equations, which the paper does not reproduce):
 

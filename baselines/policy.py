@@ -1,4 +1,4 @@
-"""The interface every policy shares (DESIGN §6).
+"""The interface every policy shares (``docs/api.md``).
 
 A policy acts for all followers at once: it receives the PettingZoo ``ParallelEnv`` observation
 dict (agent name -> float32 observation vector, see :mod:`platoon_env.observation`) and returns

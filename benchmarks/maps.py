@@ -50,7 +50,7 @@ def pillars_per_row() -> int:
 
 
 def pillar_lane(n_edges: int, followers: int = 7) -> dict[str, Any]:
-    """A scenario dict (DESIGN §5 schema) with about ``n_edges`` boundary edges.
+    """A scenario dict (the schema of ``docs/scenarios.md``) with about ``n_edges`` boundary edges.
 
     ``followers`` must fit on the lane behind the leader (at most 55 with ``d_des = 2``).
     """

@@ -16,6 +16,7 @@ seen so far (the arrays grow when a bigger layout arrives).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
@@ -120,7 +121,8 @@ class _MapSlots:
         if old is not None:  # keep the slots already written
             for new, prev in zip(self._fields(), old[1:], strict=True):
                 new[tuple(slice(0, k) for k in prev.shape)] = prev
-        self.arrays: tuple[np.ndarray, ...] = (self.info, *self._fields())
+        #: What the compiled step takes: the info records as bytes, then the padded arrays.
+        self.arrays: tuple[np.ndarray, ...] = (self.info.view(np.uint8), *self._fields())
 
     def _fields(self) -> tuple[np.ndarray, ...]:
         return (
@@ -132,6 +134,11 @@ class _MapSlots:
             self.path,
             self.path_s,
         )
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        # A view unpickles as a copy: the byte view of the info must alias it again.
+        self.arrays = (self.info.view(np.uint8), *self._fields())
 
     def write(self, slot: int, scenario: Scenario, grid: EdgeGrid) -> None:
         """Put ``scenario``'s boundary edges, edge grid and leader path into ``slot``."""
@@ -200,6 +207,8 @@ class PlatoonCore:
 
         self.params = np.zeros(b, dtype=PARAMS_DTYPE)
         self.episode = new_episode(b)
+        self._params_bytes = self.params.view(np.uint8)
+        self._episode_bytes = self.episode.view(np.uint8)
         self.poses = np.zeros((b, n + 1, 3))
         self.actions = np.zeros((b, n, ACT_SIZE))
         self.applied = np.zeros((b, n, ACT_SIZE))
@@ -246,7 +255,13 @@ class PlatoonCore:
 
     def map_bank(self) -> MapBank:
         """The map bank as a named tuple (for reading; the step takes :attr:`maps`)."""
-        return MapBank(*self._slots.arrays)
+        return MapBank(self._slots.info, *self._slots.arrays[1:])
+
+    @property
+    def step_args(self) -> tuple[Any, ...]:
+        """The arguments of :func:`~platoon_env.simulator.step_serial` after ``active`` and
+        ``n_substeps``: the records as bytes, the map bank and the buffers (see there why)."""
+        return (self._params_bytes, self._episode_bytes, self._slots.arrays, self.buffers)
 
     def set_threads(self, n_threads: int) -> None:
         """Use ``n_threads`` numba threads in :meth:`run` (1: a serial loop)."""
@@ -350,7 +365,7 @@ class PlatoonCore:
         ``i`` of env ``b`` (then nothing changed).
         """
         mask = self._all if active is None else active
-        args = (mask, n_substeps, self.params, self.episode, self._slots.arrays, self.buffers)
+        args = (mask, n_substeps, *self.step_args)
         if self.n_threads == 1 or self.batch_size == 1:
             return int(step_serial(*args))
         previous = numba.get_num_threads()
@@ -359,3 +374,9 @@ class PlatoonCore:
             return int(step_parallel(*args))
         finally:
             numba.set_num_threads(previous)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        # Views unpickle as copies: the byte views must alias the records again.
+        self._params_bytes = self.params.view(np.uint8)
+        self._episode_bytes = self.episode.view(np.uint8)

@@ -58,6 +58,7 @@ _VIEW_NAMES = (
     "_rewards",
     "_episode",
     "_run_args",
+    "_d_des",
 )
 
 
@@ -136,11 +137,20 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self.action_spaces = {a: action_space(cfg) for a in self.possible_agents}
         xmin, ymin, xmax, ymax = self.source.bounds
         n1 = cfg.followers + 1
+        n = cfg.followers
+        act = self.action_spaces[self.possible_agents[0]]
+        #: Bounds of :meth:`state` (its layout is documented there).
         self.state_space = spaces.Box(
-            low=np.tile(np.array([xmin, ymin, -math.pi], dtype=np.float32), n1),
-            high=np.tile(np.array([xmax, ymax, math.pi], dtype=np.float32), n1),
+            low=np.concatenate(
+                [np.tile(np.array([xmin, ymin, -math.pi]), n1), np.tile(act.low, n), [0.0, 0.0]]
+            ).astype(np.float32),
+            high=np.concatenate(
+                [np.tile(np.array([xmax, ymax, math.pi]), n1), np.tile(act.high, n), [1.0, 1.0]]
+            ).astype(np.float32),
             dtype=np.float32,
         )
+        self._state_low = self.state_space.low[: 3 * n1].reshape(n1, 3)
+        self._state_high = self.state_space.high[: 3 * n1].reshape(n1, 3)
         self._views()
 
     def _views(self) -> None:
@@ -154,14 +164,8 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self._terms = core.terms[0]
         self._rewards = core.rewards[0]
         self._episode = core.episode
-        self._run_args = (
-            np.ones(1, dtype=bool),
-            self.physics_substeps,
-            core.params,
-            core.episode,
-            core.maps,
-            core.buffers,
-        )
+        self._run_args = (np.ones(1, dtype=bool), self.physics_substeps, *core.step_args)
+        self._d_des = float(core.params[0]["d_des"])
 
     # ----------------------------------------------------------------------------------------
     # PettingZoo API
@@ -235,10 +239,29 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         return self._sensed.copy()
 
     def state(self) -> np.ndarray:
-        """Global state for centralised critics: all poses with wrapped headings (float32)."""
-        s = self._poses.copy()
-        s[:, 2] = np.mod(s[:, 2] + math.pi, 2 * math.pi) - math.pi
-        return s.astype(np.float32).ravel()
+        """Global state for centralised critics (float32, within :attr:`state_space`).
+
+        Layout, ``N`` followers: ``[x_0, y_0, theta_0, ..., x_N, y_N, theta_N]`` every robot's
+        pose, leader first (positions clipped to the workspace bounds, headings wrapped to
+        ``[-pi, pi]``); ``[u_1, omega_1, ..., u_N, omega_N]`` the velocities each follower's
+        actuators applied in the last step; the leader's progress along its path (arc length
+        over path length, in ``[0, 1]``); the episode's time over its limit
+        (``sim_time / (max_episode_steps * control_period)``, in ``[0, 1]``). Ground truth:
+        for critics and analysis, never for a policy's input.
+        """
+        poses = self._poses.copy()
+        poses[:, 2] = np.mod(poses[:, 2] + math.pi, 2 * math.pi) - math.pi
+        poses = np.clip(poses, self._state_low, self._state_high)
+        ep = self._episode[0]
+        length = float(self.scenario.path_s[-1])
+        horizon = self.max_episode_steps * self.control_period
+        tail = [
+            min(1.0, max(0.0, float(ep["leader_progress"]) / length)),
+            min(1.0, float(ep["sim_time"]) / horizon),
+        ]
+        return np.concatenate([poses.ravel(), self._core.applied[0].ravel(), tail]).astype(
+            np.float32
+        )
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None
@@ -266,8 +289,8 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
             seed = _check_seed(seed)
         had_map = self.scenario
         self._core.reset_env(0, seed, perturb=perturb, poses=options.get("poses"))
-        if self._core.maps is not self._run_args[4]:  # a bigger layout reallocated the bank
-            self._views()
+        if self._core.maps is not self._run_args[4] or self.scenario is not had_map:
+            self._views()  # a bigger layout reallocated the bank, or d_des may differ
         if self.scenario is not had_map and self._renderer is not None:
             self.close()  # the map changed: redraw from scratch
         self.agents = list(self.possible_agents)
@@ -412,7 +435,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 first, causes, cost = VIOLATION_INFO[mask]
                 infos[agent] = {"violation": first, "violations": causes, "cost": cost}
             return infos
-        d_des = self._core.params[0]["d_des"]
+        d_des = self._d_des
         rows = zip(self.agents, self._sensed.tolist(), masks)  # noqa: B905 - equal lengths
         for i, (agent, row, mask) in enumerate(rows):
             d, beta, visible, _, wall_l, wall_r, sight_l, sight_r, clearance = row

@@ -1,4 +1,4 @@
-"""The per-follower observation vector and the per-follower action (DESIGN §2).
+"""The per-follower observation vector and the per-follower action (``docs/sensing.md``).
 
 Everything a policy may use is here, derived from the follower's own sensors only: the
 camera's body-frame measurement of its predecessor and the proximity sensor's four clearances.

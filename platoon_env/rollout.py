@@ -1,4 +1,4 @@
-"""Run a policy for one episode, record what happened, and measure it (DESIGN §7).
+"""Run a policy for one episode, record what happened, and measure it (``docs/metrics.md``).
 
 One evaluation path serves every policy: anything with ``reset(seed=None)`` and
 ``act(observations) -> actions`` (:class:`baselines.Policy`) — the PPC law, the last-seen
@@ -154,7 +154,7 @@ def run_episode(
 
 
 def episode_metrics(ep: Episode, transient: float = DEFAULT_TRANSIENT) -> dict[str, Any]:
-    """The DESIGN §7 metrics of one episode.
+    """The ``docs/metrics.md`` metrics of one episode.
 
     * ``success``: the leader reached its path's end and no violation occurred;
     * ``violation``: the first violation's cause ("" if none); ``time_to_violation`` [s]

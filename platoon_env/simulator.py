@@ -60,7 +60,16 @@ from platoon_env.observation import (
     OBS_Y_REL,
 )
 from platoon_env.perception import perceive
-from platoon_env.records import Buffers, MapBank, Walls, path_of, walls_of
+from platoon_env.records import (
+    EPISODE_DTYPE,
+    MAP_INFO_DTYPE,
+    PARAMS_DTYPE,
+    Buffers,
+    MapBank,
+    Walls,
+    path_of,
+    walls_of,
+)
 from platoon_env.reward import reward_terms_into
 from platoon_env.safety import robot_contacts, sensed_violation, violation_masks_grid
 
@@ -298,18 +307,26 @@ def count_ended(active: np.ndarray, episode: np.ndarray) -> int:
 def step_serial(
     active: np.ndarray,
     n_substeps: int,
-    params: np.ndarray,
-    episode: np.ndarray,
+    params_bytes: np.ndarray,
+    episode_bytes: np.ndarray,
     maps: tuple,  # type: ignore[type-arg]
     bufs: tuple,  # type: ignore[type-arg]
 ) -> int:
     """Step (or, with ``n_substeps = 0``, sense) the ``active`` envs one after the other.
 
-    ``maps`` and ``bufs`` are the plain tuples of a :class:`~platoon_env.records.MapBank` and a
-    :class:`~platoon_env.records.Buffers`. Returns how many envs ended, or ``-1 - (b * N + i)``
-    when follower ``i`` of env ``b`` has a NaN or inf action (then nothing changed).
+    The records arrive as their bytes (``params.view(np.uint8)``, ...) and the named tuples as
+    plain tuples (``maps``: a :class:`~platoon_env.records.MapBank` with its ``info`` as bytes;
+    ``bufs``: a :class:`~platoon_env.records.Buffers`): numba types a structured array or a
+    named tuple passed from Python on a slow path on every call (about 0.5 µs each, measured),
+    a byte array or a plain tuple of arrays on its fast one. They are named again here.
+
+    Returns how many envs ended, or ``-1 - (b * N + i)`` when follower ``i`` of env ``b`` has a
+    NaN or inf action (then nothing changed).
     """
-    bank, buf = MapBank(*maps), Buffers(*bufs)
+    params = params_bytes.view(PARAMS_DTYPE)
+    episode = episode_bytes.view(EPISODE_DTYPE)
+    bank = MapBank(maps[0].view(MAP_INFO_DTYPE), *maps[1:])
+    buf = Buffers(*bufs)
     if n_substeps > 0:
         bad = first_bad_action(active, buf.actions)
         if bad >= 0:
@@ -324,13 +341,16 @@ def step_serial(
 def step_parallel(
     active: np.ndarray,
     n_substeps: int,
-    params: np.ndarray,
-    episode: np.ndarray,
+    params_bytes: np.ndarray,
+    episode_bytes: np.ndarray,
     maps: tuple,  # type: ignore[type-arg]
     bufs: tuple,  # type: ignore[type-arg]
 ) -> int:
     """:func:`step_serial` with the envs spread over numba's threads (``prange``)."""
-    bank, buf = MapBank(*maps), Buffers(*bufs)
+    params = params_bytes.view(PARAMS_DTYPE)
+    episode = episode_bytes.view(EPISODE_DTYPE)
+    bank = MapBank(maps[0].view(MAP_INFO_DTYPE), *maps[1:])
+    buf = Buffers(*bufs)
     if n_substeps > 0:
         bad = first_bad_action(active, buf.actions)
         if bad >= 0:

@@ -1,4 +1,4 @@
-"""Shared fixtures: small scenarios given as dicts (the schema of DESIGN §5)."""
+"""Shared fixtures: small scenarios given as dicts (the schema of docs/scenarios.md)."""
 
 from __future__ import annotations
 

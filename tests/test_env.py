@@ -413,3 +413,23 @@ def test_info_without_diagnostics(corridor: dict[str, Any]) -> None:
     np.testing.assert_array_equal(full.poses, lean.poses)
     assert seen_violation
     parallel_api_test(platoon_env.make(corridor, diagnostics=False), num_cycles=50)
+
+
+def test_state_for_centralised_critics(corridor: dict[str, Any]) -> None:
+    """``state()``: poses, applied velocities, leader progress and time, inside ``state_space``."""
+    env = platoon_env.make(corridor, terminate_on=(), robot={"accel_max": 1.0})
+    env.reset(seed=0)
+    n = env.n_followers
+    assert env.state_space.shape == (3 * (n + 1) + 2 * n + 2,)
+    previous = env.state()
+    for _ in range(120):
+        env.step({a: np.array([0.6, 0.3]) for a in env.agents})
+        state = env.state()
+        assert env.state_space.contains(state)
+        poses = env.poses
+        np.testing.assert_allclose(state[: 3 * (n + 1) : 3], poses[:, 0], rtol=1e-6)
+        np.testing.assert_allclose(state[3 * (n + 1) : -2], env.applied_velocities.ravel())
+        assert state[-2] >= previous[-2] and state[-1] > previous[-1]
+        previous = state
+    assert previous[3 * (n + 1)] == pytest.approx(0.6)  # u reached its command at 1 m/s^2
+    assert 0.0 < previous[-1] < 1.0

@@ -1,6 +1,6 @@
 """Unit tests of the PPC law (paper section 3, eqs. 7 and 10-14) in ``baselines.ppc``.
 
-The env is replaced by a ``SimpleNamespace`` stand-in with study C's parameters (DESIGN §4):
+The env is replaced by a ``SimpleNamespace`` stand-in with study C's parameters (docs/scenarios.md):
 r = 0.15, d_des = 1, d_col = 0.3, d_con = 1.5, beta_con = 0.4, lambda = 0.5, rho_d_inf = 0.05,
 rho_beta_inf = 0.1, k_d = 1, k_beta = 2, delta = 0.5, epsilon = 0.75, dt = 0.01.
 """

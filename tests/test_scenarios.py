@@ -35,7 +35,7 @@ def test_paper_studies_are_shipped() -> None:
 def test_paper_parameters(
     name: str, n: int, r: float, d_des: float, d_col: float, d_con: float, beta_con: float
 ) -> None:
-    """DESIGN §4 table."""
+    """The paper's parameters (docs/scenarios.md, shipped scenarios)."""
     cfg = load_config(name)
     assert cfg.followers == n and cfg.robot.radius == r
     assert cfg.formation.d_des == d_des and cfg.safety.d_col == d_col

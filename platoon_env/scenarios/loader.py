@@ -1,4 +1,7 @@
-"""Finding, reading and building scenarios: shipped names, YAML paths, or dicts (DESIGN §5-6)."""
+"""Finding, reading and building scenarios: shipped names, YAML paths, or dicts.
+
+See ``docs/scenarios.md`` (the schema) and ``docs/api.md`` (the public names).
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Typed, frozen configuration objects for a scenario (DESIGN §5).
+"""Typed, frozen configuration objects for a scenario (``docs/scenarios.md``).
 
 A scenario file is YAML; :func:`platoon_env.scenarios.loader.load_scenario` safe-loads it and
 passes the resulting mapping to :func:`parse_scenario`, which builds these dataclasses, rejects
@@ -236,7 +236,7 @@ class GeneratorConfig:
 
 @dataclass(frozen=True)
 class ScenarioConfig:
-    """A whole scenario as given in the file (DESIGN §5), before geometry is built."""
+    """A whole scenario as given in the file (``docs/scenarios.md``), before geometry is built."""
 
     name: str
     leader: LeaderConfig
@@ -356,10 +356,10 @@ def parse_section(cls: type[T], data: Any, path: str) -> T:
 
 
 def parse_scenario(data: Any, path: str = "scenario") -> ScenarioConfig:
-    """Parse and range-check a scenario mapping (DESIGN §5 schema).
+    """Parse and range-check a scenario mapping (the schema of ``docs/scenarios.md``).
 
     Raises :class:`ScenarioError` naming the field for unknown keys, wrong types and
-    out-of-range parameters (DESIGN §3: ``d_col >= 2r``, ``d_col < d_des < d_con``,
+    out-of-range parameters (``docs/safety.md``: ``d_col >= 2r``, ``d_col < d_des < d_con``,
     ``0 < beta_con < pi/2``).
     """
     cfg = parse_section(ScenarioConfig, data, path)
@@ -375,7 +375,8 @@ def _require(cond: bool, where: str, message: str) -> None:
 def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
     """Check every scalar parameter against the ranges the model needs.
 
-    Every message names the field and the offending value. Beyond DESIGN §3 this bounds the
+    Every message names the field and the offending value. Beyond the model's own ranges
+    (``docs/safety.md``) this bounds the
     actuator limits to :data:`ACTION_BOUND_RANGE` and the control period to
     ``(0, MAX_CONTROL_PERIOD]``.
     """
