@@ -320,10 +320,11 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         try:
             if len(actions) != len(agents):
                 raise KeyError
-            act = np.array([actions[a] for a in agents], dtype=np.float64)
-            if act.shape != self._actions.shape:
+            act = np.array([actions[a] for a in agents])
+            # Real numbers only: numpy would read "0.3" as 0.3 and drop an imaginary part.
+            if act.shape != self._actions.shape or act.dtype.kind not in "fiu":
                 raise ValueError
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, IndexError):
             act = self._read_actions(actions)
         self._actions[:] = act
         ended = step_serial(*self._run_args)
@@ -392,7 +393,8 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     # ----------------------------------------------------------------------------------------
     def _read_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
         """The live agents' actions as a float64 (N, 2) array, or an error naming the misuse
-        (not a dict, unknown or missing agent, wrong shape). :meth:`step` inlines the fast path
+        (not a dict, unknown or missing agent, not real numbers, wrong shape). :meth:`step` inlines
+        the fast path
         and calls this when it does not apply."""
         if not isinstance(actions, Mapping):
             raise TypeError(f"actions must be a dict agent -> [u, omega], got {type(actions)}")
@@ -405,6 +407,13 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                     )
             missing = [a for a in self.agents if a not in actions]
             raise KeyError(f"missing action for agent {missing[0]!r}")
+        for agent in self.agents:
+            kind = np.asarray(actions[agent]).dtype.kind
+            if kind not in "fiu":
+                raise TypeError(
+                    f"action of {agent!r} must be real numbers [u, omega], got "
+                    f"{actions[agent]!r} ({np.asarray(actions[agent]).dtype})"
+                )
         try:
             out = np.array([actions[a] for a in self.agents], dtype=np.float64)
         except (ValueError, TypeError):

@@ -79,8 +79,10 @@ __all__ = [
     "describe_masks",
     "first_cause",
     "mask_to_causes",
+    "motion_crosses_wall",
     "robot_contacts",
     "sensed_violation",
+    "stop_at_walls",
     "violation_masks",
     "violation_masks_grid",
 ]
@@ -264,6 +266,51 @@ def violation_masks(
             p,
         )
     robot_contacts(poses, p.radius, out)
+
+
+@njit(cache=True)
+def motion_crosses_wall(walls: Walls, start: Point, end: Point, cand: np.ndarray) -> bool:
+    """Whether the straight motion ``[start, end]`` of a robot's centre touches ``∂W_f``.
+
+    A sub-step's motion is an arc whose chord this is; a crossing of a wall between the two
+    poses is a crossing of the chord or of the arc's cap, and the cap stays within the disk the
+    clearance test covers. ``cand`` is scratch space for ``E`` edge indices.
+    """
+    box = (
+        min(start[0], end[0]),
+        min(start[1], end[1]),
+        max(start[0], end[0]),
+        max(start[1], end[1]),
+    )
+    n = grid_candidates(walls, box, cand)
+    for k in range(n):
+        e = cand[k]
+        edge = walls.edges[e]
+        if boxes_overlap(
+            box, (walls.boxes[e, 0], walls.boxes[e, 1], walls.boxes[e, 2], walls.boxes[e, 3])
+        ):
+            if segments_intersect(start, end, (edge[0], edge[1]), (edge[2], edge[3])):
+                return True
+    return False
+
+
+@njit(cache=True)
+def stop_at_walls(
+    poses: np.ndarray, prev: np.ndarray, walls: Walls, cand: np.ndarray, masks: np.ndarray
+) -> bool:
+    """Walls are solid: a follower whose sub-step motion (from ``prev`` to ``poses``) crossed
+    the boundary goes back to its pose before the sub-step. Only followers with
+    ``COLLISION_OBSTACLE`` in ``masks`` are tested (a crossing always sets it). Returns whether
+    any follower was stopped; the collision stays reported."""
+    stopped = False
+    for i in range(masks.shape[0]):
+        if not masks[i] & COLLISION_OBSTACLE:
+            continue
+        r = i + 1
+        if motion_crosses_wall(walls, (prev[r, 0], prev[r, 1]), (poses[r, 0], poses[r, 1]), cand):
+            poses[r, 0], poses[r, 1], poses[r, 2] = prev[r, 0], prev[r, 1], prev[r, 2]
+            stopped = True
+    return stopped
 
 
 @njit(cache=True)

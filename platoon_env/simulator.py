@@ -9,7 +9,9 @@ Pipeline of env ``b``'s control period (HighwayEnv-style, fixed order), :func:`s
    (eq. 1, :mod:`platoon_env.dynamics.unicycle`), the safety checks of
    :mod:`platoon_env.safety` (eqs. 4-5) after each; stop early when a violation of a cause in
    ``terminate_on`` occurs. In the last sub-step the safety masks come from the sensing computed
-   anyway (clearance, occlusion, ``d``, ``beta``), so no edge is tested twice;
+   anyway (clearance, occlusion, ``d``, ``beta``), so no edge is tested twice. When a collision
+   with an obstacle does not end the episode, walls stay solid: a follower whose motion would
+   cross one stays where it was (:func:`platoon_env.safety.stop_at_walls`), in contact;
    The followers move with the velocities their actuators apply
    (:mod:`platoon_env.dynamics.actuators`: lag and rate limits, or the command itself);
 3. sensing of every follower (:mod:`platoon_env.geometry.sensing`) and the observation vectors
@@ -71,7 +73,13 @@ from platoon_env.records import (
     walls_of,
 )
 from platoon_env.reward import reward_terms_into
-from platoon_env.safety import robot_contacts, sensed_violation, violation_masks_grid
+from platoon_env.safety import (
+    COLLISION_OBSTACLE,
+    robot_contacts,
+    sensed_violation,
+    stop_at_walls,
+    violation_masks_grid,
+)
 
 
 @njit(cache=True)
@@ -160,6 +168,8 @@ def simulate(
     # period): lets the sub-step safety checks skip followers far from every wall.
     travel = np.zeros(n + 1)
     h = p.substep
+    # Walls are solid when collisions do not end the episode: a follower does not pass through.
+    solid = not p.terminate_mask & COLLISION_OBSTACLE
     for i in range(n):
         violations[i] = 0
     done = 0
@@ -187,8 +197,27 @@ def simulate(
                 sub_mask[i] = sensed_violation(sensed[i], clear2, motion_hit, p)
             robot_contacts(poses, p.radius, sub_mask)
             sensed_now = True
+            if solid and stop_at_walls(poses, prev, walls, cand, sub_mask):
+                # Sense again where the stopped followers stand (their successors' lines of
+                # sight changed too); they stay in collision.
+                for i in range(n):
+                    contact = sub_mask[i] & COLLISION_OBSTACLE
+                    clear2, _ = sense_follower_grid(
+                        (poses[i + 1, 0], poses[i + 1, 1], poses[i + 1, 2]),
+                        (poses[i, 0], poses[i, 1]),
+                        (poses[i + 1, 0], poses[i + 1, 1]),
+                        False,
+                        walls,
+                        cand,
+                        p,
+                        sensed[i],
+                    )
+                    sub_mask[i] = sensed_violation(sensed[i], clear2, False, p) | contact
+                robot_contacts(poses, p.radius, sub_mask)
         else:
             violation_masks_grid(poses, prev, walls, cand, p, sub_mask, sensed, travel)
+            if solid:
+                stop_at_walls(poses, prev, walls, cand, sub_mask)
         stop = False
         for i in range(n):
             violations[i] |= sub_mask[i]

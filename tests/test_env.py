@@ -266,6 +266,8 @@ def test_pickle_mid_episode(corridor: dict[str, Any]) -> None:
         (np.array([0.0, np.inf]), ValueError, "NaN or inf"),
         (np.array([0.0, 0.0, 0.0]), ValueError, "shape"),
         (np.array([[0.0, 0.0]]), ValueError, "shape"),
+        (["0.3", "0.0"], TypeError, "real numbers"),
+        (np.array([0.3 + 1j, 0.0]), TypeError, "real numbers"),
     ],
 )
 def test_bad_actions_raise_and_change_nothing(
@@ -282,6 +284,22 @@ def test_bad_actions_raise_and_change_nothing(
         assert "follower_2" in str(exc.value)
     np.testing.assert_array_equal(before[0], env.poses)
     assert (env.sim_time, env.steps) == before[1:]
+
+
+def test_an_array_is_not_an_action_dict(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor)
+    env.reset(seed=0)
+    with pytest.raises(TypeError, match="dict"):
+        env.step(np.zeros((2, 2)))  # type: ignore[arg-type]
+
+
+def test_numpy_integer_seeds(corridor: dict[str, Any]) -> None:
+    env = platoon_env.make(corridor)
+    a, _ = env.reset(seed=np.int64(3))
+    b, _ = env.reset(seed=3)
+    np.testing.assert_array_equal(a["follower_1"], b["follower_1"])
+    with pytest.raises(TypeError, match="seed"):
+        env.reset(seed=3.0)  # type: ignore[arg-type]
 
 
 def test_unknown_and_missing_agents(corridor: dict[str, Any]) -> None:
@@ -433,3 +451,31 @@ def test_state_for_centralised_critics(corridor: dict[str, Any]) -> None:
         previous = state
     assert previous[3 * (n + 1)] == pytest.approx(0.6)  # u reached its command at 1 m/s^2
     assert 0.0 < previous[-1] < 1.0
+
+
+@pytest.mark.parametrize("speed", [0.5, 3.0, 10.0])
+def test_walls_stay_solid_when_collisions_are_only_reported(
+    corridor: dict[str, Any], speed: float
+) -> None:
+    """terminate_on=(): a follower driven at a wall never leaves the free space (even fast
+    enough to cross a wall within one sub-step), is reported in collision on every step in
+    contact, and its clearance is never positive outside."""
+    from shapely.geometry import Point
+
+    env = platoon_env.make(corridor, terminate_on=[])
+    env.reset(seed=0)
+    free = env.scenario.free_space
+    r = env.scenario.config.robot.radius
+    contact_steps = 0
+    for t in range(700):
+        # Follower 1 turns left, then drives straight into the corridor's wall; the others stand.
+        act = {a: np.zeros(2) for a in env.agents}
+        act["follower_1"] = np.array([speed, 3.0 if t < 50 else 0.0])
+        _, _, _, _, infos = env.step(act)
+        x, y = env.poses[1, :2]
+        assert free.covers(Point(x, y)), (x, y)
+        clearance = infos["follower_1"]["clearance"]
+        if clearance <= r:
+            contact_steps += 1
+            assert "collision_obstacle" in infos["follower_1"]["violations"]
+    assert contact_steps > 50
