@@ -35,6 +35,7 @@ from platoon_env.geometry.grid import grid_candidates
 from platoon_env.geometry.primitives import (
     Point,
     boxes_overlap,
+    padded_box,
     point_box_distance2,
     point_segment_distance2,
     segments_intersect,
@@ -234,12 +235,7 @@ def violation_masks_grid(
                 out[i - 1] = pose_violation(pose, (qx, qy), p)
                 continue
         ox, oy = prev_poses[i, 0], prev_poses[i, 1]
-        query = (
-            min(min(px, qx), ox) - reach,
-            min(min(py, qy), oy) - reach,
-            max(max(px, qx), ox) + reach,
-            max(max(py, qy), oy) + reach,
-        )
+        query = padded_box((px, py), (qx, qy), (ox, oy), reach)
         n = grid_candidates(walls, query, cand)
         out[i - 1] = follower_violation(pose, (qx, qy), (ox, oy), walls, cand[:n], p)
     robot_contacts(poses, radius, out)

@@ -330,6 +330,22 @@ def count_ended(active: np.ndarray, episode: np.ndarray) -> int:
     return ended
 
 
+@njit(cache=True, inline="always")
+def _named(
+    params_bytes: np.ndarray,
+    episode_bytes: np.ndarray,
+    maps: tuple,  # type: ignore[type-arg]
+    bufs: tuple,  # type: ignore[type-arg]
+) -> tuple:  # type: ignore[type-arg]
+    """The drivers' arguments named again: params and episode records, MapBank, Buffers."""
+    return (
+        params_bytes.view(PARAMS_DTYPE),
+        episode_bytes.view(EPISODE_DTYPE),
+        MapBank(maps[0].view(MAP_INFO_DTYPE), *maps[1:]),
+        Buffers(*bufs),
+    )
+
+
 # The two drivers share their body (step_env); they must be distinct functions because numba
 # caches one compiled variant per function, and prange only parallelises with parallel=True.
 @njit(cache=True)
@@ -352,14 +368,10 @@ def step_serial(
     Returns how many envs ended, or ``-1 - (b * N + i)`` when follower ``i`` of env ``b`` has a
     NaN or inf action (then nothing changed).
     """
-    params = params_bytes.view(PARAMS_DTYPE)
-    episode = episode_bytes.view(EPISODE_DTYPE)
-    bank = MapBank(maps[0].view(MAP_INFO_DTYPE), *maps[1:])
-    buf = Buffers(*bufs)
-    if n_substeps > 0:
-        bad = first_bad_action(active, buf.actions)
-        if bad >= 0:
-            return -1 - bad
+    params, episode, bank, buf = _named(params_bytes, episode_bytes, maps, bufs)
+    bad = first_bad_action(active, buf.actions) if n_substeps > 0 else -1
+    if bad >= 0:
+        return -1 - bad
     for b in range(active.shape[0]):
         if active[b]:
             step_env(b, n_substeps, params, episode, bank, buf)
@@ -376,14 +388,15 @@ def step_parallel(
     bufs: tuple,  # type: ignore[type-arg]
 ) -> int:
     """:func:`step_serial` with the envs spread over numba's threads (``prange``)."""
+    # Named here, not through _named: numba's parfor lowering cannot trace a named tuple that
+    # an inlined call returned into the prange body.
     params = params_bytes.view(PARAMS_DTYPE)
     episode = episode_bytes.view(EPISODE_DTYPE)
     bank = MapBank(maps[0].view(MAP_INFO_DTYPE), *maps[1:])
     buf = Buffers(*bufs)
-    if n_substeps > 0:
-        bad = first_bad_action(active, buf.actions)
-        if bad >= 0:
-            return -1 - bad
+    bad = first_bad_action(active, buf.actions) if n_substeps > 0 else -1
+    if bad >= 0:
+        return -1 - bad
     for b in prange(active.shape[0]):
         if active[b]:
             step_env(b, n_substeps, params, episode, bank, buf)

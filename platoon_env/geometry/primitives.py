@@ -147,3 +147,15 @@ def wrap_angle(a: float) -> float:
     if a <= -math.pi:
         a += two_pi
     return a
+
+
+@njit(cache=True, inline="always")
+def padded_box(a: Point, b: Point, c: Point, pad: float) -> Box:
+    """The bounding box of the points ``a``, ``b``, ``c``, grown by ``pad`` on every side (the
+    grid query of a follower, its predecessor and its position before a sub-step)."""
+    return (
+        min(min(a[0], b[0]), c[0]) - pad,
+        min(min(a[1], b[1]), c[1]) - pad,
+        max(max(a[0], b[0]), c[0]) + pad,
+        max(max(a[1], b[1]), c[1]) + pad,
+    )

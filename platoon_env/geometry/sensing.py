@@ -59,6 +59,7 @@ from platoon_env.geometry.primitives import (
     box_distance2,
     boxes_overlap,
     cross,
+    padded_box,
     point_box_distance2,
     point_segment_distance2,
     segments_intersect,
@@ -433,16 +434,9 @@ def sense_follower_grid(
     edge lies within the proximity range, a widening grid search finds the nearest one.
     """
     px, py, _ = pose
-    qx, qy = pred
-    ox, oy = prev
     proximity_range = p.proximity_range
     reach = proximity_range * (1.0 + _PAD_REL) + _PAD_ABS
-    query = (
-        min(min(px, qx), ox) - reach,
-        min(min(py, qy), oy) - reach,
-        max(max(px, qx), ox) + reach,
-        max(max(py, qy), oy) + reach,
-    )
+    query = padded_box((px, py), pred, prev, reach)
     n = grid_candidates(walls, query, cand)
     clear2, hit = sense_candidates(pose, pred, prev, check_motion, walls, cand[:n], p, out)
     if clear2 > proximity_range * proximity_range and not covers_grid(walls.grid, query):
