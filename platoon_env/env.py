@@ -364,6 +364,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 self.scenario.config,
                 self.render_mode,
                 fps=self.metadata["render_fps"],
+                bounds=self.source.bounds,
             )
         names = [first_cause(int(m)) for m in self._violations]
         return self._renderer.render(  # type: ignore[no-any-return]

@@ -226,9 +226,26 @@ def fov_wedges(poses: np.ndarray, half_angle: float, radius: float) -> np.ndarra
     return np.concatenate([poses[:, None, :2], arc], axis=1)
 
 
-def _scene_limits(free_space: Any) -> tuple[float, float, float, float]:
-    """Axis limits: the free space's bounding box plus a margin of 3 % of its larger side."""
-    xmin, ymin, xmax, ymax = (float(v) for v in free_space.bounds)
+Bounds = tuple[float, float, float, float]  # (xmin, ymin, xmax, ymax) [m]
+
+
+def _bounds_of(region: Any) -> Bounds:
+    """``(xmin, ymin, xmax, ymax)`` of a shapely geometry or of a 4-sequence taken as such."""
+    box = region.bounds if hasattr(region, "bounds") else region
+    xmin, ymin, xmax, ymax = (float(v) for v in box)
+    if not (xmin <= xmax and ymin <= ymax):
+        raise ValueError(f"bounds must be (xmin, ymin, xmax, ymax), got {tuple(box)!r}")
+    return xmin, ymin, xmax, ymax
+
+
+def _union(a: Bounds, b: Bounds) -> Bounds:
+    return min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])
+
+
+def _scene_limits(region: Any) -> Bounds:
+    """Axis limits: the bounding box of ``region`` (a geometry, or ``(xmin, ymin, xmax,
+    ymax)``) plus a margin of 3 % of its larger side."""
+    xmin, ymin, xmax, ymax = _bounds_of(region)
     margin = 0.03 * max(xmax - xmin, ymax - ymin, 1e-9)
     return xmin - margin, ymin - margin, xmax + margin, ymax + margin
 
@@ -236,9 +253,11 @@ def _scene_limits(free_space: Any) -> tuple[float, float, float, float]:
 def frame_size(free_space: Any, size_px: int = 640) -> tuple[int, int]:
     """``(height, width)`` in pixels of the frames a :class:`Renderer` returns.
 
-    The longer side of the figure is ``size_px``; the other follows the workspace's aspect ratio
-    (clamped to 1:3 .. 3:1) plus a band for the title, rounded to an even number of pixels so the
-    frames can be encoded as H.264 video.
+    ``free_space`` is the workspace (a shapely geometry) or the box ``(xmin, ymin, xmax, ymax)``
+    the frames show (a :class:`Renderer`'s ``bounds``). The longer side of the figure is
+    ``size_px``; the other follows the box's aspect ratio (clamped to 1:3 .. 3:1) plus a band
+    for the title, rounded to an even number of pixels so the frames can be encoded as H.264
+    video.
     """
     xmin, ymin, xmax, ymax = _scene_limits(free_space)
     aspect = min(max((ymax - ymin) / (xmax - xmin), 1.0 / 3.0), 3.0)  # height / width
@@ -352,6 +371,7 @@ def draw_scene(
     trail: np.ndarray | None = None,
     *,
     background: bool = True,
+    bounds: Any = None,
 ) -> SceneArtists:
     """Draw the workspace and one platoon configuration onto a matplotlib ``Axes``.
 
@@ -370,13 +390,16 @@ def draw_scene(
         trail: optional ``(T, N+1, 2)`` past positions, drawn as thin lines.
         background: draw the obstacles and the leader's path and set the axis limits and equal
             aspect. Pass ``False`` to overlay further snapshots on an axes already drawn.
+        bounds: ``(xmin, ymin, xmax, ymax)`` [m] the axes show (with a 3 % margin), e.g. a box
+            holding every workspace of a procedural family, so that all are drawn to one scale;
+            None: the free space's bounding box. The free space is always shown whole.
 
     Returns:
         The per-frame artists; :meth:`SceneArtists.update` redraws them for another
         configuration.
     """
     if background:
-        _draw_background(ax, free_space, config)
+        _draw_background(ax, free_space, config, bounds)
     trail_lines = LineCollection([], linewidths=0.8, alpha=0.8, zorder=_Z_TRAIL)
     fov = PolyCollection(
         [], facecolors=[_FOV_FACE], edgecolors=[_FOV_EDGE], linewidths=0.6, zorder=_Z_FOV
@@ -419,9 +442,10 @@ def draw_scene(
     return artists
 
 
-def _draw_background(ax: Axes, free_space: Any, config: SceneConfig) -> None:
+def _draw_background(ax: Axes, free_space: Any, config: SceneConfig, bounds: Any = None) -> None:
     """Free space, obstacles, leader path, limits and aspect: what never changes."""
-    extent = _scene_limits(free_space)
+    box = _bounds_of(free_space)
+    extent = _scene_limits(box if bounds is None else _union(_bounds_of(bounds), box))
     # The obstacles are drawn opaque above the fields of view: a camera does not see into walls.
     ax.add_patch(
         PathPatch(free_space_path(free_space), facecolor=_FREE, edgecolor="none", zorder=0.5)
@@ -463,6 +487,13 @@ class Renderer:
         trail_length: keep the positions of the last ``trail_length`` rendered frames and draw
             them as trails (0: no trails). The trail restarts when ``sim_time`` goes back (a
             reset).
+        bounds: ``(xmin, ymin, xmax, ymax)`` [m], a box holding every workspace this renderer's
+            env can draw (``env.source.bounds``). The frame size (:func:`frame_size`) and the
+            axes follow it, so every frame of the env has one shape and one scale even when each
+            episode has a new workspace (a video writer needs one frame size). None: for a
+            config with a ``generator`` block (a layout of a procedural family), the family's
+            :data:`~platoon_env.scenarios.procedural.LAYOUT_BOUNDS`; otherwise the free space's
+            own bounding box.
     """
 
     def __init__(
@@ -473,6 +504,8 @@ class Renderer:
         size_px: int = 640,
         fps: int = 30,
         trail_length: int = 0,
+        *,
+        bounds: Any = None,
     ) -> None:
         if render_mode not in RENDER_MODES:
             raise ValueError(
@@ -487,7 +520,13 @@ class Renderer:
         self.render_mode = render_mode
         self.fps = fps
         self.trail_length = int(trail_length)
-        height, width = frame_size(free_space, size_px)
+        if bounds is None and getattr(config, "generator", None) is not None:
+            from platoon_env.scenarios.procedural import LAYOUT_BOUNDS
+
+            bounds = LAYOUT_BOUNDS
+        #: ``(xmin, ymin, xmax, ymax)`` [m] the frames show (see the ``bounds`` argument).
+        self.bounds: Bounds = _bounds_of(free_space if bounds is None else bounds)
+        height, width = frame_size(self.bounds, size_px)
         self._height, self._width = height, width
         self._trail: deque[np.ndarray] = deque(maxlen=max(self.trail_length, 1))
         self._last_time = -math.inf
@@ -533,7 +572,15 @@ class Renderer:
         ax.set_yticks([])
         self._fig = fig
         self._scene = draw_scene(
-            ax, self.free_space, self.config, poses, visible, sim_time, violations, trail
+            ax,
+            self.free_space,
+            self.config,
+            poses,
+            visible,
+            sim_time,
+            violations,
+            trail,
+            bounds=self.bounds,
         )
 
     def _window_closed(self) -> bool:

@@ -279,3 +279,58 @@ def test_snapshots_list_every_violation_in_one_box(corridor: dict) -> None:
     assert len(lines) >= 4 and len(snapshot_times) >= 2  # several snapshots, both followers
     assert all(": out_of_fov" in line or ": occluded" in line or ": out_of_range" in line
                for line in lines)  # fmt: skip
+
+
+def test_procedural_env_frames_keep_one_shape() -> None:
+    """A new workspace on every reset must not change the frame size (a video writer takes one
+    size): the frames show the source's bounds, which hold every layout."""
+    import platoon_env
+
+    env = platoon_env.make("procedural_train", render_mode="rgb_array")
+    shapes, layouts = set(), set()
+    for seed in range(5):
+        env.reset(seed=seed)
+        frame = env.render()
+        assert isinstance(frame, np.ndarray)
+        shapes.add(frame.shape)
+        layouts.add(env.scenario.free_space.bounds)
+    env.close()
+    assert len(layouts) > 1  # the workspaces (and their own bounding boxes) did differ
+    assert len(shapes) == 1
+
+
+def test_bounds_fix_frame_shape_and_scale(free_space: Polygon) -> None:
+    """With ``bounds`` the frame size and the world-to-pixel map depend only on the bounds, not
+    on the workspace drawn inside them."""
+    bounds = (0.0, 0.0, 20.0, 10.0)
+    small = box(1.0, 1.0, 6.0, 9.0)
+    frames, pixels = [], []
+    for region in (free_space, small):
+        renderer = Renderer(region, make_config(1), "rgb_array", size_px=300, bounds=bounds)
+        assert renderer.bounds == bounds
+        frame = renderer.render(np.array([[3.0, 5.0, 0.0], [2.0, 5.0, 0.0]]), [True], 0.0)
+        assert frame is not None and frame.shape == renderer.frame_shape
+        frames.append(frame.shape)
+        pixels.append(renderer.world_to_pixel(15.0, 2.0))
+        assert is_grey(frame[renderer.world_to_pixel(15.0, 5.0)])  # inside bounds, not W_f
+        renderer.close()
+    assert frames[0] == frames[1] == (*frame_size(bounds, 300), 3)
+    assert frames[0][1] == 300  # the wide bounds' longer side
+    assert pixels[0] == pixels[1]
+
+
+def test_procedural_layout_config_defaults_to_the_family_bounds() -> None:
+    """Without ``bounds``, a layout of a procedural family (its config keeps the ``generator``
+    block) is drawn in the family's LAYOUT_BOUNDS."""
+    from platoon_env.scenarios.procedural import LAYOUT_BOUNDS
+    from platoon_env.scenarios.source import scenario_source
+
+    source = scenario_source("procedural_train")
+    assert source.bounds == LAYOUT_BOUNDS
+    shapes = set()
+    for index in (0, 1):
+        layout = source.layout(index)  # type: ignore[attr-defined]
+        renderer = Renderer(layout.free_space, layout.config, "rgb_array", size_px=200)
+        assert renderer.bounds == LAYOUT_BOUNDS
+        shapes.add(renderer.frame_shape)
+    assert shapes == {(*frame_size(LAYOUT_BOUNDS, 200), 3)}

@@ -1,16 +1,40 @@
 """Finding, reading and building scenarios: shipped names, YAML paths, or dicts.
 
 See ``docs/scenarios.md`` (the schema) and ``docs/api.md`` (the public names).
+
+Reading YAML (:func:`read_yaml`) is strict, so that no input escapes the schema's checks:
+
+* **YAML 1.2 scalars.** PyYAML resolves plain scalars by YAML 1.1 rules, where ``1:30`` is the
+  sexagesimal integer 90, ``017`` is octal 15, ``1_000`` is 1000 and ``yes``/``no``/``on``/
+  ``off`` are booleans. The loader resolves them by the YAML 1.2 core schema instead: integers
+  are decimal (``[-+]?[0-9]+``), ``0o17`` or ``0x1f``; floats are ``1.5``, ``1e-3``, ``.inf``,
+  ``.nan``; booleans are only ``true``/``false``; dates stay strings. Anything else is a string,
+  which the schema then rejects where it expects a number (``followers: 1:30`` is the error
+  "expected an integer, got '1:30'").
+* **No aliases.** A scenario never needs ``&anchor``/``*alias``; an alias is an error, which
+  also refuses alias bombs ("billion laughs") at once, before anything is expanded.
+* **Bounded size and depth.** A file (or text) over :data:`MAX_YAML_BYTES` is refused before it
+  is parsed, and nesting deeper than :data:`MAX_YAML_DEPTH` is an error (not a RecursionError).
+* **No duplicate keys.** A key given twice in one mapping is an error naming the key and both
+  lines (PyYAML silently keeps the last one).
+* **Safe tags only.** Tags that would build Python objects (``!!python/...``) are rejected,
+  never executed; a file must be UTF-8. Every error is a
+  :class:`~platoon_env.scenarios.schema.ScenarioError` naming the file and line.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import yaml
+from yaml.composer import ComposerError
+from yaml.constructor import ConstructorError
+from yaml.events import AliasEvent
+from yaml.nodes import MappingNode, Node, ScalarNode
 
 from platoon_env.scenarios.scenario import Scenario, build_scenario
 from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError, parse_scenario
@@ -18,6 +42,130 @@ from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError, parse_sc
 _DATA = "platoon_env.scenarios.data"
 
 ScenarioLike = str | Path | Mapping[str, Any] | ScenarioConfig | Scenario
+
+#: [bytes] Largest scenario or profile file read (the shipped ones are a few kB; a map of
+#: thousands of vertices stays far below this).
+MAX_YAML_BYTES = 10 * 1024 * 1024
+#: Deepest nesting of YAML collections (a scenario needs about six: blocks, polygons, points).
+MAX_YAML_DEPTH = 64
+
+# YAML 1.2 core schema (https://yaml.org/spec/1.2.2/#1032-tag-resolution).
+_BOOL = "tag:yaml.org,2002:bool"
+_INT = "tag:yaml.org,2002:int"
+_FLOAT = "tag:yaml.org,2002:float"
+_BOOL_RE = re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$")
+_INT_RE = re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$")
+_FLOAT_RE = re.compile(
+    r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+    r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"
+)
+# YAML 1.1 resolutions that YAML 1.2 does not have (or resolves differently).
+_YAML11_ONLY = {
+    _BOOL,
+    _INT,
+    _FLOAT,
+    "tag:yaml.org,2002:timestamp",
+    "tag:yaml.org,2002:merge",
+    "tag:yaml.org,2002:value",
+}
+
+
+class _ScenarioLoader(yaml.SafeLoader):
+    """PyYAML's SafeLoader with YAML 1.2 scalars, no aliases, a depth limit and no duplicate
+    keys (see the module docstring)."""
+
+    yaml_implicit_resolvers = {
+        first: [(tag, rx) for tag, rx in resolvers if tag not in _YAML11_ONLY]
+        for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    }
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent: Node | None, index: Any) -> Node | None:
+        if self.check_event(AliasEvent):
+            raise ComposerError(
+                None,
+                None,
+                "found an alias (*name): YAML aliases are not allowed here (write the value out)",
+                self.peek_event().start_mark,
+            )
+        if self._depth >= MAX_YAML_DEPTH:
+            raise ComposerError(
+                None,
+                None,
+                f"nested deeper than {MAX_YAML_DEPTH} levels",
+                self.peek_event().start_mark,
+            )
+        self._depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_mapping(self, node: MappingNode, deep: bool = False) -> dict[Any, Any]:
+        if isinstance(node, MappingNode):
+            first_seen: dict[Any, Node] = {}
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = first_seen.setdefault(key, key_node)
+                except TypeError:
+                    continue  # an unhashable key: the base class reports it
+                if first is not key_node:
+                    raise ConstructorError(
+                        "while constructing a mapping",
+                        node.start_mark,
+                        f"found duplicate key {key!r} (first given on line "
+                        f"{first.start_mark.line + 1})",
+                        key_node.start_mark,
+                    )
+        return super().construct_mapping(node, deep=deep)  # type: ignore[no-any-return]
+
+
+def _scalar(loader: _ScenarioLoader, node: Node, pattern: re.Pattern[str], kind: str) -> str:
+    if not isinstance(node, ScalarNode):
+        raise ConstructorError(None, None, f"expected a scalar {kind}", node.start_mark)
+    value = str(loader.construct_scalar(node))
+    if not pattern.match(value):
+        raise ConstructorError(None, None, f"invalid {kind} {value!r} (YAML 1.2)", node.start_mark)
+    return value
+
+
+def _construct_bool(loader: _ScenarioLoader, node: Node) -> bool:
+    return _scalar(loader, node, _BOOL_RE, "boolean").lower() == "true"
+
+
+def _construct_int(loader: _ScenarioLoader, node: Node) -> int:
+    value = _scalar(loader, node, _INT_RE, "integer")
+    try:
+        if value.startswith("0o"):
+            return int(value[2:], 8)
+        if value.startswith("0x"):
+            return int(value[2:], 16)
+        return int(value, 10)
+    except ValueError as exc:  # e.g. more digits than Python converts (sys.int_info)
+        raise ConstructorError(None, None, f"invalid integer: {exc}", node.start_mark) from exc
+
+
+def _construct_float(loader: _ScenarioLoader, node: Node) -> float:
+    value = _scalar(loader, node, _FLOAT_RE, "float")
+    lowered = value.lower()
+    if lowered.endswith(".inf"):
+        return float("-inf") if lowered.startswith("-") else float("inf")
+    if lowered == ".nan":
+        return float("nan")
+    return float(value)
+
+
+_ScenarioLoader.add_implicit_resolver(_BOOL, _BOOL_RE, list("tTfF"))
+# int before float: "1" matches both patterns, and the first match wins.
+_ScenarioLoader.add_implicit_resolver(_INT, _INT_RE, list("-+0123456789"))
+_ScenarioLoader.add_implicit_resolver(_FLOAT, _FLOAT_RE, list("-+.0123456789"))
+_ScenarioLoader.add_constructor(_BOOL, _construct_bool)
+_ScenarioLoader.add_constructor(_INT, _construct_int)
+_ScenarioLoader.add_constructor(_FLOAT, _construct_float)
 
 
 def list_scenarios() -> list[str]:
@@ -31,21 +179,58 @@ def list_scenarios() -> list[str]:
 
 
 def read_yaml(text: str, source: str) -> Any:
-    """Safe-load YAML; errors name the file and line. Tags that would build Python objects are
-    rejected (never executed)."""
+    """Load one YAML document strictly (the module docstring lists the rules); every error is a
+    :class:`ScenarioError` that names ``source`` and, for a YAML error, the line.
+
+    Tags that would build Python objects are rejected (never executed); aliases, duplicate
+    keys, nesting deeper than :data:`MAX_YAML_DEPTH` and text over :data:`MAX_YAML_BYTES` are
+    refused; plain scalars resolve by YAML 1.2 rules (``1:30`` is a string, not 90).
+    """
+    if len(text) > MAX_YAML_BYTES:
+        raise ScenarioError(
+            f"{source}: {len(text)} characters, more than the limit of {MAX_YAML_BYTES} "
+            "(MAX_YAML_BYTES)"
+        )
+    loader = _ScenarioLoader(text)
     try:
-        return yaml.safe_load(text)
+        return loader.get_single_data()
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{source}:{mark.line + 1}" if mark is not None else source
         problem = getattr(exc, "problem", None) or str(exc)
         raise ScenarioError(f"{where}: malformed YAML: {problem}") from exc
+    except RecursionError as exc:  # pragma: no cover - the depth limit comes first
+        raise ScenarioError(f"{source}: malformed YAML: nested too deeply") from exc
+    finally:
+        loader.dispose()
+
+
+def _read_text(path: Path) -> str:
+    """The UTF-8 text of the file at ``path``, refused over :data:`MAX_YAML_BYTES`."""
+    size = path.stat().st_size
+    if size > MAX_YAML_BYTES:
+        raise ScenarioError(
+            f"{path}: the file is {size} bytes, more than the limit of {MAX_YAML_BYTES} bytes "
+            "(MAX_YAML_BYTES) for a scenario file"
+        )
+    with path.open("rb") as f:
+        raw = f.read(MAX_YAML_BYTES + 1)  # the file may have grown since the stat
+    if len(raw) > MAX_YAML_BYTES:
+        raise ScenarioError(f"{path}: the file is larger than {MAX_YAML_BYTES} bytes")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise ScenarioError(
+            f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset "
+            f"{exc.start}): save the scenario file as UTF-8"
+        ) from exc
 
 
 def _config_from_file(path: Path) -> ScenarioConfig:
     if not path.is_file():
         raise ScenarioError(f"{path}: no such scenario file")
-    data = read_yaml(path.read_text(encoding="utf-8"), str(path))
+    data = read_yaml(_read_text(path), str(path))
     try:
         return parse_scenario(data)
     except ScenarioError as exc:

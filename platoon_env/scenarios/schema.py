@@ -31,12 +31,34 @@ Polygon = tuple[Point, ...]
 
 #: [m/s or rad/s] Range of ``robot.u_max`` and ``robot.omega_max``. They are the bounds of the
 #: float32 action Box: far inside float32's range (no overflow to inf, no underflow to 0, no
-#: bound so small that ``low == high``) and far beyond any physical unicycle.
+#: bound so small that ``low == high``) and far beyond any physical unicycle. The leader's
+#: ``leader.speed`` and ``leader.max_turn_rate`` lie in the same range (a slower leader makes
+#: the default step limit, which divides the path length by the speed, overflow).
 ACTION_BOUND_RANGE: tuple[float, float] = (1e-6, 1e6)
 #: [s] Upper bound on ``simulation.control_period``. One action is held this long; beyond a
 #: second a follower crosses its whole sensing range between two decisions, and much larger
 #: (finite) values overflow the pose integration.
 MAX_CONTROL_PERIOD: float = 1.0
+#: [s] Lower bound on ``simulation.control_period``: 10 us, a 100 kHz control loop, far
+#: faster than any camera. Below it the step counts derived from a time (the default step
+#: limit, the latency in periods, the frame hold) grow without bound.
+MIN_CONTROL_PERIOD: float = 1e-5
+#: Upper bound on ``simulation.physics_substeps``. A step integrates every robot once per
+#: sub-step, so its cost is linear in it; 1000 sub-steps of the largest control period are
+#: 1 ms arcs, far finer than the exact arc integration needs (the shipped scenarios use 2).
+MAX_PHYSICS_SUBSTEPS: int = 1000
+#: Upper bound on ``followers``: the per-robot arrays (poses, observations, frame history)
+#: are allocated for this many robots.
+MAX_FOLLOWERS: int = 1000
+#: Upper bound on ``simulation.max_episode_steps`` and on the default step limit derived from
+#: the path (:func:`platoon_env.scenarios.scenario.default_max_steps`): 10**9 steps, about a
+#: day of compute at the fastest step rate, far within the int64 the core stores it in.
+MAX_EPISODE_STEPS: int = 10**9
+#: [s] Upper bound on ``leader.settle_time`` (about 11.6 days of simulated time).
+MAX_SETTLE_TIME: float = 1e6
+#: [m] Bound on the absolute value of every coordinate (workspace bounds, polygons, leader
+#: path): 1000 km, beyond any room or corridor, and far from where lengths and areas overflow.
+MAX_COORDINATE: float = 1e6
 
 
 #: Longest camera latency, in control periods (the core keeps a frame history this long).
@@ -280,10 +302,13 @@ def _key_of(f: Any) -> str:
 # numbers ABCs; bools are numbers to Python but never to a scenario.
 def _parse_number(value: Any, path: str) -> float:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise field_error(path, f"expected a number, got {value!r}")
-    out = float(value)
+        raise field_error(path, f"expected a number, got {_shown(value)}")
+    try:
+        out = float(value)
+    except OverflowError:  # an int (or Fraction) beyond float's range, e.g. YAML 10**400
+        out = math.inf
     if not math.isfinite(out):
-        raise field_error(path, f"must be finite, got {value!r}")
+        raise field_error(path, f"must be finite, got {_shown(value)}")
     return out
 
 
@@ -291,8 +316,20 @@ def _parse_int(value: Any, path: str) -> int:
     # A float, even 2.0, is rejected: YAML ``followers: 2.0`` always was, and a silent
     # int(2.7) == 2 is the bug this guards against.
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        raise field_error(path, f"expected an integer, got {value!r}")
+        raise field_error(path, f"expected an integer, got {_shown(value)}")
     return int(value)
+
+
+def _shown(value: Any) -> str:
+    """``repr(value)``, shortened for a huge integer (whose repr may even be refused)."""
+    if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+        digits = abs(int(value)).bit_length() * 0.30103
+        if digits > 30:
+            return f"an integer of about {digits:.0f} digits"
+    try:
+        return repr(value)
+    except ValueError:  # pragma: no cover - a number type whose repr refuses
+        return f"a {type(value).__name__}"
 
 
 def _parse_value(tp: Any, value: Any, path: str) -> Any:
@@ -376,12 +413,22 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
     """Check every scalar parameter against the ranges the model needs.
 
     Every message names the field and the offending value. Beyond the model's own ranges
-    (``docs/safety.md``) this bounds the
-    actuator limits to :data:`ACTION_BOUND_RANGE` and the control period to
-    ``(0, MAX_CONTROL_PERIOD]``.
+    (``docs/safety.md``) this bounds what would overflow or allocate without limit: the actuator
+    limits and the leader's speed and turn rate to :data:`ACTION_BOUND_RANGE`, the control
+    period to ``[MIN_CONTROL_PERIOD, MAX_CONTROL_PERIOD]``, ``followers`` to
+    :data:`MAX_FOLLOWERS`, ``physics_substeps`` to :data:`MAX_PHYSICS_SUBSTEPS`,
+    ``max_episode_steps`` (given, or the default derived from the leader's path) to
+    :data:`MAX_EPISODE_STEPS`, ``settle_time`` to :data:`MAX_SETTLE_TIME` and every coordinate
+    to :data:`MAX_COORDINATE`.
     """
     r = cfg.robot.radius
-    _require(cfg.followers >= 1, f"{path}.followers", f"must be >= 1, got {cfg.followers!r}")
+    n = cfg.followers
+    _require(n >= 1, f"{path}.followers", f"must be >= 1, got {_shown(n)}")
+    _require(
+        n <= MAX_FOLLOWERS,
+        f"{path}.followers",
+        f"must be at most {MAX_FOLLOWERS} (MAX_FOLLOWERS), got {_shown(n)}",
+    )
     _require(r > 0, f"{path}.robot.radius", f"must be > 0, got {r!r}")
     lo, hi = ACTION_BOUND_RANGE
     for name in ("u_max", "omega_max"):
@@ -392,18 +439,25 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
             f"must lie in [{lo:g}, {hi:g}] (a float32 action bound), got {bound!r}",
         )
     lead = cfg.leader
-    _require(lead.speed > 0, f"{path}.leader.speed", f"must be > 0, got {lead.speed!r}")
+    for name, unit in (("speed", "m/s"), ("max_turn_rate", "rad/s")):
+        value = getattr(lead, name)
+        _require(
+            lo <= value <= hi,
+            f"{path}.leader.{name}",
+            f"must lie in [{lo:g}, {hi:g}] {unit} (ACTION_BOUND_RANGE), got {value!r}",
+        )
     _require(lead.lookahead > 0, f"{path}.leader.lookahead", f"must be > 0, got {lead.lookahead!r}")
-    _require(
-        lead.max_turn_rate > 0,
-        f"{path}.leader.max_turn_rate",
-        f"must be > 0, got {lead.max_turn_rate!r}",
-    )
     _require(
         lead.settle_time >= 0,
         f"{path}.leader.settle_time",
         f"must be >= 0, got {lead.settle_time!r}",
     )
+    _require(
+        lead.settle_time <= MAX_SETTLE_TIME,
+        f"{path}.leader.settle_time",
+        f"must be at most {MAX_SETTLE_TIME:g} s (MAX_SETTLE_TIME), got {lead.settle_time!r}",
+    )
+    _check_coordinates(cfg, path)
     if cfg.generator is None:
         _require(
             len(lead.path) >= 2,
@@ -456,22 +510,7 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
         f"{path}.proximity.half_angle",
         f"must satisfy 0 < half_angle <= pi, got {sector!r}",
     )
-    sim = cfg.simulation
-    _require(
-        0 < sim.control_period <= MAX_CONTROL_PERIOD,
-        f"{path}.simulation.control_period",
-        f"must lie in (0, {MAX_CONTROL_PERIOD:g}] s, got {sim.control_period!r}",
-    )
-    _require(
-        sim.physics_substeps >= 1,
-        f"{path}.simulation.physics_substeps",
-        f"must be >= 1, got {sim.physics_substeps!r}",
-    )
-    _require(
-        sim.max_episode_steps is None or sim.max_episode_steps >= 1,
-        f"{path}.simulation.max_episode_steps",
-        f"must be >= 1, got {sim.max_episode_steps!r}",
-    )
+    _check_simulation(cfg, path)
     for name, value in asdict(cfg.reward).items():
         _require(math.isfinite(value), f"{path}.reward.{name}", f"must be finite, got {value!r}")
     margin = cfg.reward.wall_margin
@@ -499,6 +538,80 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
             f"2 * rho_beta_inf must be < beta_con = {bc:g}, got rho_beta_inf = {p.rho_beta_inf!r}",
         )
     _check_realism(cfg, path)
+
+
+def _check_coordinates(cfg: ScenarioConfig, path: str) -> None:
+    """Every coordinate of the workspace and the leader's path within ``MAX_COORDINATE``."""
+    ws = cfg.workspace
+    groups: list[tuple[str, tuple[Point, ...]]] = [("leader.path", cfg.leader.path)]
+    if ws.bounds is not None:
+        x0, y0, x1, y1 = ws.bounds
+        groups.append(("workspace.bounds", ((x0, y0), (x1, y1))))
+    if ws.free_space is not None:
+        groups.append(("workspace.free_space.exterior", ws.free_space.exterior))
+        for k, hole in enumerate(ws.free_space.holes):
+            groups.append((f"workspace.free_space.holes[{k}]", hole))
+    for k, obstacle in enumerate(ws.obstacles):
+        groups.append((f"workspace.obstacles[{k}]", obstacle))
+    for where, points in groups:
+        for k, (x, y) in enumerate(points):
+            _require(
+                abs(x) <= MAX_COORDINATE and abs(y) <= MAX_COORDINATE,
+                f"{path}.{where}" if where == "workspace.bounds" else f"{path}.{where}[{k}]",
+                f"coordinates must lie in [-{MAX_COORDINATE:g}, {MAX_COORDINATE:g}] m "
+                f"(MAX_COORDINATE), got {[x, y]!r}",
+            )
+
+
+def _check_simulation(cfg: ScenarioConfig, path: str) -> None:
+    """The time discretisation and the step limit, given or derived (all bounded)."""
+    sim = cfg.simulation
+    dt = sim.control_period
+    _require(
+        0 < dt <= MAX_CONTROL_PERIOD,
+        f"{path}.simulation.control_period",
+        f"must lie in (0, {MAX_CONTROL_PERIOD:g}] s, got {dt!r}",
+    )
+    _require(
+        dt >= MIN_CONTROL_PERIOD,
+        f"{path}.simulation.control_period",
+        f"must be at least {MIN_CONTROL_PERIOD:g} s (MIN_CONTROL_PERIOD), got {dt!r}",
+    )
+    substeps = sim.physics_substeps
+    _require(
+        substeps >= 1,
+        f"{path}.simulation.physics_substeps",
+        f"must be >= 1, got {_shown(substeps)}",
+    )
+    _require(
+        substeps <= MAX_PHYSICS_SUBSTEPS,
+        f"{path}.simulation.physics_substeps",
+        f"must be at most {MAX_PHYSICS_SUBSTEPS} (MAX_PHYSICS_SUBSTEPS), got {_shown(substeps)}",
+    )
+    steps = sim.max_episode_steps
+    where = f"{path}.simulation.max_episode_steps"
+    if steps is not None:
+        _require(steps >= 1, where, f"must be >= 1, got {_shown(steps)}")
+        _require(
+            steps <= MAX_EPISODE_STEPS,
+            where,
+            f"must be at most {MAX_EPISODE_STEPS} (MAX_EPISODE_STEPS), got {_shown(steps)}",
+        )
+    elif cfg.generator is None and len(cfg.leader.path) >= 2:
+        # The default limit follows the path (a procedural template has none yet; each layout
+        # is checked when it is built). The bounds above keep it finite; bound it as a given one.
+        from platoon_env.scenarios.scenario import default_max_steps  # scenario imports us
+
+        xy = np.asarray(cfg.leader.path, dtype=np.float64)
+        length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+        default = default_max_steps(cfg, length)
+        _require(
+            default <= MAX_EPISODE_STEPS,
+            where,
+            f"not given, and the default (2 * path length / leader.speed + settle_time + 10 s "
+            f"in control periods) would be {default} steps, more than {MAX_EPISODE_STEPS} "
+            "(MAX_EPISODE_STEPS): set it, or a faster leader.speed or a longer control_period",
+        )
 
 
 # --------------------------------------------------------------------------------------------
