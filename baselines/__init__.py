@@ -1,7 +1,16 @@
 """Baseline policies for platoon_env, all behind the shared :class:`Policy` interface."""
 
+from baselines.filtered_ppc import FilteredPPCPolicy, FilterParams
 from baselines.last_seen import LastSeenParams, LastSeenPolicy
 from baselines.policy import Policy
 from baselines.ppc import PPCParams, PPCPolicy
 
-__all__ = ["LastSeenParams", "LastSeenPolicy", "PPCParams", "PPCPolicy", "Policy"]
+__all__ = [
+    "FilterParams",
+    "FilteredPPCPolicy",
+    "LastSeenParams",
+    "LastSeenPolicy",
+    "PPCParams",
+    "PPCPolicy",
+    "Policy",
+]
