@@ -485,9 +485,21 @@ class FilterParams:
                       float(cam.noise.bearing))  # fmt: skip
         kappa = float(ov.get("margin_sigmas", cls.margin_sigmas))
         d_col, d_des, d_con = config.safety.d_col, config.formation.d_des, cam.range
-        ov.setdefault("d_col_margin", kappa * (s0 + s1 * d_col))
-        ov.setdefault("beta_margin", kappa * (sb + (s0 + s1 * d_des) / d_des))
-        ov.setdefault("range_margin", kappa * (s0 + s1 * d_con))
+        # The derived margins keep the law feasible however noisy the camera: each takes at
+        # most half the slack the PPC law leaves its constraint (2 rho_inf < the gap, see
+        # PPCParams), so at large noise the policy runs with the margin it can afford.
+        rho_d = config.ppc.rho_d_inf if config.ppc is not None else 0.0
+        rho_b = config.ppc.rho_beta_inf if config.ppc is not None else 0.0
+        ov.setdefault(
+            "d_col_margin", min(kappa * (s0 + s1 * d_col), 0.5 * (d_des - d_col - 2 * rho_d))
+        )
+        ov.setdefault(
+            "beta_margin",
+            min(kappa * (sb + (s0 + s1 * d_des) / d_des), 0.5 * (cam.half_angle - 2 * rho_b)),
+        )
+        ov.setdefault(
+            "range_margin", min(kappa * (s0 + s1 * d_con), 0.5 * (d_con - d_des - 2 * rho_d))
+        )
         ov.setdefault("clearance_tau", cls.CLEARANCE_TAU if config.proximity.noise > 0 else 0.0)
         limited = rob.lag > 0 or rob.accel_max is not None or rob.alpha_max is not None
         ov.setdefault("lookahead", rob.lag + cls.LOOKAHEAD_RATE_LIMITED if limited else 0.0)
