@@ -1,4 +1,4 @@
-"""Learned policies behind the shared policy interface (DESIGN §6).
+"""Learned policies behind the shared policy interface (``docs/api.md``).
 
 A trained model is saved as two files side by side::
 
@@ -22,9 +22,18 @@ action rescaling maps the policy's ``[-1, 1]^2`` to ``[u_low, u_high] x [-omega_
 omega_high]`` (:class:`training.vec_env.ActionRange`). ``null`` for either means none was used.
 So ``LearnedPolicy.load("DIR/model.zip")`` needs no other file.
 
+``"engine"`` says what wrote the model (absent: ``"sb3"``). A model trained by
+``platoon-train --engine rllib`` (:mod:`training.rllib`) has ``"engine": "rllib"``: its
+``model.zip`` is a NumPy ``.npz`` archive of the actor's layers ``W0, b0, W1, b1, ...`` (Tanh
+between them; ``"actor"`` in ``model.json`` describes it), evaluated by :class:`MLPActor` with
+NumPy alone, so an RLlib model evaluates without Ray installed, through the same
+:class:`LearnedPolicy`. The full RLlib checkpoint (to resume or fine-tune) lies beside it in
+``DIR/rllib_checkpoint/``.
+
 .. warning::
     Loading an SB3 model unpickles Python objects from the zip, which can execute arbitrary
-    code. Load only model files you trust.
+    code. Load only model files you trust. (An exported RLlib actor is read with
+    ``allow_pickle=False``.)
 """
 
 from __future__ import annotations
@@ -46,10 +55,13 @@ from training.vec_env import ActionRange
 
 __all__ = [
     "ALGORITHMS",
+    "ENGINES",
     "METADATA_FORMAT",
     "LearnedPolicy",
+    "MLPActor",
     "adapter_metadata",
     "metadata_path",
+    "save_exported_policy",
     "save_model",
 ]
 
@@ -57,6 +69,16 @@ __all__ = [
 ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC}
 METADATA_FORMAT = "platoon_env.learned_policy"
 METADATA_VERSION = 1
+#: The trainers whose models ``LearnedPolicy.load`` reads (``model.json``'s ``engine``).
+ENGINES = ("sb3", "rllib")
+
+
+class Predictor(Protocol):
+    """What :class:`LearnedPolicy` calls: SB3's ``predict`` signature."""
+
+    def predict(
+        self, observation: NDArray[Any], deterministic: bool = ...
+    ) -> tuple[NDArray[Any], Any]: ...
 
 
 def metadata_path(model_path: str | os.PathLike[str]) -> Path:
@@ -122,8 +144,101 @@ def save_model(
     return path
 
 
+def save_exported_policy(
+    arrays: Mapping[str, NDArray[Any]], path: str | os.PathLike[str], metadata: Mapping[str, Any]
+) -> Path:
+    """Write an exported actor (``W0, b0, ...``, see :class:`MLPActor`) to ``path`` (a
+    ``.zip``: an uncompressed ``.npz`` archive) and ``metadata`` to the JSON beside it, both
+    atomically. ``metadata`` needs the keys :func:`save_model` needs and ``"engine"``."""
+    path = Path(path)
+    if path.suffix != ".zip":
+        raise ValueError(f"model path must end in .zip, got {path}")
+    missing = {
+        "engine",
+        "algo",
+        "control_period",
+        "observation_normalization",
+        "action_range",
+    } - set(metadata)
+    if missing:
+        raise ValueError(f"metadata lacks {sorted(missing)}")
+    MLPActor.from_arrays(arrays)  # fail before writing anything if the layers do not chain
+    doc = {"format": METADATA_FORMAT, "format_version": METADATA_VERSION, **metadata}
+    text = json.dumps(doc, indent=2, sort_keys=False, default=str).encode()
+    arrays = {k: np.asarray(v, dtype=np.float32) for k, v in arrays.items()}
+    _atomic_write(path, lambda f: np.savez(f, allow_pickle=False, **arrays))
+    _atomic_write(metadata_path(path), lambda f: f.write(text))
+    return path
+
+
+class MLPActor:
+    """A deterministic MLP actor from plain arrays: ``y = W_L tanh(... tanh(W_0 x + b_0) ...)
+    + b_L`` (no activation after the last layer), with SB3's ``predict`` signature.
+
+    This is how an RLlib-trained policy (:mod:`training.rllib`) is evaluated: the mean of its
+    Gaussian, computed with NumPy (no Ray, no torch, no unpickling).
+    """
+
+    def __init__(self, layers: list[tuple[NDArray[np.float32], NDArray[np.float32]]]) -> None:
+        if not layers:
+            raise ValueError("an MLPActor needs at least one layer")
+        for k, (w, b) in enumerate(layers):
+            if w.ndim != 2 or b.shape != (w.shape[0],):
+                raise ValueError(f"layer {k}: weight {w.shape} and bias {b.shape} do not match")
+            if k and w.shape[1] != layers[k - 1][0].shape[0]:
+                raise ValueError(
+                    f"layer {k} takes {w.shape[1]} inputs, layer {k - 1} gives "
+                    f"{layers[k - 1][0].shape[0]}"
+                )
+        self.layers = layers
+
+    @property
+    def input_dim(self) -> int:
+        """Length of an observation."""
+        return int(self.layers[0][0].shape[1])
+
+    @property
+    def output_dim(self) -> int:
+        """Length of an action."""
+        return int(self.layers[-1][0].shape[0])
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, NDArray[Any]]) -> MLPActor:
+        """From ``{"W0": ..., "b0": ..., "W1": ...}``."""
+        n = sum(1 for k in arrays if k.startswith("W"))
+        try:
+            layers = [
+                (
+                    np.asarray(arrays[f"W{k}"], dtype=np.float32),
+                    np.asarray(arrays[f"b{k}"], dtype=np.float32),
+                )
+                for k in range(n)
+            ]
+        except KeyError as e:
+            raise ValueError(f"exported actor lacks {e.args[0]}") from None
+        return cls(layers)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> MLPActor:
+        """Read the ``.npz`` archive at ``path`` (``allow_pickle=False``)."""
+        with np.load(path, allow_pickle=False) as data:
+            return cls.from_arrays({k: data[k] for k in data.files})
+
+    def predict(
+        self, observation: NDArray[Any], deterministic: bool = True
+    ) -> tuple[NDArray[np.float32], None]:
+        """The actions ``(B, output_dim)`` for observations ``(B, input_dim)`` (always greedy)."""
+        x = np.asarray(observation, dtype=np.float32)
+        last = len(self.layers) - 1
+        for k, (w, b) in enumerate(self.layers):
+            x = x @ w.T + b
+            if k < last:
+                x = np.tanh(x)
+        return x.astype(np.float32), None
+
+
 class LearnedPolicy:
-    """A trained SB3 model acting for every follower (one shared policy, parameter sharing).
+    """A trained model (SB3, or an RLlib actor) acting for every follower (parameter sharing).
 
     ``act`` stacks the followers' observations, applies the training normalisation, calls the
     model's deterministic ``predict`` once for the batch and maps the actions back to physical
@@ -137,7 +252,8 @@ class LearnedPolicy:
         :meth:`load` unpickles code from the model zip: load only files you trust.
 
     Args:
-        model: the SB3 model (its action space ``[-1, 1]^2`` if ``action_range`` is given).
+        model: the SB3 model (its action space ``[-1, 1]^2`` if ``action_range`` is given), or
+            an :class:`MLPActor` (an RLlib-trained policy).
         action_range: physical range of the normalised action, or None (physical actions).
         obs_scale: the observation divisor used in training, or None (raw observations).
         control_period: [s] the env control period the model was trained at.
@@ -146,7 +262,7 @@ class LearnedPolicy:
 
     def __init__(
         self,
-        model: BaseAlgorithm,
+        model: BaseAlgorithm | Predictor,
         *,
         action_range: ActionRange | None,
         obs_scale: NDArray[Any] | None,
@@ -169,9 +285,10 @@ class LearnedPolicy:
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], device: str = "cpu") -> LearnedPolicy:
-        """Load ``DIR/model.zip`` (or ``DIR``) and the ``model.json`` beside it.
+        """Load ``DIR/model.zip`` (or ``DIR``) and the ``model.json`` beside it, by its
+        ``engine``: an SB3 model, or an RLlib actor exported as arrays (:class:`MLPActor`).
 
-        .. warning:: This unpickles code from the zip: load only files you trust.
+        .. warning:: For SB3 this unpickles code from the zip: load only files you trust.
         """
         path = Path(path)
         if path.is_dir():
@@ -189,12 +306,27 @@ class LearnedPolicy:
                 f"{meta_file} has format_version {meta['format_version']}; this code reads "
                 f"up to {METADATA_VERSION}"
             )
-        algo = str(meta["algo"]).lower()
-        if algo not in ALGORITHMS:
-            raise ValueError(
-                f"{meta_file}: unknown algo {algo!r}, expected one of {list(ALGORITHMS)}"
-            )
-        model = ALGORITHMS[algo].load(path, device=device)
+        engine = str(meta.get("engine", "sb3")).lower()
+        model: BaseAlgorithm | MLPActor
+        if engine == "rllib":
+            actor = meta.get("actor") or {}
+            if actor.get("type", "mlp") != "mlp" or actor.get("activation", "tanh") != "tanh":
+                raise ValueError(f"{meta_file}: unknown exported actor {actor!r}")
+            model = MLPActor.load(path)
+            if model.input_dim != OBS_SIZE or model.output_dim != ACT_SIZE:
+                raise ValueError(
+                    f"{meta_file}: the actor maps {model.input_dim} -> {model.output_dim}, "
+                    f"expected {OBS_SIZE} -> {ACT_SIZE}"
+                )
+        elif engine == "sb3":
+            algo = str(meta["algo"]).lower()
+            if algo not in ALGORITHMS:
+                raise ValueError(
+                    f"{meta_file}: unknown algo {algo!r}, expected one of {list(ALGORITHMS)}"
+                )
+            model = ALGORITHMS[algo].load(path, device=device)
+        else:
+            raise ValueError(f"{meta_file}: unknown engine {engine!r}, expected one of {ENGINES}")
         norm = meta.get("observation_normalization")
         if norm is not None and norm.get("type") != "fixed_scale":
             raise ValueError(f"{meta_file}: unknown observation normalisation {norm!r}")

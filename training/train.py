@@ -3,7 +3,14 @@
 Usage::
 
     platoon-train --algo ppo --scenario study_c --timesteps 1000000 --seed 0 --out runs/ppo_c
+    platoon-train --engine rllib --num-env-runners 2 --scenario study_c --out runs/rllib_c
     python -m training.train --help        # every option, with its default
+
+``--engine sb3`` (the default) trains with Stable-Baselines3 in this process, as described
+below; ``--engine rllib`` trains PPO with Ray RLlib on ``--num-env-runners`` env-runner actors
+(locally, or on the cluster at ``--address``) through :mod:`training.rllib`, with the same
+env, scaling and hyper-parameters, and writes the same ``model.zip`` + ``model.json`` (see
+``docs/rllib.md``).
 
 Each follower of each of ``--n-envs`` copies of the scenario is one slot of a
 :class:`training.vec_env.PlatoonVecEnv` (parameter sharing), so ``--timesteps`` counts
@@ -75,6 +82,9 @@ class TrainConfig:
     """Every option of ``platoon-train``; the command-line flag is the field name with dashes."""
 
     # --- run ---
+    engine: str = _opt(
+        "sb3", "training engine: Stable-Baselines3, or Ray RLlib (PPO)", choices=("sb3", "rllib")
+    )
     algo: str = _opt("ppo", "learning algorithm", choices=("ppo", "sac"))
     scenario: str = _opt("study_c", "shipped scenario name or YAML path to train on")
     timesteps: int = _opt(1_000_000, "total follower transitions (SB3 timesteps) to train for")
@@ -87,12 +97,33 @@ class TrainConfig:
         "fixed-workspace scenarios only); same trajectories as the default adapter",
     )
     env_threads: int = _opt(1, "numba threads of the batched core (with --batched)")
+    # --- Ray RLlib (--engine rllib) ---
+    num_env_runners: int = _opt(
+        2,
+        "rllib: env-runner actors sampling in parallel, each with --n-envs copies (0: sample "
+        "in the driver)",
+    )
+    num_learners: int = _opt(0, "rllib: learner actors (0: one learner in the driver)")
+    address: str | None = _opt(
+        None,
+        "rllib: Ray cluster to join ('auto', HOST:6379 or ray://HOST:10001; default: start a "
+        "local Ray instance)",
+    )
+    critic: str = _opt(
+        "local",
+        "rllib: what the critic reads: the follower's observation, or (central, MAPPO-style) "
+        "also the global state env.state()",
+        choices=("local", "central"),
+    )
     # --- env ---
     control_period: float = _opt(
         0.05, "[s] env control period for training (env default 0.01); saved in model.json"
     )
     physics_substeps: int | None = _opt(None, "physics sub-steps per env step (env default)")
     max_episode_steps: int | None = _opt(None, "truncate episodes after this many env steps")
+    sensor_profile: str | None = _opt(
+        None, "realism profile of the training envs (a shipped name such as aruco, or a YAML)"
+    )
     # --- action rescaling / observation normalisation ---
     u_low: float = _opt(-0.5, "[m/s] linear speed at normalised action -1")
     u_high: float = _opt(1.5, "[m/s] linear speed at normalised action +1")
@@ -139,8 +170,10 @@ class TrainConfig:
 
     @property
     def run_name(self) -> str:
-        """``<algo>_<scenario>_s<seed>`` (scenario paths reduced to their stem)."""
-        return f"{self.algo}_{Path(self.scenario).stem}_s{self.seed}"
+        """``<algo>_<scenario>_s<seed>`` (scenario paths reduced to their stem), prefixed
+        ``rllib_`` for the RLlib engine."""
+        prefix = "rllib_" if self.engine == "rllib" else ""
+        return f"{prefix}{self.algo}_{Path(self.scenario).stem}_s{self.seed}"
 
     @property
     def out_dir(self) -> Path:
@@ -205,6 +238,8 @@ def env_overrides(cfg: TrainConfig) -> dict[str, Any]:
         overrides["physics_substeps"] = cfg.physics_substeps
     if cfg.max_episode_steps is not None:
         overrides["max_episode_steps"] = cfg.max_episode_steps
+    if cfg.sensor_profile is not None:
+        overrides["sensor_profile"] = cfg.sensor_profile
     return overrides
 
 
@@ -476,7 +511,22 @@ def train(cfg: TrainConfig) -> tuple[Path, bool]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``platoon-train``; returns the exit status (130 after Ctrl-C)."""
     cfg = parse_args(argv)
-    path, interrupted = train(cfg)
+    if cfg.engine == "rllib":
+        if cfg.algo != "ppo" or cfg.batched:
+            print("platoon-train: --engine rllib trains PPO without --batched", file=sys.stderr)
+            return 2
+        try:
+            from training.rllib import train_rllib
+        except ImportError as e:
+            print(
+                f"platoon-train: --engine rllib needs Ray RLlib ({e}); install the extra: "
+                'pip install torch==2.13.0 -e ".[train,rllib]"',
+                file=sys.stderr,
+            )
+            return 2
+        path, interrupted = train_rllib(cfg)
+    else:
+        path, interrupted = train(cfg)
     print(f"saved {path} and {path.with_suffix('.json')}")
     return 130 if interrupted else 0
 

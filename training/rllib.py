@@ -1,0 +1,663 @@
+"""Ray RLlib integration: the platoon as an RLlib ``MultiAgentEnv``, PPO with one shared policy
+for every follower (optionally with a MAPPO-style centralised critic), and ``platoon-train
+--engine rllib``.
+
+Needs the ``rllib`` extra on top of ``train`` (``docs/rllib.md``)::
+
+    pip install torch==2.13.0 -e ".[train,rllib]"
+
+What this module fixes against wrapping the env in RLlib's ``ParallelPettingZooEnv`` (each
+found and checked on RLlib 2.60, see ``docs/rllib.md``):
+
+* **Time limits stay truncations.** RLlib's ``MultiAgentEpisode`` marks an episode
+  *terminated* once every agent is done, whatever flag made it done, so a time-limit episode
+  reported with per-agent ``truncated=True`` arrives as ``is_terminated=True`` and GAE does
+  not bootstrap its last value. :class:`PlatoonMultiAgentEnv` reports a truncation only
+  through ``truncateds["__all__"]`` (per-agent flags False): time-limit episodes arrive as
+  ``(is_terminated, is_truncated) = (False, True)``, violations as ``(True, False)``.
+* **Distinct seeds for every sub-env.** RLlib seeds sub-env ``j`` of env runner ``w`` with
+  ``seed + w + j``, so runners replay each other's starts and procedural layouts.
+  :func:`seed_sub_envs` (installed by :func:`ppo_config` as the ``on_environment_created``
+  callback) gives each sub-env ``derived_seed(seed, w, j)``, drawn from
+  ``numpy.random.SeedSequence(seed, spawn_key=(w, j, evaluation))``.
+* **Deterministic agent order** (``possible_agents`` order, not a set's) and a working
+  :meth:`~PlatoonMultiAgentEnv.render`.
+* **The SB3 adapter's scaling** (:mod:`training.vec_env`): observations divided by their Box
+  bound, actions in ``[-1, 1]^2`` mapped by :class:`~training.vec_env.ActionRange` (RLlib's
+  own action normalisation would map ``[-1, 1]`` onto the ±10 m/s actuator box).
+
+The policy is :class:`PlatoonPPOModule`: an MLP actor on the follower's own (normalised)
+observation, shared by all followers, and a critic that reads either the same observation
+(``critic="local"``) or, MAPPO-style, the follower's observation plus the normalised global
+state ``env.state()`` and a one-hot of the follower's index (``critic="central"``). The actor
+never sees the state, so a trained policy acts from the follower's sensors alone; it is
+exported as plain arrays (``model.zip`` + ``model.json``) that :class:`training.LearnedPolicy`
+loads without Ray, so ``platoon-evaluate --policy NAME=DIR`` evaluates it like an SB3 model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import json
+import math
+import os
+import platform
+import shutil
+import sys
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import gymnasium as gym
+import numpy as np
+import ray  # type: ignore[import-not-found]
+import torch
+from gymnasium import spaces
+from numpy.typing import NDArray
+from ray.rllib.algorithms.ppo import PPOConfig  # type: ignore[import-not-found]
+from ray.rllib.core.columns import Columns  # type: ignore[import-not-found]
+from ray.rllib.core.rl_module.apis.value_function_api import (  # type: ignore[import-not-found]
+    ValueFunctionAPI,
+)
+from ray.rllib.core.rl_module.multi_rl_module import (  # type: ignore[import-not-found]
+    MultiRLModuleSpec,
+)
+from ray.rllib.core.rl_module.rl_module import RLModuleSpec  # type: ignore[import-not-found]
+from ray.rllib.core.rl_module.torch import TorchRLModule  # type: ignore[import-not-found]
+from ray.rllib.env.multi_agent_env import MultiAgentEnv  # type: ignore[import-not-found]
+from ray.tune.registry import register_env  # type: ignore[import-not-found]
+
+import platoon_env
+from platoon_env.env import PlatoonParallelEnv
+from platoon_env.observation import ACT_SIZE, OBS_SIZE
+from training.policies import save_exported_policy
+from training.vec_env import ActionRange, observation_scale
+
+if TYPE_CHECKING:
+    from training.train import TrainConfig
+
+__all__ = [
+    "CRITICS",
+    "ENV_NAME",
+    "MODULE_ID",
+    "PlatoonMultiAgentEnv",
+    "PlatoonPPOModule",
+    "derived_seed",
+    "env_config",
+    "export_actor",
+    "init_ray",
+    "ppo_config",
+    "register",
+    "seed_sub_envs",
+    "train_rllib",
+]
+
+#: The name the env is registered under with Ray (``config.environment(ENV_NAME, ...)``).
+ENV_NAME = "platoon_env"
+#: The one RLModule every follower maps to (parameter sharing).
+MODULE_ID = "shared_follower"
+#: What the critic reads: the follower's observation, or MAPPO's observation + global state.
+CRITICS = ("local", "central")
+#: Where ``platoon-train --engine rllib`` keeps the full RLlib algorithm checkpoint in ``--out``.
+RLLIB_CHECKPOINT = "rllib_checkpoint"
+
+
+# ------------------------------------------------------------------------------------------------
+# Seeds
+# ------------------------------------------------------------------------------------------------
+def derived_seed(seed: int, worker_index: int, vector_index: int, evaluation: bool = False) -> int:
+    """The reset seed of sub-env ``vector_index`` of env runner ``worker_index``.
+
+    Drawn from ``SeedSequence(seed, spawn_key=(worker_index, vector_index, evaluation))``:
+    distinct, well-mixed streams for every (runner, sub-env) pair, unlike RLlib's
+    ``seed + worker_index + vector_index``.
+    """
+    seq = np.random.SeedSequence(int(seed), spawn_key=(worker_index, vector_index, int(evaluation)))
+    return int(seq.generate_state(1, dtype=np.uint64)[0])
+
+
+def seed_sub_envs(
+    env_runner: Any = None, env: Any = None, env_context: Any = None, **_: Any
+) -> None:
+    """RLlib ``on_environment_created`` callback: give each sub-env its :func:`derived_seed`.
+
+    RLlib builds every sub-env of a runner from one ``EnvContext`` (``vector_index`` 0), so
+    the sub-env's index is taken from its place in the runner's vector env here.
+    """
+    config = getattr(env_runner, "config", None)
+    seed = getattr(config, "seed", None)
+    worker_index = int(getattr(env_runner, "worker_index", 0) or 0)
+    evaluation = bool(getattr(config, "in_evaluation", False))
+    for j, sub in enumerate(getattr(env, "envs", [env])):
+        target = getattr(sub, "unwrapped", sub)
+        if isinstance(target, PlatoonMultiAgentEnv):
+            target.assign_seed(
+                seed, worker_index=worker_index, vector_index=j, evaluation=evaluation
+            )
+
+
+# ------------------------------------------------------------------------------------------------
+# The env
+# ------------------------------------------------------------------------------------------------
+def _state_normaliser(space: spaces.Box) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """``(centre, half_width)`` mapping ``space`` affinely onto ``[-1, 1]`` (degenerate: 1)."""
+    low = space.low.astype(np.float64)
+    high = space.high.astype(np.float64)
+    half = (high - low) / 2.0
+    half[half <= 0] = 1.0
+    return ((low + high) / 2.0).astype(np.float32), half.astype(np.float32)
+
+
+class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
+    """A platoon ``ParallelEnv`` as an RLlib ``MultiAgentEnv`` (the fixes of the module doc).
+
+    ``config`` (RLlib's ``env_config``, usually an ``EnvContext``): ``scenario`` (name, YAML
+    path or dict; default ``study_c``), ``overrides`` (``platoon_env.make`` keyword
+    arguments), ``sensor_profile`` (a realism profile name or YAML path, e.g. ``"aruco"``),
+    ``render_mode``, ``diagnostics`` (default False: lean infos), ``normalize_observations``
+    (default True), ``action_range`` (an :class:`ActionRange` dict; default
+    ``ActionRange()``; None for physical actions in the env's box), ``critic`` (``"local"``
+    or ``"central"``: the latter appends the normalised ``env.state()`` and a one-hot of the
+    follower's index to every observation, for :class:`PlatoonPPOModule`'s critic).
+
+    Per-agent observation: the follower's 7 normalised observations (then, with the central
+    critic, the state and the one-hot). Per-agent action: ``[-1, 1]^2``.
+    """
+
+    def __init__(self, config: Mapping[str, Any] | None = None) -> None:
+        super().__init__()
+        cfg = dict(config or {})
+        unknown = set(cfg) - {
+            "scenario",
+            "overrides",
+            "sensor_profile",
+            "render_mode",
+            "diagnostics",
+            "normalize_observations",
+            "action_range",
+            "critic",
+        }
+        if unknown:
+            raise ValueError(f"unknown env_config key(s): {', '.join(sorted(unknown))}")
+        overrides = dict(cfg.get("overrides") or {})
+        if cfg.get("sensor_profile") is not None:
+            overrides["sensor_profile"] = cfg["sensor_profile"]
+        self.critic = str(cfg.get("critic", "local"))
+        if self.critic not in CRITICS:
+            raise ValueError(f"critic must be one of {CRITICS}, got {self.critic!r}")
+        self.env: PlatoonParallelEnv = platoon_env.make(
+            cfg.get("scenario", "study_c"),
+            render_mode=cfg.get("render_mode"),
+            diagnostics=bool(cfg.get("diagnostics", False)),
+            **overrides,
+        )
+        self.render_mode = self.env.render_mode
+        env = self.env
+        self.possible_agents = list(env.possible_agents)
+        self.agents: list[str] = []
+        self._agent_ids = set(self.possible_agents)
+        obs_space = env.observation_space(self.possible_agents[0])
+        self.obs_scale: NDArray[np.float32] | None = (
+            observation_scale(obs_space) if cfg.get("normalize_observations", True) else None
+        )
+        act = cfg.get("action_range", ActionRange().to_dict())
+        self.action_range: ActionRange | None = None if act is None else ActionRange(**act)
+        if self.action_range is not None:
+            phys = env.action_space(self.possible_agents[0])
+            r = self.action_range
+            if (
+                r.u_low < phys.low[0] - 1e-6
+                or r.u_high > phys.high[0] + 1e-6
+                or r.omega_high > phys.high[1] + 1e-6
+            ):
+                raise ValueError(
+                    f"{r} exceeds the actuator limits {phys}; raise u_max/omega_max or narrow it"
+                )
+        low, high = obs_space.low, obs_space.high
+        if self.obs_scale is not None:
+            low, high = low / self.obs_scale, high / self.obs_scale
+        n = len(self.possible_agents)
+        self._state_centre, self._state_half = _state_normaliser(env.state_space)
+        if self.critic == "central":
+            extra = env.state_space.shape[0] + n
+            low = np.concatenate([low, -np.ones(extra)])
+            high = np.concatenate([high, np.ones(extra)])
+        self._one_hot = np.eye(n, dtype=np.float32)
+        obs_box = spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+        act_box = (
+            spaces.Box(-1.0, 1.0, (ACT_SIZE,), dtype=np.float32)
+            if self.action_range is not None
+            else env.action_space(self.possible_agents[0])
+        )
+        self.observation_spaces: dict[str, spaces.Space[Any]] = {
+            a: obs_box for a in self.possible_agents
+        }
+        self.action_spaces: dict[str, spaces.Space[Any]] = {
+            a: act_box for a in self.possible_agents
+        }
+        self.observation_space = spaces.Dict(self.observation_spaces)
+        self.action_space = spaces.Dict(self.action_spaces)
+        self._assigned_seed: int | None = None
+        self.worker_index, self.vector_index = 0, 0
+        #: The seed of the last seeded reset (None: never seeded).
+        self.seeded_with: int | None = None
+
+    # -- seeds ---------------------------------------------------------------------------------
+    def assign_seed(
+        self,
+        seed: int | None,
+        *,
+        worker_index: int,
+        vector_index: int,
+        evaluation: bool = False,
+    ) -> None:
+        """Use :func:`derived_seed` in place of the seed RLlib passes to a seeded reset
+        (``seed`` None: keep RLlib's, which is then None too)."""
+        self.worker_index, self.vector_index = worker_index, vector_index
+        self._assigned_seed = (
+            None if seed is None else derived_seed(seed, worker_index, vector_index, evaluation)
+        )
+
+    # -- MultiAgentEnv API ---------------------------------------------------------------------
+    def _observations(self, obs: Mapping[str, NDArray[Any]]) -> dict[str, NDArray[np.float32]]:
+        stacked = np.stack([obs[a] for a in self.possible_agents]).astype(np.float32)
+        if self.obs_scale is not None:
+            stacked /= self.obs_scale
+        if self.critic == "central":
+            state = (self.env.state() - self._state_centre) / self._state_half
+            n = len(self.possible_agents)
+            stacked = np.concatenate(
+                [stacked, np.broadcast_to(state, (n, state.shape[0])), self._one_hot], axis=1
+            ).astype(np.float32)
+        return {a: stacked[i] for i, a in enumerate(self.possible_agents)}
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, NDArray[np.float32]], dict[str, dict[str, Any]]]:
+        """Reset the platoon; a seeded reset from RLlib uses the assigned derived seed."""
+        if seed is not None and self._assigned_seed is not None:
+            seed = self._assigned_seed
+        if seed is not None:
+            self.seeded_with = seed
+        obs, infos = self.env.reset(seed=seed, options=options)
+        self.agents = list(self.possible_agents)
+        return self._observations(obs), {a: infos.get(a, {}) for a in self.possible_agents}
+
+    def step(self, action_dict: Mapping[str, Any]) -> tuple[dict[str, Any], ...]:
+        """Step with normalised actions; a time limit is reported in ``truncateds["__all__"]``
+        only (see the module doc), a violation in every agent's ``terminateds``."""
+        actions = np.stack(
+            [np.asarray(action_dict[a], dtype=np.float32).reshape(ACT_SIZE) for a in self.agents]
+        )
+        if self.action_range is not None:
+            actions = self.action_range.to_physical(actions)
+        obs, rew, term, trunc, infos = self.env.step(
+            {a: actions[i] for i, a in enumerate(self.agents)}
+        )
+        terminated = any(term.values())
+        truncated = any(trunc.values()) and not terminated
+        agents = list(self.agents)
+        terminateds: dict[str, bool] = dict.fromkeys(agents, terminated)
+        terminateds["__all__"] = terminated
+        truncateds: dict[str, bool] = dict.fromkeys(agents, False)
+        truncateds["__all__"] = truncated
+        if terminated or truncated:
+            self.agents = []
+        rewards = {a: float(rew[a]) for a in agents}
+        return self._observations(obs), rewards, terminateds, truncateds, dict(infos)
+
+    def render(self) -> NDArray[np.uint8] | None:
+        """The platoon env's frame (``render_mode`` from ``env_config``)."""
+        return self.env.render()
+
+    def state(self) -> NDArray[np.float32]:
+        """The raw global state of the platoon (:meth:`PlatoonParallelEnv.state`)."""
+        return self.env.state()
+
+    def close(self) -> None:
+        """Close the platoon env (its renderer)."""
+        self.env.close()
+
+
+def _env_creator(config: Mapping[str, Any]) -> PlatoonMultiAgentEnv:
+    return PlatoonMultiAgentEnv(config)
+
+
+def register(name: str = ENV_NAME) -> str:
+    """Register :class:`PlatoonMultiAgentEnv` with Ray under ``name`` (on every process)."""
+    register_env(name, _env_creator)
+    return name
+
+
+# ------------------------------------------------------------------------------------------------
+# The RLModule
+# ------------------------------------------------------------------------------------------------
+def _mlp(sizes: list[int], out_gain: float) -> torch.nn.Sequential:
+    """Linear/Tanh layers, orthogonally initialised as SB3 does (hidden gain sqrt 2)."""
+    layers: list[torch.nn.Module] = []
+    for k in range(len(sizes) - 1):
+        lin = torch.nn.Linear(sizes[k], sizes[k + 1])
+        last = k == len(sizes) - 2
+        torch.nn.init.orthogonal_(lin.weight, gain=out_gain if last else math.sqrt(2))
+        torch.nn.init.zeros_(lin.bias)
+        layers.append(lin)
+        if not last:
+            layers.append(torch.nn.Tanh())
+    return torch.nn.Sequential(*layers)
+
+
+class PlatoonPPOModule(TorchRLModule, ValueFunctionAPI):  # type: ignore[misc]
+    """PPO's actor-critic for the followers: one shared actor, a local or centralised critic.
+
+    ``model_config``: ``hidden`` (layer sizes of both MLPs, default ``[64, 64]``, Tanh),
+    ``obs_dim`` (the follower's own observation length, the first columns of the module's
+    observation; default 7), ``critic`` (``"local"``: the critic reads those columns;
+    ``"central"``: it reads the whole observation, i.e. also the global state and the
+    follower's one-hot appended by :class:`PlatoonMultiAgentEnv`), ``log_std_init`` (0).
+
+    The actor reads only the first ``obs_dim`` columns and outputs the Gaussian mean; the
+    log standard deviation is a free parameter (state-independent, as in SB3). The greedy
+    action is the mean, which is what :func:`export_actor` exports.
+    """
+
+    def setup(self) -> None:
+        """Build the actor, the log-std parameter and the critic."""
+        mc = dict(self.model_config or {})
+        hidden = [int(h) for h in mc.get("hidden", [64, 64])]
+        self.obs_dim = int(mc.get("obs_dim", OBS_SIZE))
+        self.critic_kind = str(mc.get("critic", "local"))
+        if self.critic_kind not in CRITICS:
+            raise ValueError(f"critic must be one of {CRITICS}, got {self.critic_kind!r}")
+        in_dim = int(self.observation_space.shape[0])
+        act_dim = int(self.action_space.shape[0])
+        self.actor = _mlp([self.obs_dim, *hidden, act_dim], out_gain=0.01)
+        self.log_std = torch.nn.Parameter(
+            torch.full((act_dim,), float(mc.get("log_std_init", 0.0)))
+        )
+        critic_in = in_dim if self.critic_kind == "central" else self.obs_dim
+        self.critic = _mlp([critic_in, *hidden, 1], out_gain=1.0)
+
+    def _forward(self, batch: dict[str, Any], **kwargs: Any) -> dict[str, Any]:
+        mean = self.actor(batch[Columns.OBS][..., : self.obs_dim])
+        log_std = self.log_std.expand_as(mean)
+        return {Columns.ACTION_DIST_INPUTS: torch.cat([mean, log_std], dim=-1)}
+
+    def compute_values(self, batch: dict[str, Any], embeddings: Any = None) -> torch.Tensor:
+        """The critic's value of each row of ``batch[OBS]`` (the central critic reads it all)."""
+        obs = batch[Columns.OBS]
+        x = obs if self.critic_kind == "central" else obs[..., : self.obs_dim]
+        return self.critic(x).squeeze(-1)  # type: ignore[no-any-return]
+
+
+def export_actor(module_or_weights: Any) -> dict[str, NDArray[np.float32]]:
+    """The actor of a :class:`PlatoonPPOModule` (the module or its state dict, e.g. from
+    ``LearnerGroup.get_weights``) as arrays ``W0, b0, W1, b1, ...`` (Tanh between layers), the
+    form :class:`training.policies.MLPActor` evaluates."""
+    state = (
+        module_or_weights.state_dict()
+        if hasattr(module_or_weights, "state_dict")
+        else module_or_weights
+    )
+
+    def array(value: Any) -> NDArray[np.float32]:
+        if isinstance(value, torch.Tensor):
+            value = value.detach().cpu().numpy()
+        return np.asarray(value, dtype=np.float32)
+
+    layers = sorted(
+        int(k.split(".")[1]) for k in state if k.startswith("actor.") and k.endswith(".weight")
+    )
+    if not layers:
+        raise ValueError("no actor.<i>.weight entries: not a PlatoonPPOModule")
+    arrays: dict[str, NDArray[np.float32]] = {}
+    for n, i in enumerate(layers):
+        arrays[f"W{n}"] = array(state[f"actor.{i}.weight"])
+        arrays[f"b{n}"] = array(state[f"actor.{i}.bias"])
+    return arrays
+
+
+def learner_weights(algo: Any) -> Mapping[str, Any]:
+    """The shared module's current weights, from the learner group (local or remote)."""
+    weights = algo.learner_group.get_weights(module_ids=[MODULE_ID])
+    return weights[MODULE_ID] if MODULE_ID in weights else weights
+
+
+# ------------------------------------------------------------------------------------------------
+# Config and training
+# ------------------------------------------------------------------------------------------------
+def env_config(cfg: TrainConfig) -> dict[str, Any]:
+    """The ``env_config`` of the training envs: the same env as the SB3 path's."""
+    from training.train import env_overrides
+
+    overrides = env_overrides(cfg)
+    overrides.pop("sensor_profile", None)
+    return {
+        "scenario": cfg.scenario,
+        "overrides": overrides,
+        "sensor_profile": cfg.sensor_profile,
+        "normalize_observations": cfg.normalize_observations,
+        "action_range": cfg.action_range.to_dict(),
+        "critic": cfg.critic,
+    }
+
+
+def _policy_mapping(agent_id: Any, episode: Any = None, **kwargs: Any) -> str:
+    return MODULE_ID
+
+
+def ppo_config(cfg: TrainConfig) -> PPOConfig:
+    """RLlib PPO (new API stack) for ``cfg``: the registered env, ``cfg.num_env_runners``
+    runners of ``cfg.n_envs`` sub-envs each, derived seeds, one shared
+    :class:`PlatoonPPOModule`, and SB3's hyper-parameters (``n_steps`` env steps per sub-env
+    per rollout, ``batch_size`` follower transitions per minibatch, no KL penalty, no value
+    clipping)."""
+    if cfg.algo != "ppo":
+        raise ValueError(f"--engine rllib trains PPO only, got --algo {cfg.algo}")
+    if cfg.num_env_runners < 0 or cfg.n_envs < 1:
+        raise ValueError("need --num-env-runners >= 0 and --n-envs >= 1")
+    register()
+    runners = max(1, cfg.num_env_runners)
+    rollout = cfg.n_steps * cfg.n_envs * runners
+    module = RLModuleSpec(
+        module_class=PlatoonPPOModule,
+        model_config={
+            "hidden": list(cfg.net_arch or [64, 64]),
+            "obs_dim": OBS_SIZE,
+            "critic": cfg.critic,
+        },
+    )
+    return (
+        PPOConfig()
+        .environment(ENV_NAME, env_config=env_config(cfg))
+        .framework("torch", torch_compile_learner=False)
+        .env_runners(
+            num_env_runners=cfg.num_env_runners,
+            num_envs_per_env_runner=cfg.n_envs,
+            rollout_fragment_length=cfg.n_steps,
+            num_cpus_per_env_runner=1,
+        )
+        .learners(num_learners=cfg.num_learners)
+        .multi_agent(policies={MODULE_ID}, policy_mapping_fn=_policy_mapping)
+        .rl_module(rl_module_spec=MultiRLModuleSpec(rl_module_specs={MODULE_ID: module}))
+        .training(
+            lr=cfg.learning_rate,
+            gamma=cfg.gamma,
+            lambda_=cfg.gae_lambda,
+            train_batch_size_per_learner=rollout // max(1, cfg.num_learners),
+            minibatch_size=cfg.batch_size,
+            num_epochs=cfg.n_epochs,
+            clip_param=cfg.clip_range,
+            entropy_coeff=cfg.ent_coef,
+            vf_loss_coeff=cfg.vf_coef,
+            grad_clip=cfg.max_grad_norm,
+            grad_clip_by="global_norm",
+            use_kl_loss=False,
+            vf_clip_param=float("inf"),
+        )
+        .callbacks(on_environment_created=seed_sub_envs)
+        .debugging(seed=cfg.seed, log_level="ERROR")
+        .reporting(metrics_num_episodes_for_smoothing=20)
+    )
+
+
+def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
+    """Connect to a Ray cluster (``address``: ``auto``, ``HOST:6379`` or ``ray://HOST:10001``)
+    or start a local instance without the dashboard; no-op if Ray is already initialised."""
+    if ray.is_initialized():
+        return
+    # Every Ray worker imports training.rllib: the package must be installed where they run
+    # (pip install -e ".[train,rllib]" on every node of a cluster).
+    if address:
+        ray.init(address=address, log_to_driver=False)
+    else:
+        ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+
+
+def _atomic_dir(save: Any, path: Path) -> None:
+    """``save(tmp_dir)``, then swap ``tmp_dir`` into ``path`` (the old one removed after)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    old = path.with_name(f".{path.name}.old")
+    for p in (tmp, old):
+        shutil.rmtree(p, ignore_errors=True)
+    save(tmp)
+    if path.exists():
+        os.replace(path, old)
+    os.replace(tmp, path)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _sampled(result: Mapping[str, Any], key: str) -> int:
+    """A step count of an iteration's results (per-agent counts summed)."""
+    value = result.get("env_runners", {}).get(key, 0)
+    if isinstance(value, Mapping):
+        return int(sum(float(v) for v in value.values()))
+    return int(value or 0)
+
+
+def train_rllib(cfg: TrainConfig) -> tuple[Path, bool]:
+    """``platoon-train --engine rllib``: train as ``cfg`` says; returns ``(model.zip,
+    interrupted)``. ``--timesteps`` counts follower transitions, as for SB3."""
+    from training.train import git_commit
+
+    out = cfg.out_dir
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(cfg.torch_threads)
+    init_ray(cfg.address, num_cpus=max(2, cfg.num_env_runners + cfg.num_learners))
+    algo = ppo_config(cfg).build_algo()
+    probe = PlatoonMultiAgentEnv(env_config(cfg))
+    ckpt_dir = out / RLLIB_CHECKPOINT
+    timesteps = env_steps = 0
+    if cfg.resume and ckpt_dir.is_dir() and (out / "checkpoint.json").is_file():
+        algo.restore_from_path(str(ckpt_dir.resolve()))
+        prev = json.loads((out / "checkpoint.json").read_text())
+        timesteps, env_steps = int(prev["timesteps"]), int(prev.get("env_steps", 0))
+        print(f"resuming from {ckpt_dir} at {timesteps} timesteps", file=sys.stderr)
+    commit = git_commit()
+    started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+    t0 = time.perf_counter()
+    start_steps = timesteps
+    last_result: dict[str, Any] = {}
+
+    def metadata(**extra: Any) -> dict[str, Any]:
+        wall = time.perf_counter() - t0
+        env = probe.env
+        procedural = env.source.procedural
+        done = timesteps - start_steps
+        return {
+            "engine": "rllib",
+            "algo": "ppo",
+            "scenario": cfg.scenario,
+            "seed": cfg.seed,
+            "control_period": env.control_period,
+            "physics_substeps": env.physics_substeps,
+            "max_episode_steps": cfg.max_episode_steps if procedural else env.max_episode_steps,
+            "terminate_on": sorted(env.terminate_on),
+            "n_followers": env.n_followers,
+            "sensor_profile": cfg.sensor_profile,
+            "observation_normalization": None
+            if probe.obs_scale is None
+            else {"type": "fixed_scale", "scale": [float(s) for s in probe.obs_scale]},
+            "action_range": cfg.action_range.to_dict(),
+            "actor": {
+                "type": "mlp",
+                "activation": "tanh",
+                "hidden": list(cfg.net_arch or [64, 64]),
+            },
+            "critic": cfg.critic,
+            "timesteps": timesteps,
+            "env_steps": env_steps,
+            "timesteps_requested": cfg.timesteps,
+            "num_env_runners": cfg.num_env_runners,
+            "num_envs_per_env_runner": cfg.n_envs,
+            "num_learners": cfg.num_learners,
+            "rllib_checkpoint": RLLIB_CHECKPOINT,
+            **commit,
+            "started_at": started,
+            "wall_time_s": round(wall, 3),
+            "timesteps_per_s": round(done / wall, 1) if wall > 0 else None,
+            "env_steps_per_s": round(env_steps_run / wall, 1) if wall > 0 else None,
+            "episode_return_mean": last_result.get("env_runners", {}).get("episode_return_mean"),
+            "episode_len_mean": last_result.get("env_runners", {}).get("episode_len_mean"),
+            **extra,
+            "config": dataclasses.asdict(cfg),
+            "versions": {
+                "platoon_env": platoon_env.__version__,
+                "ray": ray.__version__,
+                "torch": torch.__version__,
+                "gymnasium": gym.__version__,
+                "numpy": np.__version__,
+                "python": platform.python_version(),
+            },
+            "command": sys.argv,
+        }
+
+    def save(name: str, **extra: Any) -> Path:
+        actor = export_actor(learner_weights(algo))
+        return save_exported_policy(actor, out / f"{name}.zip", metadata(**extra))
+
+    bar: Any = None
+    if cfg.progress_bar:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=cfg.timesteps, initial=timesteps, unit="step")
+    env_steps_run = 0
+    last_ckpt = timesteps
+    interrupted = False
+    try:
+        while timesteps < cfg.timesteps:
+            result = algo.train()
+            last_result = result
+            agent = _sampled(result, "num_agent_steps_sampled")
+            envs = _sampled(result, "num_env_steps_sampled")
+            timesteps += agent
+            env_steps += envs
+            env_steps_run += envs
+            if bar is not None:
+                bar.n = min(timesteps, cfg.timesteps)
+                bar.refresh()
+            if cfg.verbose:
+                runners = result.get("env_runners", {})
+                print(
+                    f"timesteps {timesteps}  return {runners.get('episode_return_mean')}  "
+                    f"length {runners.get('episode_len_mean')}",
+                    file=sys.stderr,
+                )
+            if cfg.checkpoint_every > 0 and timesteps - last_ckpt >= cfg.checkpoint_every:
+                last_ckpt = timesteps
+                _atomic_dir(lambda p: algo.save_to_path(str(p.resolve())), ckpt_dir)
+                save("checkpoint")
+    except KeyboardInterrupt:
+        interrupted = True
+        print(
+            f"\ninterrupted after {timesteps} timesteps; saving the model so far", file=sys.stderr
+        )
+    if bar is not None:
+        bar.close()
+    _atomic_dir(lambda p: algo.save_to_path(str(p.resolve())), ckpt_dir)
+    save("checkpoint")
+    path = save("model", interrupted=interrupted)
+    algo.stop()
+    probe.close()
+    return path, interrupted
