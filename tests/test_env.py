@@ -52,6 +52,15 @@ def test_spaces_are_cached_and_bounded(corridor: dict[str, Any]) -> None:
         assert space.shape == (OBS_SIZE,) and space.dtype == np.float32
         assert np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))
         assert env.action_space(agent).dtype == np.float32
+    # One space object per agent: seeding one agent's space leaves the others' alone.
+    first, second = env.possible_agents[:2]
+    assert env.action_space(first) is not env.action_space(second)
+    env.action_space(first).seed(0)
+    env.action_space(second).seed(0)
+    a = env.action_space(first).sample()
+    env.action_space(first).seed(0)
+    np.testing.assert_array_equal(env.action_space(first).sample(), a)
+    assert env.observation_space(first) is not env.observation_space(second)
 
 
 def test_observation_matches_ground_truth(corridor: dict[str, Any]) -> None:
@@ -479,3 +488,26 @@ def test_walls_stay_solid_when_collisions_are_only_reported(
             contact_steps += 1
             assert "collision_obstacle" in infos["follower_1"]["violations"]
     assert contact_steps > 50
+
+
+def test_a_failed_reset_changes_nothing() -> None:
+    """reset(options={"poses": infeasible}) on a procedural env: the error leaves the episode,
+    its layout and the RNG as they were (the next reset draws what it would have drawn)."""
+    from platoon_env.scenarios.schema import ScenarioError
+
+    env = platoon_env.make("procedural_train")
+    twin = platoon_env.make("procedural_train")
+    env.reset(seed=5)
+    twin.reset(seed=5)
+    layout, poses = env.layout_index, env.poses
+    env.step({a: np.array([0.1, 0.0]) for a in env.agents})
+    twin.step({a: np.array([0.1, 0.0]) for a in twin.agents})
+    stacked = np.zeros_like(poses)  # every robot on one spot: infeasible anywhere
+    with pytest.raises(ScenarioError, match="infeasible"):
+        env.reset(options={"poses": stacked})
+    assert env.layout_index == layout and env.agents
+    np.testing.assert_array_equal(env.poses, twin.poses)
+    a, _ = env.reset()
+    b, _ = twin.reset()
+    assert env.layout_index == twin.layout_index
+    np.testing.assert_array_equal(a["follower_1"], b["follower_1"])
