@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import pytest
@@ -127,3 +128,123 @@ def test_summary_counts_causes() -> None:
     ]
     text = summarise(rows)
     assert "| s | p | 2 | 1/2" in text and "occluded 1" in text and text.rstrip().endswith("2 |")
+
+
+def test_realism_flag_parsing() -> None:
+    import argparse
+
+    from training.evaluate import nest_assignments, parse_args, parse_assignment
+
+    assert parse_assignment("noise.position=0.01") == (("noise", "position"), 0.01)
+    assert parse_assignment("frame_rate=null") == (("frame_rate",), None)
+    assert parse_assignment("accel_max = 1") == (("accel_max",), 1)
+    for bad, match in (
+        ("latency", "expected KEY=VALUE"),
+        ("=1", "bad key"),
+        ("noise..position=1", "bad key"),
+        ("9lives=1", "bad key"),
+        ("latency=[1", "not YAML"),
+    ):
+        with pytest.raises(argparse.ArgumentTypeError, match=match):
+            parse_assignment(bad)
+    nested = nest_assignments(
+        [(("noise", "position"), 0.01), (("latency",), 0.05), (("noise", "bearing"), 0.02)],
+        "--camera",
+    )
+    assert nested == {"noise": {"position": 0.01, "bearing": 0.02}, "latency": 0.05}
+    with pytest.raises(ValueError, match="both a value and sub-keys"):
+        nest_assignments([(("noise",), 0), (("noise", "position"), 0.01)], "--camera")
+
+    args = parse_args(
+        [
+            "--policy", "ppc", "--scenario", "study_a", "--sensor-profile", "aruco",
+            "--camera", "noise.position=0.01", "--camera", "latency=0.02",
+            "--robot", "accel_max=1", "--proximity", "noise=0.02",
+        ]
+    )  # fmt: skip
+    assert args.realism.overrides() == {
+        "sensor_profile": "aruco",
+        "camera": {"noise": {"position": 0.01}, "latency": 0.02},
+        "robot": {"accel_max": 1},
+        "proximity": {"noise": 0.02},
+    }
+    assert args.realism.label == (
+        "profile aruco; camera.noise.position=0.01; camera.latency=0.02; "
+        "proximity.noise=0.02; robot.accel_max=1"
+    )
+    resolved = json.loads(args.resolved["study_a"])
+    assert resolved["camera"]["noise"] == {
+        "position": 0.01,
+        "position_per_m": 0.01,
+        "bearing": 0.01,
+    }
+    assert resolved["camera"]["latency"] == 0.02 and resolved["camera"]["frame_rate"] == 30.0
+    assert resolved["robot"]["accel_max"] == 1 and resolved["proximity"]["noise"] == 0.02
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--camera", "latency"], "argument --camera: 'latency': expected KEY=VALUE"),
+        (["--robot", "accel_max=[1"], "is not YAML"),
+        (["--camera", "noise=0", "--camera", "noise.position=1"], "both a value and sub-keys"),
+        (["--camera", "nosie=1"], "camera.nosie: unknown key"),
+        (["--camera", "latency=0.015"], "whole number of control periods"),
+        (["--robot", "accel_max=-1"], "robot.accel_max: must be > 0"),
+        (["--sensor-profile", "no_such_profile"], "no_such_profile"),
+    ],
+)
+def test_realism_flag_errors(
+    flags: list[str], message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from training.evaluate import parse_args
+
+    with pytest.raises(SystemExit) as exc:
+        parse_args(["--policy", "ppc", "--scenario", "study_a", *flags])
+    assert exc.value.code == 2  # an argparse usage error, not a traceback
+    err = capsys.readouterr().err
+    assert "usage: platoon-evaluate" in err and message in err and "Traceback" not in err
+
+
+def test_rows_carry_the_realism(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "eval"
+    base = ["--policy", "ppc", "--scenario", "study_c", "--episodes", "1", "--no-plots"]
+    base += ["--workers", "1", "--out", str(out)]
+    # 100 ms of latency: PPC loses its predecessor within seconds (a short episode).
+    assert main([*base, "--camera", "latency=0.1"]) == 0
+    (row,) = _rows(out / "results.csv")
+    assert row["realism_label"] == "camera.latency=0.1" and row["sensor_profile"] == ""
+    assert json.loads(row["realism"])["camera"]["latency"] == 0.1
+    assert row["success"] == "False" and row["violation"] == "out_of_fov"
+    # Other realism, same folder: a new row, not a resumed one; the summary shows this run's.
+    assert main([*base, "--camera", "latency=0.05", "--camera", "frame_rate=15"]) == 0
+    rows = _rows(out / "results.csv")
+    assert len(rows) == 2 and len({r["realism"] for r in rows}) == 2
+    summary = (out / "summary.md").read_text()
+    assert "realism flags: camera.latency=0.05; camera.frame_rate=15" in summary
+    assert summary.count("| study_c | ppc | 1 |") == 1
+    # The same realism again resumes: nothing to run.
+    capsys.readouterr()
+    assert main([*base, "--camera", "latency=0.1"]) == 0
+    assert "1 of 1 episodes done (2 rows in the file), 0 to run" in capsys.readouterr().out
+    assert len(_rows(out / "results.csv")) == 2
+    # Mixed rows are summarised per realism, never together.
+    text = summarise(rows)
+    assert text.count("### realism:") == 2 and text.count("| study_c | ppc | 1 |") == 2
+
+
+def test_old_results_get_the_realism_columns(tmp_path: Path) -> None:
+    from platoon_env.rollout import METRIC_NAMES
+
+    out = tmp_path / "old"
+    out.mkdir()
+    old_columns = ["policy", "scenario", "seed", *METRIC_NAMES]
+    with (out / "results.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=old_columns)
+        writer.writeheader()
+        writer.writerow({c: "0" for c in old_columns} | {"policy": "ppc", "scenario": "study_a"})
+    args = ["--policy", "ppc", "--scenario", "study_a", "--episodes", "1", "--no-plots"]
+    assert main([*args, "--out", str(out)]) == 0  # the old row is the ideal run: resumed
+    (row,) = _rows(out / "results.csv")
+    assert list(row) == list(CSV_COLUMNS) and row["realism_label"] == "none"
+    assert json.loads(row["realism"])["camera"]["latency"] == 0.0

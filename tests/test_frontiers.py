@@ -1,0 +1,208 @@
+"""baselines.frontiers: the Wilson interval, the grid, resuming, diagnostics and a quick run."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from baselines import frontiers as fr
+from baselines.frontiers import (
+    AXES,
+    CONTROLLERS,
+    CSV_COLUMNS,
+    Job,
+    RowWriter,
+    build_grid,
+    level_key,
+    main,
+    read_rows,
+    run_job,
+    wilson_interval,
+)
+
+
+def test_wilson_interval_hand_case() -> None:
+    # 8/10, z = 1.96 by hand: p = 0.8, z^2 = 3.8416, denom = 1 + 0.38416 = 1.38416,
+    # centre = (0.8 + 0.19208) / 1.38416 = 0.99208 / 1.38416 = 0.716739,
+    # half = 1.96 sqrt(0.016 + 0.009604) / 1.38416 = 1.96 * 0.160012 / 1.38416 = 0.226581,
+    # so [0.490158, 0.943320] (the tabulated Wilson interval of 8/10: 0.490, 0.943).
+    lo, hi = wilson_interval(8, 10)
+    assert lo == pytest.approx(0.490158, abs=2e-6)
+    assert hi == pytest.approx(0.943320, abs=2e-6)
+    # 0/10: centre = 0.19208/1.38416 = half, so [0, 2 * 0.138771] = [0, 0.277541].
+    lo, hi = wilson_interval(0, 10)
+    assert lo == 0.0 and hi == pytest.approx(0.277541, abs=1e-6)
+    lo, hi = wilson_interval(10, 10)
+    assert hi == 1.0 and lo == pytest.approx(1 - 0.277541, abs=1e-6)
+    assert all(math.isnan(v) for v in wilson_interval(0, 0))
+    with pytest.raises(ValueError):
+        wilson_interval(3, 2)
+
+
+def test_grid_levels() -> None:
+    assert list(AXES) == [
+        "camera_noise",
+        "detection",
+        "latency",
+        "frame_rate",
+        "accel_max",
+        "profile",
+    ]
+    assert AXES["camera_noise"].levels == (0, 0.5, 1, 2, 5, 10)
+    assert AXES["detection"].levels == (1, 0.95, 0.8, 0.5)
+    assert AXES["latency"].levels == (0, 10, 30, 50, 100)
+    assert AXES["frame_rate"].levels == (None, 30, 15)
+    assert AXES["accel_max"].levels == (None, 2, 1, 0.5)
+    assert AXES["profile"].levels == ("aruco",)
+    assert sum(len(a.levels) for a in AXES.values()) == 23
+    for axis in AXES.values():
+        assert len(axis.quick) == min(2, len(axis.levels))
+        assert set(axis.quick) <= set(axis.levels)
+    # Units: cm -> m, ms -> s; the ideal level of each axis overrides nothing.
+    assert AXES["camera_noise"].overrides(2) == {"camera": {"noise": {"position": 0.02}}}
+    assert AXES["latency"].overrides(30) == {"camera": {"latency": 0.03}}
+    assert AXES["detection"].overrides(0.8) == {"camera": {"detection": 0.8}}
+    assert AXES["frame_rate"].overrides(15) == {"camera": {"frame_rate": 15}}
+    assert AXES["accel_max"].overrides(0.5) == {"robot": {"accel_max": 0.5}}
+    for name in ("camera_noise", "detection", "latency", "frame_rate", "accel_max"):
+        assert AXES[name].overrides(AXES[name].levels[0]) == {}
+    assert [level_key(v) for v in (None, 0.0, 0.5, 10.0, "aruco")] == [
+        "none",
+        "0",
+        "0.5",
+        "10",
+        "aruco",
+    ]
+    assert AXES["frame_rate"].show(None) == "every step"
+    assert {"ppc", "last_seen"} <= set(CONTROLLERS)
+
+
+def test_build_grid_shares_the_ideal_point_and_skips_done() -> None:
+    axes = ["camera_noise", "latency", "accel_max"]
+    keys, jobs, notes = build_grid(["study_b"], ["ppc"], axes, 2)
+    assert notes == []
+    assert len(keys) == 2 * (6 + 5 + 4)
+    # The three ideal levels are one configuration: one episode per seed fills their rows.
+    assert len(jobs) == 2 * (1 + 5 + 4 + 3)
+    ideal = [j for j in jobs if json.loads(j.overrides) == {}]
+    assert len(ideal) == 2 and all(len(j.points) == 3 for j in ideal)
+    covered = {(j.seed, p) for j in jobs for p in j.points}  # every row, once
+    assert sum(len(j.points) for j in jobs) == len(keys)
+    assert covered == {(int(k[4]), (k[2], k[3])) for k in keys}
+    done = {("ppc", "study_b", "latency", "0", "0"), ("ppc", "study_b", "latency", "50", "1")}
+    _, jobs2, _ = build_grid(["study_b"], ["ppc"], axes, 2, done=done)
+    covered2 = {(j.seed, p) for j in jobs2 for p in j.points}
+    assert covered2 == covered - {(0, ("latency", "0")), (1, ("latency", "50"))}
+
+
+def test_resume_drops_a_torn_line(tmp_path: Path) -> None:
+    path = tmp_path / "frontiers.csv"
+    writer = RowWriter(path)
+    row = {c: "" for c in CSV_COLUMNS}
+    row.update(controller="ppc", study="study_a", axis="latency", level="0", seed=0)
+    row.update(success=True, steps=5)
+    writer.write(row)
+    writer.close()
+    with path.open("a") as f:
+        f.write("ppc,study_a,latency,10,0,Tr")  # a run killed mid-row
+    rows = read_rows(path)
+    assert len(rows) == 1 and rows[0]["success"] == "True"
+    assert path.read_bytes().endswith(b"\n") and "Tr\n" not in path.read_text()
+    done = {fr._key(r) for r in rows}
+    _, jobs, _ = build_grid(["study_a"], ["ppc"], ["latency"], 1, done=done)
+    assert {p for j in jobs for p in j.points} == {
+        ("latency", lv) for lv in ("10", "30", "50", "100")
+    }
+    # Appending after the cut starts on a fresh line.
+    writer = RowWriter(path)
+    writer.write({**row, "level": "10"})
+    writer.close()
+    assert [r["level"] for r in read_rows(path)] == ["0", "10"]
+
+
+def test_ppc_failure_diagnostics() -> None:
+    # 100 ms of camera latency on study C: the bearing loop oscillates out of the field of
+    # view within seconds.
+    job = Job("ppc", "study_c", 0, json.dumps({"camera": {"latency": 0.1}}), (("latency", "100"),))
+    (row,) = run_job(job)
+    assert row["success"] is False and row["violation"] == "out_of_fov"
+    assert row["first_saturation"] in ("beta_lo", "beta_hi")
+    assert row["first_saturation_time"] <= row["violation_time"]
+    assert math.isfinite(row["xi_beta"]) and math.isfinite(row["xi_beta_true"])
+    assert abs(row["xi_beta_true"]) >= 1.0  # truly out of the bearing funnel
+    assert row["omega_flips_1s"] >= 2 and row["seen_steps_ago"] >= 0
+
+
+def _csv(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_quick_run_writes_csv_md_png(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "fr"
+    args = ["--quick", "--seeds", "1", "--study", "study_a", "--max-episode-steps", "15"]
+    args += ["--axis", "latency", "--axis", "accel_max", "--out", str(out), "--workers", "1"]
+    assert main(args) == 0
+    rows = _csv(out / "frontiers.csv")
+    assert list(rows[0]) == list(CSV_COLUMNS)
+    assert len(rows) == len(CONTROLLERS) * 4  # two axes x two levels x one seed
+    assert {(r["axis"], r["level"]) for r in rows} == {
+        ("latency", "0"),
+        ("latency", "50"),
+        ("accel_max", "none"),
+        ("accel_max", "0.5"),
+    }
+    assert all(r["success"] == "True" and r["steps"] == "15" for r in rows)
+    md = (out / "frontiers.md").read_text()
+    assert "## study_a" in md and "| latency | 50 | 1/1 [0.21, 1.00] |" in md
+    assert (out / "frontier_study_a.png").stat().st_size > 5000
+    # A re-run has nothing left to do; other settings in the same folder are refused.
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "0 to run" in capsys.readouterr().out
+    assert len(_csv(out / "frontiers.csv")) == len(rows)
+    with pytest.raises(SystemExit, match="another --out"):
+        main(["--quick", "--study", "study_a", "--max-episode-steps", "16", "--out", str(out)])
+
+
+@pytest.mark.slow
+def test_worker_pool(tmp_path: Path) -> None:
+    """The spawn pool path (slow: each worker imports the package and loads its kernels)."""
+    out = tmp_path / "pool"
+    args = ["--quick", "--seeds", "2", "--study", "study_b", "--max-episode-steps", "10"]
+    assert main([*args, "--axis", "detection", "--workers", "2", "--out", str(out)]) == 0
+    rows = _csv(out / "frontiers.csv")
+    assert len(rows) == len(CONTROLLERS) * 2 * 2
+    assert {r["seed"] for r in rows} == {"0", "1"}
+
+
+def test_robot_contact_is_diagnosed_on_the_rear_robot() -> None:
+    import numpy as np
+
+    from baselines.frontiers import diagnosed_follower, failure_diagnostics
+    from platoon_env.geometry.sensing import SENSE_BETA, SENSE_D
+    from platoon_env.rollout import Episode
+
+    # Leader at x = 2, follower 1 at x = 1, follower 2 at x = 0.75 (touching follower 1): both
+    # followers are flagged, the first violation names follower 1.
+    poses = np.zeros((2, 3, 3))
+    poses[:, :, 0] = [2.0, 1.0, 0.75]
+    sensed = np.zeros((2, 2, 9))
+    sensed[:, :, SENSE_D] = [1.0, 0.25]
+    sensed[:, :, SENSE_BETA] = [0.0, 0.1]
+    ep = Episode(
+        scenario="s", seed=0, control_period=0.01, d_des=0.8, times=np.array([0.0, 0.01]),
+        poses=poses, sensed=sensed, actions=np.array([[[0.1, 0.2], [0.5, -0.3]]]),
+        violations=np.array([[1, 1]]), terminated=True, truncated=False, leader_arrived=False,
+        first_violation=(0, "collision_robot", 1),
+    )  # fmt: skip
+    assert diagnosed_follower(ep) == (2, "1-2")
+    diag = failure_diagnostics(ep)
+    assert diag["d_true"] == 0.25 and diag["beta_true"] == pytest.approx(0.1)
+    assert diag["u_peak_1s"] == 0.5 and diag["omega_peak_1s"] == pytest.approx(0.3)
+    other = Episode(**{**ep.__dict__, "first_violation": (0, "out_of_fov", 1)})
+    assert diagnosed_follower(other) == (1, "")
