@@ -748,7 +748,12 @@ def _filter_step(
         dx, dy, a = _relative(oj, odo[k % ring, i])
         px, py, wx, wy = _propagate(si[0], si[1], si[2], si[3], dx, dy, a, (k - j) * dt)
         if p.lookahead > 0.0:
-            dx, dy, a = _arc(applied[i, ACT_U], applied[i, ACT_OMEGA], p.lookahead)
+            # Only a channel the drive delays is held ahead: an instant omega (no alpha_max,
+            # no lag) would be the law's own chattering command, extrapolated.
+            lagged = p.lag_gain < 1.0
+            u_ahead = applied[i, ACT_U] if lagged or p.du_max < math.inf else 0.0
+            w_ahead = applied[i, ACT_OMEGA] if lagged or p.dw_max < math.inf else 0.0
+            dx, dy, a = _arc(u_ahead, w_ahead, p.lookahead)
             px, py, wx, wy = _propagate(px, py, wx, wy, dx, dy, a, p.lookahead)
         coast = (k - last[i]) * dt if init[i] else math.inf
         tracked = init[i] and coast <= p.max_coast
