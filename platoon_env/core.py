@@ -43,6 +43,21 @@ from platoon_env.scenarios.source import ScenarioSource
 from platoon_env.simulator import step_parallel, step_serial
 
 
+def compiled_entry(dispatcher: Any, args: tuple[Any, ...]) -> Any:
+    """The compiled function that ``dispatcher`` runs for arguments of exactly the types of
+    ``args``, called without numba's per-call type resolution (about 0.9 µs of the single env's
+    step, measured). Only for arguments that keep these types on every call (the env's own
+    arrays); the dispatcher itself when numba does not expose the compiled entry.
+    """
+    try:
+        signature = tuple(dispatcher.typeof_pyval(a) for a in args)
+        if signature not in dispatcher.overloads:
+            dispatcher.compile(signature)
+        return dispatcher.overloads[signature].entry_point
+    except (AttributeError, KeyError, TypeError):
+        return dispatcher
+
+
 def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
     """The :data:`~platoon_env.records.PARAMS_DTYPE` record of a scenario's config.
 

@@ -17,7 +17,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from platoon_env.core import PlatoonCore
+from platoon_env.core import PlatoonCore, compiled_entry
 from platoon_env.geometry.sensing import SENSE_NAMES, SENSE_VISIBLE
 from platoon_env.observation import ACT_SIZE, action_space, observation_space
 from platoon_env.reward import REWARD_TERMS
@@ -58,6 +58,7 @@ _VIEW_NAMES = (
     "_rewards",
     "_episode",
     "_run_args",
+    "_step",
     "_d_des",
 )
 
@@ -165,6 +166,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self._rewards = core.rewards[0]
         self._episode = core.episode
         self._run_args = (np.ones(1, dtype=bool), self.physics_substeps, *core.step_args)
+        self._step = compiled_entry(step_serial, self._run_args)
         self._d_des = float(core.params[0]["d_des"])
 
     # ----------------------------------------------------------------------------------------
@@ -327,7 +329,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         except (KeyError, TypeError, ValueError, IndexError):
             act = self._read_actions(actions)
         self._actions[:] = act
-        ended = step_serial(*self._run_args)
+        ended = self._step(*self._run_args)
         if ended < 0:  # nothing changed
             raise ValueError(
                 f"action of {agents[-1 - ended]!r} contains NaN or inf: {act[-1 - ended].tolist()}"
