@@ -143,6 +143,35 @@ def advance_substep(
         poses[i + 1, 0], poses[i + 1, 1], poses[i + 1, 2] = x, y, th
 
 
+@njit(cache=True, inline="always")
+def sense_platoon(
+    poses: np.ndarray,
+    prev: np.ndarray,
+    check_motion: bool,
+    walls: Walls,
+    cand: np.ndarray,
+    p: np.record,
+    sensed: np.ndarray,
+    masks: np.ndarray,
+) -> None:
+    """Sense every follower of ``poses`` into ``sensed`` and write each one's violation mask,
+    read off that sensing (robot contacts included), into ``masks``; with ``check_motion`` the
+    motion from ``prev`` is tested for crossing a wall."""
+    for i in range(masks.shape[0]):
+        clear2, motion_hit = sense_follower_grid(
+            (poses[i + 1, 0], poses[i + 1, 1], poses[i + 1, 2]),
+            (poses[i, 0], poses[i, 1]),
+            (prev[i + 1, 0], prev[i + 1, 1]),
+            check_motion,
+            walls,
+            cand,
+            p,
+            sensed[i],
+        )
+        masks[i] = sensed_violation(sensed[i], clear2, motion_hit, p)
+    robot_contacts(poses, p.radius, masks)
+
+
 @njit(cache=True)
 def simulate(
     env: Buffers,
@@ -183,37 +212,14 @@ def simulate(
             travel[i + 1] += abs(actions[i, ACT_U]) * h
         if k == n_substeps - 1:
             # Last sub-step: sense now and read the safety masks off the sensing.
-            for i in range(n):
-                clear2, motion_hit = sense_follower_grid(
-                    (poses[i + 1, 0], poses[i + 1, 1], poses[i + 1, 2]),
-                    (poses[i, 0], poses[i, 1]),
-                    (prev[i + 1, 0], prev[i + 1, 1]),
-                    True,
-                    walls,
-                    cand,
-                    p,
-                    sensed[i],
-                )
-                sub_mask[i] = sensed_violation(sensed[i], clear2, motion_hit, p)
-            robot_contacts(poses, p.radius, sub_mask)
+            sense_platoon(poses, prev, True, walls, cand, p, sensed, sub_mask)
             sensed_now = True
             if solid and stop_at_walls(poses, prev, walls, cand, sub_mask):
                 # Sense again where the stopped followers stand (their successors' lines of
                 # sight changed too); they stay in collision.
-                for i in range(n):
-                    contact = sub_mask[i] & COLLISION_OBSTACLE
-                    clear2, _ = sense_follower_grid(
-                        (poses[i + 1, 0], poses[i + 1, 1], poses[i + 1, 2]),
-                        (poses[i, 0], poses[i, 1]),
-                        (poses[i + 1, 0], poses[i + 1, 1]),
-                        False,
-                        walls,
-                        cand,
-                        p,
-                        sensed[i],
-                    )
-                    sub_mask[i] = sensed_violation(sensed[i], clear2, False, p) | contact
-                robot_contacts(poses, p.radius, sub_mask)
+                contact = sub_mask & COLLISION_OBSTACLE
+                sense_platoon(poses, poses, False, walls, cand, p, sensed, sub_mask)
+                sub_mask |= contact
         else:
             violation_masks_grid(poses, prev, walls, cand, p, sub_mask, sensed, travel)
             if solid:
@@ -226,17 +232,7 @@ def simulate(
         if stop:
             break
     if not sensed_now:
-        for i in range(n):
-            sense_follower_grid(
-                (poses[i + 1, 0], poses[i + 1, 1], poses[i + 1, 2]),
-                (poses[i, 0], poses[i, 1]),
-                (poses[i + 1, 0], poses[i + 1, 1]),
-                False,
-                walls,
-                cand,
-                p,
-                sensed[i],
-            )
+        sense_platoon(poses, poses, False, walls, cand, p, sensed, sub_mask)
     observe_into(sensed, env.obs)
     return done
 
