@@ -539,7 +539,7 @@ def _sampled(result: Mapping[str, Any], key: str) -> int:
 def train_rllib(cfg: TrainConfig) -> tuple[Path, bool]:
     """``platoon-train --engine rllib``: train as ``cfg`` says; returns ``(model.zip,
     interrupted)``. ``--timesteps`` counts follower transitions, as for SB3."""
-    from training.train import git_commit
+    from training.train import env_metadata, git_commit
 
     out = cfg.out_dir
     out.mkdir(parents=True, exist_ok=True)
@@ -562,19 +562,11 @@ def train_rllib(cfg: TrainConfig) -> tuple[Path, bool]:
 
     def metadata(**extra: Any) -> dict[str, Any]:
         wall = time.perf_counter() - t0
-        env = probe.env
-        procedural = env.source.procedural
         done = timesteps - start_steps
         return {
             "engine": "rllib",
             "algo": "ppo",
-            "scenario": cfg.scenario,
-            "seed": cfg.seed,
-            "control_period": env.control_period,
-            "physics_substeps": env.physics_substeps,
-            "max_episode_steps": cfg.max_episode_steps if procedural else env.max_episode_steps,
-            "terminate_on": sorted(env.terminate_on),
-            "n_followers": env.n_followers,
+            **env_metadata(cfg, probe.env),
             "sensor_profile": cfg.sensor_profile,
             "observation_normalization": None
             if probe.obs_scale is None

@@ -335,19 +335,13 @@ def git_commit() -> dict[str, Any]:
     return {"git_commit": commit, "git_dirty": None if status is None else bool(status)}
 
 
-def run_metadata(
-    cfg: TrainConfig,
-    venv: PlatoonVecEnv | BatchedPlatoonVecEnv,
-    model: BaseAlgorithm,
-    **extra: Any,
-) -> dict[str, Any]:
-    """The ``model.json`` content for ``model`` trained by ``cfg`` on ``venv``."""
-    env = venv.envs[0]
+def env_metadata(cfg: TrainConfig, env: Any) -> dict[str, Any]:
+    """What ``model.json`` records of the training env, for every engine: scenario, seed, time
+    step, step limit, episode-ending causes and the number of followers."""
     # A procedural source's layouts each derive the limit from their own path: record only a
     # set one.
     procedural = env.source.procedural
     return {
-        "algo": cfg.algo,
         "scenario": cfg.scenario,
         "seed": cfg.seed,
         "control_period": env.control_period,
@@ -355,6 +349,19 @@ def run_metadata(
         "max_episode_steps": cfg.max_episode_steps if procedural else env.max_episode_steps,
         "terminate_on": sorted(env.terminate_on),
         "n_followers": env.n_followers,
+    }
+
+
+def run_metadata(
+    cfg: TrainConfig,
+    venv: PlatoonVecEnv | BatchedPlatoonVecEnv,
+    model: BaseAlgorithm,
+    **extra: Any,
+) -> dict[str, Any]:
+    """The ``model.json`` content for ``model`` trained by ``cfg`` on ``venv``."""
+    return {
+        "algo": cfg.algo,
+        **env_metadata(cfg, venv.envs[0]),
         **adapter_metadata(venv),
         "timesteps": int(model.num_timesteps),
         "timesteps_requested": cfg.timesteps,
