@@ -157,6 +157,19 @@ class BatchedPlatoon:
         """Whether each env's leader has reached its path's end."""
         return self._core.episode["leader_arrived"].copy()
 
+    @property
+    def leader_velocity(self) -> np.ndarray:
+        """Each env's leader ``[u, omega]`` ``(B, 2)`` in the last physics sub-step (as the
+        env's :attr:`~platoon_env.env.PlatoonParallelEnv.leader_velocity`)."""
+        ep = self._core.episode
+        return np.stack([ep["leader_u"], ep["leader_omega"]], axis=1)
+
+    @property
+    def leader_speed_factor(self) -> np.ndarray:
+        """Each env's leader speed factor ``f`` of this episode ``(B,)`` (1 without
+        ``leader.speed_variation``)."""
+        return self._core.episode["leader_speed_factor"].copy()
+
     # ----------------------------------------------------------------------------------------
     # API
     # ----------------------------------------------------------------------------------------

@@ -22,7 +22,9 @@ import numba
 import numpy as np
 from gymnasium.utils import seeding
 
+from platoon_env.dynamics.leader import trajectory_velocities
 from platoon_env.geometry.grid import EdgeGrid
+from platoon_env.geometry.primitives import wrap_angle
 from platoon_env.geometry.sensing import SENSE_SIZE
 from platoon_env.initial import InitialSampler
 from platoon_env.observation import ACT_SIZE, OBS_SIZE, action_space
@@ -30,6 +32,11 @@ from platoon_env.records import (
     FRAME_SIZE,
     MAP_INFO_DTYPE,
     PARAMS_DTYPE,
+    PATH_SIZE,
+    PATH_T,
+    PATH_THETA,
+    PATH_X,
+    PATH_Y,
     Buffers,
     MapBank,
     constraint_params,
@@ -38,7 +45,12 @@ from platoon_env.records import (
 from platoon_env.reward import REWARD_TERMS
 from platoon_env.safety import causes_to_mask
 from platoon_env.scenarios.scenario import Scenario
-from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError, latency_steps
+from platoon_env.scenarios.schema import (
+    ScenarioConfig,
+    ScenarioError,
+    latency_steps,
+    trajectory_route,
+)
 from platoon_env.scenarios.source import ScenarioSource
 from platoon_env.simulator import step_parallel, step_serial
 
@@ -69,7 +81,13 @@ def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
     p["u_low"], p["omega_low"] = space.low.astype(np.float64)
     p["u_high"], p["omega_high"] = space.high.astype(np.float64)
     p["terminate_mask"] = causes_to_mask(cfg.safety.terminate_on)
+    p["leader_replay"] = bool(cfg.leader.trajectory)
     p["leader_speed"] = cfg.leader.speed
+    p["leader_speed_bound"] = cfg.leader.speed
+    if cfg.leader.trajectory:
+        # The replayed leader is never faster than its fastest segment.
+        u, _ = trajectory_velocities(trajectory_route(cfg.leader.trajectory))
+        p["leader_speed_bound"] = float(np.max(np.abs(u)))
     p["lookahead"] = cfg.leader.lookahead
     p["leader_turn_rate"] = cfg.leader.max_turn_rate
     p["d_des"] = cfg.formation.d_des
@@ -131,7 +149,7 @@ class _MapSlots:
         self.cell_start = np.zeros((m, cells + 1), dtype=np.int64)
         self.cell_edges = np.zeros((m, cell_edges), dtype=np.int64)
         self.edge_cell = np.zeros((m, edges, 2), dtype=np.int64)
-        self.path = np.zeros((m, path, 2))
+        self.path = np.zeros((m, path, PATH_SIZE))
         self.path_s = np.zeros((m, path))
         if old is not None:  # keep the slots already written
             for new, prev in zip(self._fields(), old[1:], strict=True):
@@ -156,7 +174,8 @@ class _MapSlots:
         self.arrays = (self.info.view(np.uint8), *self._fields())
 
     def write(self, slot: int, scenario: Scenario, grid: EdgeGrid) -> None:
-        """Put ``scenario``'s boundary edges, edge grid and leader path into ``slot``."""
+        """Put ``scenario``'s boundary edges, edge grid and leader route (its path, and a timed
+        trajectory's sample times and headings) into ``slot``."""
         walls = grid.walls
         n_e = walls.edges.shape[0]
         n_c = walls.cell_start.shape[0] - 1
@@ -182,8 +201,11 @@ class _MapSlots:
         self.cell_start[slot, : n_c + 1] = walls.cell_start
         self.cell_edges[slot, :n_k] = walls.cell_edges
         self.edge_cell[slot, :n_e] = walls.edge_cell
-        self.path[slot, :n_p] = scenario.leader_path
+        self.path[slot, :n_p, PATH_X : PATH_Y + 1] = scenario.leader_path
         self.path_s[slot, :n_p] = scenario.path_s
+        timed = scenario.leader_times is not None and scenario.leader_headings is not None
+        self.path[slot, :n_p, PATH_T] = scenario.leader_times if timed else 0.0
+        self.path[slot, :n_p, PATH_THETA] = scenario.leader_headings if timed else 0.0
 
 
 class PlatoonCore:
@@ -315,9 +337,12 @@ class PlatoonCore:
         """Start env ``b``'s next episode (the caller then senses it with :meth:`run`).
 
         ``seed`` reseeds the env's RNG; the scenario is drawn from the source, then the initial
-        configuration: ``poses`` (validated against the constraints, else ``ScenarioError``), or
-        the scenario's default one, perturbed unless ``perturb`` is False. A failed reset
-        changes nothing (not even the RNG's state).
+        configuration: ``poses`` (validated against the constraints, else ``ScenarioError``; with
+        a timed leader trajectory the leader's row must be its first sample), or the scenario's
+        default one, perturbed unless ``perturb`` is False; then, with
+        ``leader.speed_variation`` ``v > 0``, the episode's leader speed factor ``f = 1 + v
+        U(-1, 1)`` (one draw; none without variation, so episodes draw exactly as before). A
+        failed reset changes nothing (not even the RNG's state).
         """
         if seed is not None:
             rng = seeding.np_random(int(seed))[0]
@@ -348,12 +373,19 @@ class PlatoonCore:
                     raise ValueError(
                         f"options['poses'] must be finite with shape {self.poses[b].shape}"
                     )
+                if scenario.leader_times is not None:
+                    _check_replay_start(start, scenario)
+                    start[0] = scenario.initial_poses[0]  # the sample, bit for bit
                 problems = sampler.violations(start)
                 if problems:
                     raise ScenarioError("initial poses are infeasible: " + "; ".join(problems))
             else:
                 default = scenario.config.initial.perturb
                 start = sampler.sample(rng, default if perturb is None else bool(perturb))
+            variation = scenario.config.leader.speed_variation
+            factor = 1.0
+            if variation > 0.0:
+                factor = 1.0 + variation * float(rng.uniform(-1.0, 1.0))
         except BaseException:
             rng.bit_generator.state = state
             raise
@@ -367,6 +399,10 @@ class PlatoonCore:
         self.poses[b] = start
         ep["leader_progress"] = scenario.initial_progress
         ep["leader_arrived"] = False
+        ep["leader_speed_factor"] = factor
+        ep["leader_substeps"] = 0
+        ep["leader_u"] = 0.0
+        ep["leader_omega"] = 0.0
         ep["sim_time"] = 0.0
         ep["steps"] = 0
         ep["arrival_time"] = math.nan
@@ -395,3 +431,21 @@ class PlatoonCore:
         # Views unpickle as copies: the byte views must alias the records again.
         self._params_bytes = self.params.view(np.uint8)
         self._episode_bytes = self.episode.view(np.uint8)
+
+
+#: [m, rad] How far a given start's leader row may be from a timed trajectory's first sample.
+REPLAY_START_TOLERANCE = 1e-9
+
+
+def _check_replay_start(start: np.ndarray, scenario: Scenario) -> None:
+    """A given start of a timed leader trajectory must put the leader at its first sample (the
+    replay drives it from there at once); ``ScenarioError`` otherwise."""
+    first = scenario.initial_poses[0]
+    gap = math.hypot(start[0, 0] - first[0], start[0, 1] - first[1])
+    turn = abs(wrap_angle(float(start[0, 2] - first[2])))
+    if gap > REPLAY_START_TOLERANCE or turn > REPLAY_START_TOLERANCE:
+        raise ScenarioError(
+            "initial poses are infeasible: leader: with a timed trajectory the leader starts "
+            f"at its first sample {np.asarray(first).tolist()} (scenario.leader.trajectory[0]), "
+            f"got {start[0].tolist()}"
+        )

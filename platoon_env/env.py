@@ -67,7 +67,8 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     """A leader-follower platoon of unicycle robots in a cluttered 2D workspace.
 
     **Agents**: ``follower_1 .. follower_N``; follower ``i`` tracks robot ``i - 1`` (robot 0 is
-    the scripted leader, which follows ``leader.path`` by pure pursuit).
+    the scripted leader, which follows ``leader.path`` by pure pursuit or replays
+    ``leader.trajectory`` exactly; see :mod:`platoon_env.dynamics.leader`).
 
     **Action space** (per agent): ``Box([-u_max, -omega_max], [u_max, omega_max], float32)``:
     linear speed ``u`` [m/s] and turn rate ``omega`` [rad/s] of eq. 1. Values outside the box are
@@ -223,6 +224,20 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     def leader_arrived(self) -> bool:
         """Whether the leader has reached the end of its path."""
         return bool(self._episode[0]["leader_arrived"])
+
+    @property
+    def leader_velocity(self) -> np.ndarray:
+        """The leader's ``[u, omega]`` (2,) in the last physics sub-step (ground truth): pure
+        pursuit's command, or the velocity that a timed trajectory's interpolation implies,
+        times the episode's speed factor; zeros at reset and once the leader has arrived."""
+        ep = self._episode[0]
+        return np.array([ep["leader_u"], ep["leader_omega"]], dtype=np.float64)
+
+    @property
+    def leader_speed_factor(self) -> float:
+        """This episode's leader speed factor ``f`` (``leader.speed_variation``, drawn at
+        reset; 1 without variation)."""
+        return float(self._episode[0]["leader_speed_factor"])
 
     @property
     def violation_masks(self) -> np.ndarray:

@@ -8,9 +8,10 @@ is used. The leader is not perturbed.
 
 A configuration is feasible when no follower violates any constraint there: the rule is
 :func:`platoon_env.safety.configuration_masks`, the one the step applies after every sub-step,
-so a start is never one that the first step would end. The leader (which no draw moves) must
-also keep a clearance above ``r``. :func:`platoon_env.scenarios.scenario.initial_violations`
-words the same decisions as messages.
+so a start is never one that the first step would end (with the obstacles inflated by
+``safety.inflation``). The leader (which no draw moves) must also keep a clearance above
+``r + m`` (:func:`~platoon_env.scenarios.scenario.leader_clear`).
+:func:`platoon_env.scenarios.scenario.initial_violations` words the same decisions as messages.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from platoon_env.geometry.grid import EdgeGrid
 from platoon_env.geometry.sensing import SENSE_SIZE
 from platoon_env.records import Walls, constraint_params
 from platoon_env.safety import configuration_masks
-from platoon_env.scenarios.scenario import Scenario, initial_violations
+from platoon_env.scenarios.scenario import Scenario, initial_violations, leader_clear
 
 #: Attempts at drawing a feasible perturbed initial configuration before using the default one.
 PERTURB_ATTEMPTS = 50
@@ -51,9 +52,7 @@ class InitialSampler:
         self._walls = walls
         self._params = constraint_params(cfg) if params is None else params
         leader = self.base[0]
-        self._leader_ok = (
-            scenario.workspace.clearance(float(leader[0]), float(leader[1])) > cfg.robot.radius
-        )
+        self._leader_ok = leader_clear(cfg, scenario.workspace, (leader[0], leader[1]))
         self._sensed = np.empty((self._n, SENSE_SIZE))
         self._masks = np.empty(self._n, dtype=np.int64)
 

@@ -13,9 +13,11 @@ record              type                                   holds
                                                            progress, time, steps, arrival, the
                                                            step's outcome and its map slot
 ``maps``            :class:`MapBank` (named tuple)         the boundary-edge arrays, edge grids and
-                                                           leader paths of ``M`` map slots, padded;
-                                                           :func:`walls_of` and :func:`path_of`
-                                                           give the views of one slot
+                                                           leader routes (paths, or timed
+                                                           trajectories) of ``M`` map slots,
+                                                           padded; :func:`walls_of` and
+                                                           :func:`path_of` give the views of one
+                                                           slot
 ``buffers``         :class:`Buffers` (named tuple)         per-follower state and outputs: poses,
                                                            actions, violations, sensing,
                                                            observations, reward terms, rewards
@@ -58,14 +60,19 @@ PARAMS_DTYPE = np.dtype(
         # safety (eqs. 4-5) and the causes that end an episode (bit k: VIOLATION_CAUSES[k])
         ("d_col", _F8),  # [m]
         ("terminate_mask", _I8),
+        # [m] safety.inflation m: the obstacles as every rule sees them are inflated by m
+        # (collision at true clearance <= r + m; sensing and clearances to the inflated outline)
+        ("inflation", _F8),
         # camera: the field of view F_i (eq. 5)
         ("d_con", _F8),  # [m]
         ("beta_con", _F8),  # [rad]
         # proximity sensor: range and sector half-angle (pi: all around)
         ("proximity_range", _F8),  # [m]
         ("proximity_half_angle", _F8),  # [rad]
-        # the scripted leader (pure pursuit)
-        ("leader_speed", _F8),  # [m/s]
+        # the scripted leader: pure pursuit along its path, or the replay of a timed trajectory
+        ("leader_replay", np.bool_),  # True: replay leader.trajectory (platoon_env.dynamics.leader)
+        ("leader_speed", _F8),  # [m/s] pure pursuit's speed (trajectory: its mean speed)
+        ("leader_speed_bound", _F8),  # [m/s] bound on the leader's |u| at speed factor 1
         ("lookahead", _F8),  # [m]
         ("leader_turn_rate", _F8),  # [rad/s] bound on the leader's |omega|
         # formation and reward (platoon_env.reward)
@@ -111,6 +118,13 @@ EPISODE_DTYPE = np.dtype(
     [
         ("leader_progress", _F8),  # [m] the leader's arc length s along its path
         ("leader_arrived", np.bool_),  # the leader has reached its path's end
+        # the leader's speed factor of this episode (1 + leader.speed_variation * U(-1, 1),
+        # drawn at reset; 1 without variation): pure pursuit at factor * leader_speed, a
+        # trajectory replayed factor times as fast
+        ("leader_speed_factor", _F8),
+        ("leader_substeps", _I8),  # physics sub-steps the leader has moved in this episode
+        ("leader_u", _F8),  # [m/s] the leader's u in the last sub-step
+        ("leader_omega", _F8),  # [rad/s] the leader's omega in the last sub-step
         ("sim_time", _F8),  # [s]
         ("steps", _I8),  # steps taken in this episode
         ("arrival_time", _F8),  # [s] sim_time when the leader arrived; NaN before
@@ -148,9 +162,23 @@ Walls = namedtuple("Walls", "edges boxes grid cell_start cell_edges edge_cell")
 
 #: ``M`` map slots, padded to the largest: ``info`` ``(M,)`` :data:`MAP_INFO_DTYPE`, ``edges``,
 #: ``boxes`` ``(M, E, 4)``, ``cell_start`` ``(M, C + 1)``, ``cell_edges`` ``(M, K)``,
-#: ``edge_cell`` ``(M, E, 2)``, the leader's ``path`` ``(M, P, 2)`` and its cumulative arc
-#: length ``path_s`` ``(M, P)``.
+#: ``edge_cell`` ``(M, E, 2)``, the leader's ``path`` ``(M, P, 4)`` (columns :data:`PATH_X`,
+#: :data:`PATH_Y`; for a timed trajectory, ``leader.trajectory``, whose sample positions are
+#: the path, also each sample's time :data:`PATH_T` and heading :data:`PATH_THETA`, zeros for
+#: a pure-pursuit path) and its cumulative arc length ``path_s`` ``(M, P)``. (The trajectory's
+#: columns ride in ``path``: each array of the bank costs the compiled step's call about
+#: 0.15 us to unbox, measured.)
 MapBank = namedtuple("MapBank", "info edges boxes cell_start cell_edges edge_cell path path_s")
+
+#: Columns of a route's ``path``: position [m], and a timed trajectory's sample time [s] and
+#: heading [rad].
+PATH_X, PATH_Y, PATH_T, PATH_THETA = range(4)
+PATH_SIZE = 4
+
+#: The leader's route of one map slot as the leader kernels read it (:func:`path_of`):
+#: ``(path (P, 4), path_s (P,))``; the pure-pursuit kernels read the first two columns only
+#: (a ``(P, 2)`` path serves them as well).
+Route = tuple[np.ndarray, np.ndarray]
 
 #: Per-follower arrays of ``B`` envs with ``N`` followers: ``poses`` ``(B, N+1, 3)`` (leader
 #: first), ``actions`` ``(B, N, 2)`` the commands (clipped), ``applied`` ``(B, N, 2)`` the
@@ -182,27 +210,31 @@ def walls_of(maps: MapBank, slot: int) -> Walls:
 
 
 @njit(cache=True, inline="always")
-def path_of(maps: MapBank, slot: int) -> tuple[np.ndarray, np.ndarray]:
-    """The leader's path ``(P, 2)`` and cumulative arc length ``(P,)`` of map ``slot``."""
+def path_of(maps: MapBank, slot: int) -> Route:
+    """The leader's :data:`Route` of map ``slot``: its path ``(P, 4)`` (positions, and a timed
+    trajectory's sample times and headings) and cumulative arc length ``(P,)`` (no copy)."""
     n_p = maps.info[slot].n_path
     return maps.path[slot, :n_p], maps.path_s[slot, :n_p]
 
 
 def new_episode(batch_size: int) -> np.ndarray:
-    """A zeroed ``(B,)`` :data:`EPISODE_DTYPE` array (arrival times NaN)."""
+    """A zeroed ``(B,)`` :data:`EPISODE_DTYPE` array (arrival times NaN, speed factors 1)."""
     out = np.zeros(batch_size, dtype=EPISODE_DTYPE)
     out["arrival_time"] = math.nan
+    out["leader_speed_factor"] = 1.0
     return out
 
 
 def constraint_params(cfg: ScenarioConfig) -> np.ndarray:
     """A ``(1,)`` :data:`PARAMS_DTYPE` array holding only what the constraint rules read
-    (``radius``, ``d_col``, ``d_con``, ``beta_con``, the proximity range and sector) — for
+    (``radius``, ``d_col``, ``inflation``, ``d_con``, ``beta_con``, the proximity range and
+    sector) — for
     checking a configuration (:func:`platoon_env.safety.configuration_masks`) before an env
     exists. :func:`platoon_env.core.params_of` fills every field."""
     out = np.zeros(1, dtype=PARAMS_DTYPE)
     out["radius"] = cfg.robot.radius
     out["d_col"] = cfg.safety.d_col
+    out["inflation"] = cfg.safety.inflation
     out["d_con"] = cfg.camera.range
     out["beta_con"] = cfg.camera.half_angle
     out["proximity_range"] = cfg.proximity_range

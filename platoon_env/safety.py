@@ -5,7 +5,11 @@ A violation of follower ``i`` has a cause (bit ``k`` of a mask is ``VIOLATION_CA
 
 * ``collision_robot``: ``d_i <= d_col``, or any two robots' disks touch (``|p_j - p_k| <= 2r``);
 * ``collision_obstacle``: clearance to ``∂W_f`` ``<= r`` (eq. 4), or the robot's motion over the
-  sub-step crossed the boundary (so a fast robot cannot tunnel through a thin wall unnoticed);
+  sub-step crossed the boundary (so a fast robot cannot tunnel through a thin wall unnoticed).
+  With an obstacle inflation ``m`` (``safety.inflation``, the paper's study B "augmented the
+  obstacles' boundary by 0.1 m", §4.2) the clearance is to the inflated outline: a collision is
+  ``true clearance <= r + m`` (:func:`obstacle_contact`); the walls the robot cannot pass are
+  still the true ones;
 * ``occluded``: ``L_i`` touches ``∂W_f`` (eq. 5, ``d_l, d_r > 0``);
 * ``out_of_range``: ``d_i >= d_con``; ``out_of_fov``: ``|beta_i| >= beta_con`` (eq. 5).
 
@@ -20,7 +24,7 @@ one, a scenario's), and :func:`describe_masks` words its violations.
 As in :mod:`platoon_env.geometry.sensing`, the kernels take poses as ``(x, y, theta)`` and points
 as ``(x, y)`` tuples, the workspace as a :class:`~platoon_env.records.Walls` and the parameters
 as one :data:`~platoon_env.records.PARAMS_DTYPE` record ``p``, read by name: ``p.radius`` (r),
-``p.d_col`` (eq. 4), ``p.d_con`` and ``p.beta_con`` (eq. 5).
+``p.d_col`` (eq. 4), ``p.inflation`` (m), ``p.d_con`` and ``p.beta_con`` (eq. 5).
 """
 
 from __future__ import annotations
@@ -81,12 +85,31 @@ __all__ = [
     "first_cause",
     "mask_to_causes",
     "motion_crosses_wall",
+    "obstacle_contact",
+    "obstacle_reach",
     "robot_contacts",
     "sensed_violation",
     "stop_at_walls",
     "violation_masks",
     "violation_masks_grid",
 ]
+
+
+@njit(cache=True, inline="always")
+def obstacle_reach(p: np.record) -> float:
+    """``r + m``: how close [m] a robot's centre may come to the true boundary ``∂W_f`` before
+    it collides with the obstacles inflated by ``m = p.inflation`` (eq. 4 on the inflated
+    outline: ``d_W > r``)."""
+    return p.radius + p.inflation
+
+
+@njit(cache=True, inline="always")
+def obstacle_contact(clearance2: float, p: np.record) -> bool:
+    """``collision_obstacle`` by distance (eq. 4): the squared true clearance ``clearance2`` is
+    ``<= (r + m)²`` — the robot's disk touches the obstacles inflated by ``m`` (``m = 0``:
+    ``clearance² <= r²``). The one rule of every obstacle-collision check."""
+    reach = obstacle_reach(p)
+    return clearance2 <= reach * reach
 
 
 @njit(cache=True, inline="always")
@@ -123,15 +146,16 @@ def follower_violation(
     ``pred``.
 
     Visits the edges ``cand`` of ``walls``, which must include every edge whose bounding box
-    lies within ``p.radius`` of ``p_i`` or overlaps the boxes of ``[prev, p_i]`` and
-    ``L_i = [p_i, pred]``. Robot contacts other than with the predecessor are added by
-    :func:`robot_contacts`.
+    lies within ``r + m`` (:func:`obstacle_reach`) of ``p_i`` or overlaps the boxes of
+    ``[prev, p_i]`` and ``L_i = [p_i, pred]``. Robot contacts other than with the predecessor
+    are added by :func:`robot_contacts`.
     """
     edges, boxes = walls.edges, walls.boxes
     mask = pose_violation(pose, pred, p)
     px, py = pose[0], pose[1]
     pt = (px, py)
-    r2 = p.radius * p.radius
+    reach = obstacle_reach(p)
+    r2 = reach * reach
     motion_bounds = (min(prev[0], px), min(prev[1], py), max(prev[0], px), max(prev[1], py))
     sight_bounds = (min(px, pred[0]), min(py, pred[1]), max(px, pred[0]), max(py, pred[1]))
     obstacle = False
@@ -142,7 +166,9 @@ def follower_violation(
         a = (edges[e, 0], edges[e, 1])
         b = (edges[e, 2], edges[e, 3])
         if not obstacle:
-            if point_box_distance2(pt, ebox) <= r2 and point_segment_distance2(pt, a, b) <= r2:
+            if point_box_distance2(pt, ebox) <= r2 and obstacle_contact(
+                point_segment_distance2(pt, a, b), p
+            ):
                 obstacle = True
             elif boxes_overlap(motion_bounds, ebox) and segments_intersect(prev, pt, a, b):
                 obstacle = True
@@ -167,7 +193,7 @@ def sensed_violation(row: np.ndarray, clearance2: float, motion_hit: bool, p: np
     ``SENSE_OCCLUDED``), its squared clearance and the tunnelling check (``motion_hit``); the
     same rules as :func:`follower_violation`."""
     mask = distance_bearing_causes(row[SENSE_D], row[SENSE_BETA], p)
-    if clearance2 <= p.radius * p.radius or motion_hit:
+    if obstacle_contact(clearance2, p) or motion_hit:
         mask |= COLLISION_OBSTACLE
     if row[SENSE_OCCLUDED] > 0.0:
         mask |= OCCLUDED
@@ -209,14 +235,18 @@ def violation_masks_grid(
     ``cand`` is scratch space for at least ``E`` edge indices.
 
     When ``start_sensed`` (N, SENSE_SIZE) holds the sensing of earlier poses and ``travel``
-    (N+1,) bounds how far each robot has moved since, a follower whose clearance then exceeded
-    ``r`` plus its travel, and whose line of sight then kept farther from ``∂W_f`` than either
-    end has moved, cannot have touched an obstacle, crossed one or lost its line of sight: its
-    edge tests are skipped (the result is the same, only cheaper). Pass an empty
-    ``start_sensed`` (0 rows) to test every follower.
+    (N+1,) bounds how far each robot has moved since, a follower whose clearance (to the
+    inflated outline) then exceeded ``r`` plus its travel, and whose line of sight then kept
+    farther from ``∂W_f`` than either end has moved, cannot have touched an obstacle, crossed
+    one or lost its line of sight: its edge tests are skipped (the result is the same, only
+    cheaper). ``d_l``, ``d_r`` bound the line of sight's distance to every wall only when all
+    of ``L_i`` and that margin lie within the sensed range ``R_p + m`` of ``p_i`` (they see only
+    the boundary there), so that is required too. Pass an empty ``start_sensed`` (0 rows) to
+    test every follower.
     """
     radius = p.radius
-    reach = radius * (1.0 + 1e-9) + 1e-9
+    reach = obstacle_reach(p) * (1.0 + 1e-9) + 1e-9
+    sensed_range = p.proximity_range + p.inflation
     bounded = start_sensed.shape[0] > 0
     for i in range(1, poses.shape[0]):
         pose = (poses[i, 0], poses[i, 1], poses[i, 2])
@@ -231,6 +261,7 @@ def violation_masks_grid(
                 row[SENSE_CLEARANCE] > radius + moved
                 and row[SENSE_OCCLUDED] == 0.0
                 and min(row[SENSE_D_SIGHT_LEFT], row[SENSE_D_SIGHT_RIGHT]) > moved_sight
+                and row[SENSE_D] + moved_sight < sensed_range
             ):
                 out[i - 1] = pose_violation(pose, (qx, qy), p)
                 continue
@@ -318,7 +349,8 @@ def configuration_masks(
     Senses every follower of ``poses`` (N+1, 3) into ``sensed`` (N, SENSE_SIZE) without motion
     and writes each follower's violation bit mask into ``out`` (N,) int64, by the rules of the
     last sub-step of a step (:func:`sensed_violation`, then :func:`robot_contacts`):
-    ``d_i <= d_col`` or a robot contact, ``clearance² <= r²``, an occluded ``L_i``,
+    ``d_i <= d_col`` or a robot contact, ``clearance² <= (r + m)²`` (:func:`obstacle_contact`,
+    the obstacles inflated by ``m``), an occluded ``L_i``,
     ``d_i >= d_con``, ``|beta_i| >= beta_con``. The leader's own clearance is not checked.
     """
     cand = np.empty(walls.edges.shape[0], dtype=np.int64)
@@ -358,7 +390,7 @@ def describe_masks(
     ``poses`` (N+1, 3) robot contacts are reported as ``robots j and k overlap`` (every pair
     with ``|p_j - p_k| <= 2r``, as :func:`robot_contacts` tests), otherwise per follower.
     """
-    r, d_col = _field(p, "radius"), _field(p, "d_col")
+    r, d_col, m = _field(p, "radius"), _field(p, "d_col"), _field(p, "inflation")
     d_con, b_con = _field(p, "d_con"), _field(p, "beta_con")
     problems: list[str] = []
     for i in range(1, len(masks) + 1):
@@ -376,9 +408,16 @@ def describe_masks(
                 f"{name}: |beta_{i}| = {abs(beta):.3f} must be below beta_con = {b_con}"
             )
         if mask & COLLISION_OBSTACLE:
-            # The mask compares the squared clearance; its square root may round up past r.
-            if clearance > r and clearance * clearance > r * r:
+            # The mask compares the squared true clearance; its square root may round up past
+            # r + m. (The reported clearance is to the inflated outline: true less m.)
+            true_clearance = clearance + m
+            if clearance > r and true_clearance * true_clearance > (r + m) * (r + m):
                 problems.append(f"{name}: its motion over the sub-step crossed an obstacle")
+            elif m > 0:
+                problems.append(
+                    f"{name}: clearance {clearance:.3f} to the obstacles inflated by "
+                    f"safety.inflation = {m} must exceed r = {r}"
+                )
             else:
                 problems.append(
                     f"{name}: clearance {clearance:.3f} to the obstacles must exceed r = {r}"

@@ -5,7 +5,8 @@ Pipeline of env ``b``'s control period (HighwayEnv-style, fixed order), :func:`s
 1. the actions are clipped to the actuator limits (a NaN or inf anywhere rejects the whole call
    before any state changes: :func:`first_bad_action`);
 2. ``physics_substeps`` sub-steps of ``h = control_period / physics_substeps``: the leader's
-   pure-pursuit command (:mod:`platoon_env.dynamics.leader`), exact unicycle arcs for every robot
+   pure-pursuit command, or its pose replayed from a timed trajectory
+   (:mod:`platoon_env.dynamics.leader`), exact unicycle arcs for every robot
    (eq. 1, :mod:`platoon_env.dynamics.unicycle`), the safety checks of
    :mod:`platoon_env.safety` (eqs. 4-5) after each; stop early when a violation of a cause in
    ``terminate_on`` occurs. In the last sub-step the safety masks come from the sensing computed
@@ -38,7 +39,7 @@ import numpy as np
 from numba import njit, prange
 
 from platoon_env.dynamics.actuators import actuate
-from platoon_env.dynamics.leader import leader_command
+from platoon_env.dynamics.leader import leader_command, replay_leader
 from platoon_env.dynamics.unicycle import unicycle_arc
 from platoon_env.geometry.sensing import (
     SENSE_BETA,
@@ -68,6 +69,7 @@ from platoon_env.records import (
     PARAMS_DTYPE,
     Buffers,
     MapBank,
+    Route,
     Walls,
     path_of,
     walls_of,
@@ -110,32 +112,45 @@ def clip_actions(actions: np.ndarray, p: np.record) -> None:
 
 @njit(cache=True)
 def advance_substep(
-    env: Buffers,
-    ep: np.record,
-    route: tuple[np.ndarray, np.ndarray],
-    p: np.record,
-    prev: np.ndarray,
+    env: Buffers, ep: np.record, route: Route, p: np.record, prev: np.ndarray
 ) -> None:
-    """One physics sub-step of ``h = p.substep``: the leader's pure-pursuit command along
-    ``route`` (path, cumulative arc length) and exact arcs (eq. 1) for every robot of ``env``
-    (one env's :class:`~platoon_env.records.Buffers`; the followers move with their applied
-    velocities). ``prev`` receives the poses before."""
+    """One physics sub-step of ``h = p.substep``: the leader along ``route`` (pure pursuit, or
+    with ``p.leader_replay`` its timed trajectory at clock ``tau = n h f``, ``n`` its sub-steps
+    and ``f`` the episode's speed factor) and exact arcs (eq. 1) for every follower of ``env``
+    (one env's :class:`~platoon_env.records.Buffers`; they move with their applied
+    velocities). ``prev`` receives the poses before; ``ep.leader_u``, ``ep.leader_omega`` the
+    leader's velocity."""
     poses, actions = env.poses, env.applied
     h = p.substep
+    factor = ep.leader_speed_factor
     for r in range(poses.shape[0]):
         prev[r, 0] = poses[r, 0]
         prev[r, 1] = poses[r, 1]
         prev[r, 2] = poses[r, 2]
     u0, w0 = 0.0, 0.0
-    if not ep.leader_arrived:
-        u0, w0, s_new, arrived = leader_command(
-            route, (poses[0, 0], poses[0, 1], poses[0, 2]), ep.leader_progress, p
-        )
-        ep.leader_progress = s_new
-        if arrived:
-            ep.leader_arrived = True
-    x, y, th = unicycle_arc(poses[0, 0], poses[0, 1], poses[0, 2], u0, w0, h)
-    poses[0, 0], poses[0, 1], poses[0, 2] = x, y, th
+    ep.leader_substeps += 1
+    if p.leader_replay:
+        if not ep.leader_arrived:
+            tau = ep.leader_substeps * h * factor
+            x, y, th, s_new, u0, w0, arrived = replay_leader(route, tau)
+            poses[0, 0], poses[0, 1], poses[0, 2] = x, y, th
+            u0 *= factor
+            w0 *= factor
+            ep.leader_progress = s_new
+            if arrived:
+                ep.leader_arrived = True
+    else:
+        if not ep.leader_arrived:
+            u0, w0, s_new, arrived = leader_command(
+                route, (poses[0, 0], poses[0, 1], poses[0, 2]), ep.leader_progress, p, factor
+            )
+            ep.leader_progress = s_new
+            if arrived:
+                ep.leader_arrived = True
+        x, y, th = unicycle_arc(poses[0, 0], poses[0, 1], poses[0, 2], u0, w0, h)
+        poses[0, 0], poses[0, 1], poses[0, 2] = x, y, th
+    ep.leader_u = u0
+    ep.leader_omega = w0
     for i in range(actions.shape[0]):
         x, y, th = unicycle_arc(
             poses[i + 1, 0], poses[i + 1, 1], poses[i + 1, 2], actions[i, 0], actions[i, 1], h
@@ -177,7 +192,7 @@ def simulate(
     env: Buffers,
     ep: np.record,
     walls: Walls,
-    route: tuple[np.ndarray, np.ndarray],
+    route: Route,
     p: np.record,
     n_substeps: int,
 ) -> int:
@@ -206,8 +221,9 @@ def simulate(
     for k in range(n_substeps):
         advance_substep(env, ep, route, p, prev)
         done += 1
-        # The chord of an arc is at most its length |u| h; the leader never exceeds its speed.
-        travel[0] += abs(p.leader_speed) * h
+        # The chord of an arc is at most its length |u| h; the leader never exceeds its speed
+        # bound (pure pursuit: its speed; a trajectory: its fastest segment), times f.
+        travel[0] += p.leader_speed_bound * ep.leader_speed_factor * h
         for i in range(n):
             travel[i + 1] += abs(actions[i, ACT_U]) * h
         if k == n_substeps - 1:

@@ -14,9 +14,12 @@ The sensing model, for follower ``i`` at ``p_i`` with heading ``theta_i`` behind
 - *visible* iff ``d_i < d_con``, ``|beta_i| < beta_con`` and not occluded;
 - a boundary point ``b`` is on the left of ``L_i`` when ``cross(p_{i-1} - p_i, b - p_i) >= 0``
   and on the right when ``<= 0`` (closed half-planes: points on the line belong to both);
-- ``d_W_l`` / ``d_W_r``: distance from ``p_i`` to the boundary in the left / right half-plane,
-  ``d_l`` / ``d_r``: distance from the segment ``L_i`` to it; all four capped at the proximity
-  range, which is also their value when a side holds no boundary at all;
+- the proximity range ``R_p`` is a disk around the *follower* (the paper's sensor perceives the
+  outline "up to distance d_con" of the robot): only boundary points ``b`` with
+  ``|b - p_i| <= R_p`` are sensed, for all four clearances;
+- ``d_W_l`` / ``d_W_r``: distance from ``p_i`` to the sensed boundary in the left / right
+  half-plane, ``d_l`` / ``d_r``: distance from the segment ``L_i`` to it; all four capped at the
+  proximity range, which is also their value when a side holds no sensed boundary at all;
 - ``clearance``: distance from ``p_i`` to ``dW_f``, uncapped (the collision check is
   ``clearance <= r``);
 - if ``d_i == 0`` the follower's heading replaces ``p_{i-1} - p_i`` for left and right;
@@ -30,11 +33,16 @@ workspace. Their shared side runs through ``p_i`` and ``p_{i-1}`` themselves (ex
 coordinates), so that boundary points lying exactly on ``L_i`` land in both halves under GEOS's
 robust predicates. The wedge is a polygon too: apex ``p_i``, its two rays exactly along
 ``theta_i ± alpha`` and, in between, vertices going round the front far beyond the proximity
-range (a non-convex polygon when ``alpha > pi/2``).
+range (a non-convex polygon when ``alpha > pi/2``). The disk of the proximity range is not a
+polygon (a buffered point would be off by its chords): each sensed side's segments are clipped to
+it exactly, by solving the segment's quadratic in closed form (:func:`_clip_to_disk`), before
+shapely measures ``d_l`` / ``d_r``. ``d_W_l`` / ``d_W_r`` need no clipping: the capped distance
+from ``p_i`` is the same with or without the points beyond ``R_p``.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 
@@ -70,6 +78,10 @@ N_COLUMNS = 9
 #: Absolute tolerance on distances [m] (relative beyond 1 m) and on the angle of view [rad].
 DIST_TOL = 1e-9
 ANGLE_TOL = 1e-12
+#: The disk of the proximity range is closed and its radius padded by this relative amount, as
+#: the spec allows, so that a boundary point at exactly the range (lattice inputs put crossings
+#: there) is sensed whatever the rounding of a split point.
+RANGE_PAD_REL = 1e-12
 
 #: A sensing function: (free space, poses, d_con, beta_con, proximity range) -> (N, 9) array.
 SenseFn = Callable[[BaseGeometry, NDArray[np.float64], float, float, float], NDArray[np.float64]]
@@ -138,6 +150,53 @@ def _sector(apex: tuple[float, float], heading: float, half_angle: float, reach:
     return polygon
 
 
+def _clip_to_disk(
+    side_boundary: BaseGeometry, centre: tuple[float, float], radius: float
+) -> BaseGeometry:
+    """The points of a (multi)line / point geometry within ``radius`` of ``centre`` (closed).
+
+    Every straight piece ``a + t (b - a)``, ``t in [0, 1]``, keeps the ``t`` where
+    ``|a + t (b - a) - centre|² <= radius²`` (an interval: the roots of a quadratic); a piece
+    that keeps a single point becomes a point. Returns a shapely collection (possibly empty).
+    """
+    cx, cy = centre
+    r2 = radius * radius
+    everything = shapely.get_coordinates(side_boundary)
+    if len(everything) == 0 or np.all(np.sum((everything - centre) ** 2, axis=1) <= r2):
+        return side_boundary  # the disk is convex: all of it is inside
+    kept: list[BaseGeometry] = []
+    for part in shapely.get_parts(side_boundary):
+        coords = shapely.get_coordinates(part)
+        if len(coords) == 1:
+            x, y = coords[0]
+            if (x - cx) ** 2 + (y - cy) ** 2 <= r2:
+                kept.append(Point(x, y))
+            continue
+        for (ax, ay), (bx, by) in itertools.pairwise(coords):
+            ux, uy = bx - ax, by - ay
+            wx, wy = ax - cx, ay - cy
+            qa = ux * ux + uy * uy
+            qb = 2.0 * (wx * ux + wy * uy)
+            qc = wx * wx + wy * wy - r2
+            if qa == 0.0:
+                if qc <= 0.0:
+                    kept.append(Point(ax, ay))
+                continue
+            disc = qb * qb - 4.0 * qa * qc
+            if disc < 0.0:
+                continue
+            root = math.sqrt(disc)
+            lo = max(0.0, (-qb - root) / (2.0 * qa))
+            hi = min(1.0, (-qb + root) / (2.0 * qa))
+            if lo > hi:
+                continue
+            # Endpoints inside the disk are kept exactly (t = 0 or 1).
+            start = (ax, ay) if lo == 0.0 else (ax + lo * ux, ay + lo * uy)
+            end = (bx, by) if hi == 1.0 else (ax + hi * ux, ay + hi * uy)
+            kept.append(Point(start) if start == end else LineString([start, end]))
+    return shapely.GeometryCollection(kept)
+
+
 def _capped_distance(geometry: BaseGeometry, side_boundary: BaseGeometry, cap: float) -> float:
     """``min(distance(geometry, side_boundary), cap)``; ``cap`` when the side holds no boundary."""
     if side_boundary.is_empty:
@@ -197,8 +256,11 @@ def oracle_sense_follower(
     out[COL_OCCLUDED] = 1.0 if occluded else 0.0
     out[COL_D_WALL_LEFT] = _capped_distance(p, left, proximity_range)
     out[COL_D_WALL_RIGHT] = _capped_distance(p, right, proximity_range)
-    out[COL_D_SIGHT_LEFT] = _capped_distance(line_of_sight, left, proximity_range)
-    out[COL_D_SIGHT_RIGHT] = _capped_distance(line_of_sight, right, proximity_range)
+    # d_l, d_r see only the boundary within the proximity range of the follower.
+    disk = proximity_range * (1.0 + RANGE_PAD_REL)
+    in_range = [_clip_to_disk(side, (px, py), disk) for side in (left, right)]
+    out[COL_D_SIGHT_LEFT] = _capped_distance(line_of_sight, in_range[0], proximity_range)
+    out[COL_D_SIGHT_RIGHT] = _capped_distance(line_of_sight, in_range[1], proximity_range)
     out[COL_CLEARANCE] = float(p.distance(boundary))
     return out
 
@@ -220,7 +282,8 @@ def oracle_sense(
             (``i >= 1``) is follower ``i``, whose predecessor is row ``i - 1``.
         d_con: camera range; visibility needs ``d_i < d_con``.
         beta_con: camera half-angle; visibility needs ``|beta_i| < beta_con``.
-        proximity_range: cap of ``d_W_l, d_W_r, d_l, d_r``.
+        proximity_range: the radius around each follower within which the boundary is sensed,
+            and the cap of ``d_W_l, d_W_r, d_l, d_r``.
         proximity_half_angle: those four see only the boundary at bearings within
             ``± proximity_half_angle`` of the follower's heading (default ``pi``: all around).
 

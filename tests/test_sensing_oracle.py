@@ -159,6 +159,32 @@ def test_oracle_sight_parallel_to_square_side() -> None:
     assert out[COL_CLEARANCE] == pytest.approx(math.hypot(1.0, 0.5), abs=1e-12)
 
 
+def _point_to_segment(
+    point: tuple[float, float], a: tuple[float, float], b: tuple[float, float]
+) -> float:
+    """Distance from a point to the segment ``[a, b]`` (closed form)."""
+    ux, uy = b[0] - a[0], b[1] - a[1]
+    t = ((point[0] - a[0]) * ux + (point[1] - a[1]) * uy) / (ux * ux + uy * uy)
+    t = min(1.0, max(0.0, t))
+    return math.hypot(point[0] - a[0] - t * ux, point[1] - a[1] - t * uy)
+
+
+def _sight_to_sensed_wall(
+    p: tuple[float, float], q: tuple[float, float], wall_y: float, proximity: float
+) -> float:
+    """``L = [p, q]``'s distance to the points of the horizontal wall ``y = wall_y`` within
+    ``proximity`` of ``p`` (a chord of the disk; ``L`` does not reach the wall), capped."""
+    gap = abs(wall_y - p[1])
+    if gap > proximity:
+        return proximity
+    half = math.sqrt(proximity * proximity - gap * gap)
+    a, b = (p[0] - half, wall_y), (p[0] + half, wall_y)
+    # Two segments that do not cross: the distance is attained at one of the four endpoints.
+    best = min(_point_to_segment(p, a, b), _point_to_segment(q, a, b))
+    best = min(best, _point_to_segment(a, p, q), _point_to_segment(b, p, q))
+    return min(best, proximity)
+
+
 @pytest.mark.parametrize("offset", [-0.6, -0.1, 0.0, 0.35, 0.7])
 @pytest.mark.parametrize("rise", [-0.15, 0.0, 0.1])
 @pytest.mark.parametrize("heading_error", [0.0, 0.3])
@@ -168,8 +194,11 @@ def test_oracle_straight_corridor(
 ) -> None:
     """A follower in a corridor of half-width ``w``, looking along it at ``(2, rise)`` ahead.
 
-    Left is the ``+y`` wall: ``d_W_l = w - y``, ``d_W_r = w + y``; the line of sight's
-    clearances are set by its higher / lower end. All four are capped at the proximity range.
+    Left is the ``+y`` wall: ``d_W_l = w - y``, ``d_W_r = w + y``. The line of sight's
+    clearances come from the stretch of each wall within the proximity range of the follower
+    (not of ``L_i``): with the long range, the whole wall, so they are set by ``L_i``'s higher /
+    lower end; with the short one only ``|x - 20| <= sqrt(R² - gap²)``. All four are capped at
+    the proximity range.
     """
     w = 1.0
     y0, y1 = offset, offset + rise
@@ -177,8 +206,13 @@ def test_oracle_straight_corridor(
     out = oracle_sense(corridor(w), poses, 3.0, 0.5, proximity)[0]
     assert out[COL_D_WALL_LEFT] == pytest.approx(min(w - y0, proximity), abs=1e-12)
     assert out[COL_D_WALL_RIGHT] == pytest.approx(min(w + y0, proximity), abs=1e-12)
-    assert out[COL_D_SIGHT_LEFT] == pytest.approx(min(w - max(y0, y1), proximity), abs=1e-12)
-    assert out[COL_D_SIGHT_RIGHT] == pytest.approx(min(w + min(y0, y1), proximity), abs=1e-12)
+    left = _sight_to_sensed_wall((20.0, y0), (22.0, y1), w, proximity)
+    right = _sight_to_sensed_wall((20.0, y0), (22.0, y1), -w, proximity)
+    assert out[COL_D_SIGHT_LEFT] == pytest.approx(left, abs=1e-12)
+    assert out[COL_D_SIGHT_RIGHT] == pytest.approx(right, abs=1e-12)
+    if proximity == 5.0:  # the whole stretch beside L_i is in range
+        assert left == pytest.approx(min(w - max(y0, y1), proximity), abs=1e-12)
+        assert right == pytest.approx(min(w + min(y0, y1), proximity), abs=1e-12)
     assert out[COL_CLEARANCE] == pytest.approx(w - abs(y0), abs=1e-12)
     assert out[COL_D] == pytest.approx(math.hypot(2.0, rise), abs=1e-12)
     assert out[COL_BETA] == pytest.approx(math.atan2(rise, 2.0) - heading_error, abs=1e-12)
@@ -304,12 +338,24 @@ def random_states(workspace: Workspace) -> Iterator[tuple[int, NDArray[np.float6
         yield k, poses, _proximity_range(workspace, k)
 
 
+#: Added to the camera range for the lattice states: the circle of the proximity range is kept
+#: off the lattice. A wall tangent to it is ill-conditioned for ``d_l``, ``d_r`` (the sensed
+#: chord's half-length is ``sqrt(R² - h²)``, so a rounding error ``e`` of ``h²`` moves its ends
+#: by ``sqrt(e)``, ~1e-8 m), and lattice walls at lattice distances would hit it exactly.
+LATTICE_RANGE_OFFSET = 0.0123
+
+
+def _lattice_proximity_range(workspace: Workspace, k: int) -> float:
+    """:func:`_proximity_range` with the camera range moved off the lattice."""
+    return (workspace.d_con + LATTICE_RANGE_OFFSET, 0.6, 100.0)[k % 3]
+
+
 def lattice_states(workspace: Workspace) -> Iterator[tuple[int, NDArray[np.float64], float]]:
     """The lattice platoon states of a workspace: ``(k, poses, proximity range)``."""
     rng = np.random.default_rng(7 + sum(map(ord, workspace.name)))
     for k in range(LATTICE_STATES_PER_WORKSPACE):
         poses = sample_lattice_platoon(workspace.free_space, rng, N_FOLLOWERS)
-        yield k, poses, _proximity_range(workspace, k)
+        yield k, poses, _lattice_proximity_range(workspace, k)
 
 
 LATTICE_WORKSPACES = [collinear_holes(), two_rooms(), all_workspaces()[1]]

@@ -10,8 +10,15 @@ obstacle-boundary edges ``∂W_f``:
 * ``d_W_l,i``, ``d_W_r,i``: distance from ``p_i`` to the nearest boundary point left / right of
   ``L_i``; ``d_l,i``, ``d_r,i``: distance from the segment ``L_i`` to the nearest boundary point
   left / right. A point ``b`` is left when ``cross(p_{i-1} - p_i, b - p_i) > 0``; edges that cross
-  the line through ``L_i`` are split at it; points on the line count for both sides. All four
-  are capped at the proximity range. Hence occluded ⇔ ``d_l = d_r = 0``.
+  the line through ``L_i`` are split at it; points on the line count for both sides.
+* the proximity range ``R_p`` (paper §2: the sensor perceives the outline "up to distance
+  ``d_con``" of the robot, and eqs. 4-5 constrain the four distances it computes from what it
+  perceives): a boundary point ``b`` enters any of the four only when
+  ``|b - p_i| <= R_p`` — the disk around the *follower*, also for ``d_l``, ``d_r`` (a wall near
+  the predecessor's end of ``L_i`` but beyond ``R_p`` from ``p_i`` is not sensed). All four are
+  capped at ``R_p`` (their value when nothing is sensed on that side). Hence occluded ⇒
+  ``d_l = d_r = 0`` whenever ``d_i <= R_p`` (the crossing is sensed), and, without inflation,
+  ``d_l = d_r = 0`` ⇒ occluded.
 * the proximity sector (``proximity.half_angle`` = ``alpha``, default ``pi``: all around): the
   four clearances see only the boundary points ``b`` whose bearing from ``p_i`` relative to
   ``theta_i`` lies in ``[-alpha, alpha]`` (closed; ``p_i`` itself included), i.e. the boundary
@@ -21,6 +28,13 @@ obstacle-boundary edges ``∂W_f``:
   is sensed); otherwise ``d_l``, ``d_r`` come from the sensed boundary like the others.
 * ``clearance``: distance from ``p_i`` to ``∂W_f``, uncapped (collision iff ``clearance <= r``),
   all around whatever the sector: the sector limits what a policy senses, not physics.
+* the obstacle inflation ``m`` (``safety.inflation``, default 0; the paper's study B augmented
+  the obstacles' boundary by 0.1 m, §4.2): the sensor perceives the outline inflated by ``m``,
+  up to ``R_p``: each of the four is the reading of the true boundary within ``R_p + m`` of
+  ``p_i``, less ``m``, clipped to ``[0, R_p]``; ``clearance`` is the true one less ``m`` (the
+  distance to the inflated outline, negative inside the margin). The camera's line of sight
+  (``occluded``, ``visible``) is physical: the margin does not block it. With ``m = 0`` every
+  value is the true one, bit for bit.
 
 The same edge arrays and primitives serve the collision checks in :mod:`platoon_env.safety`, so
 no sensor sees a wall the robot could drive through. Tests compare against a shapely oracle.
@@ -28,16 +42,19 @@ no sensor sees a wall the robot could drive through. Tests compare against a sha
 The kernels take points as ``(x, y)`` tuples and poses as ``(x, y, theta)``, the workspace as a
 :class:`~platoon_env.records.Walls` (its edges, their boxes and the edge grid) and the
 parameters as one :data:`~platoon_env.records.PARAMS_DTYPE` record ``p``, read by name:
-``p.d_con``, ``p.beta_con`` (eq. 5), ``p.proximity_range`` and ``p.proximity_half_angle``.
+``p.d_con``, ``p.beta_con`` (eq. 5), ``p.proximity_range``, ``p.proximity_half_angle`` and
+``p.inflation``.
 
 Cost: each follower only visits the edges that a static grid (:mod:`platoon_env.geometry.grid`)
-lists near its line of sight (within the proximity range), and skips those whose bounding box
-cannot improve a current minimum; distances are compared squared, with one square root per
-output. The uncapped clearance falls back to a widening grid search when no edge lies within
-the proximity range. The brute-force entry points (:func:`sense_into`, :func:`sense` without a
-grid) visit every edge and give the same results. With a sector, each left / right part of an
-edge is clipped to it before its distances are taken (a clipped part is never nearer, so the
-culling bounds stay valid); without one (``alpha = pi``) none of that code runs.
+lists within its sensed range or near its line of sight, and skips those whose bounding box
+cannot improve a current minimum or lies beyond the sensed range; distances are compared
+squared, with one square root per output. The uncapped clearance falls back to a widening
+grid search when no edge lies within the sensed range. The brute-force entry points
+(:func:`sense_into`, :func:`sense` without a grid) visit every edge and give the same
+results. With a sector, each left / right part of an edge is clipped to it before its
+distances are taken (a clipped part is never nearer, so the culling bounds stay valid); without
+one (``alpha = pi``) none of that code runs. For ``d_l``, ``d_r`` a part reaching beyond the
+sensed range is clipped to its disk as well (only when an end lies outside it).
 """
 
 from __future__ import annotations
@@ -59,7 +76,6 @@ from platoon_env.geometry.primitives import (
     box_distance2,
     boxes_overlap,
     cross,
-    padded_box,
     point_box_distance2,
     point_segment_distance2,
     segments_intersect,
@@ -80,6 +96,7 @@ __all__ = [
     "SENSE_SIZE",
     "SENSE_VISIBLE",
     "edge_boxes",
+    "reported_clearance",
     "sense",
     "sense_candidates",
     "sense_follower_grid",
@@ -112,9 +129,9 @@ SENSE_NAMES: tuple[str, ...] = (
 
 #: A pose ``(x, y, theta)`` [m, m, rad].
 Pose = tuple[float, float, float]
-#: The line of sight ``L_i`` as the part kernels read it: ``(p, q, q - p, 1 / |q - p|²)`` (the
-#: last 0 when ``p = q``).
-Sight = tuple[Point, Point, Point, float]
+#: The line of sight ``L_i`` as the part kernels read it: ``(p, q, q - p, 1 / |q - p|², R²)``
+#: (the fourth 0 when ``p = q``; ``R`` the sensed range, ``R_p + m``).
+Sight = tuple[Point, Point, Point, float, float]
 #: The proximity sector: ``(sectored, convex, r-, r+)``: whether it is narrower than all around,
 #: whether it is convex (half-angle ``<= pi/2``) and the unit directions of its two rays.
 Sector = tuple[bool, bool, Point, Point]
@@ -123,6 +140,10 @@ Sector = tuple[bool, bool, Point, Point]
 #: exactly at the proximity range.
 _PAD_REL = 1e-9
 _PAD_ABS = 1e-9
+#: The disk of sensed boundary points is closed, of radius ``R (1 + RANGE_PAD_REL)``: a point
+#: exactly at the range (lattice inputs put crossings and vertices there) is never lost to the
+#: rounding of a clipped or split point. Readings are still capped at ``R`` itself.
+RANGE_PAD_REL = 1e-12
 
 
 # Inlined into its callers (as numba IR): a call would pass the Walls and the candidate slice
@@ -141,17 +162,23 @@ def sense_candidates(
     """Sense one follower at ``pose = (x, y, theta)`` behind its predecessor at ``pred``
     (eqs. 2-3).
 
-    Visits the edges ``cand`` only (they must include every edge within the proximity range of
-    ``L_i`` and every edge whose box overlaps ``L_i``'s); writes the ``SENSE_*`` columns into
-    ``out``. The four clearances see only the boundary inside the proximity sector
-    ``theta ± p.proximity_half_angle`` (``>= pi``: all around). Returns
-    ``(clearance², motion_hit)``: the squared clearance over the visited edges (exact whenever
-    it is ``<= p.proximity_range²`` or every edge was visited) and, when ``check_motion``,
-    whether the motion segment ``[prev, p_i]`` of the last sub-step touches an edge (the
-    tunnelling check of :mod:`platoon_env.safety`).
+    Visits the edges ``cand`` only (they must include every edge within the sensed range
+    ``R = p.proximity_range + p.inflation`` of ``p_i``, every edge whose box overlaps ``L_i``'s
+    and, with ``check_motion``, every edge whose box overlaps the motion's); writes the
+    ``SENSE_*`` columns into ``out``. The four clearances see only the boundary within ``R`` of
+    ``p_i`` (the proximity range, paper §2) and inside the proximity sector
+    ``theta ± p.proximity_half_angle`` (``>= pi``: all around), inflated by ``p.inflation``.
+    Returns ``(clearance², motion_hit)``: the squared true clearance (to the boundary itself,
+    not inflated) over the visited edges (exact whenever it is ``<= R²`` or every edge was
+    visited) and, when ``check_motion``, whether the motion segment ``[prev, p_i]`` of the last
+    sub-step touches an edge (the tunnelling check of :mod:`platoon_env.safety`).
     """
     edges, boxes = walls.edges, walls.boxes
     proximity_range = p.proximity_range
+    inflation = p.inflation
+    # The sensor perceives the outline inflated by m up to R_p: the true boundary within
+    # R_p + m of p_i, each distance less m (_reading). m = 0: exactly R_p.
+    sensed_range = proximity_range + inflation
     half_angle = p.proximity_half_angle
     px, py, theta = pose
     qx, qy = pred
@@ -166,16 +193,29 @@ def sense_candidates(
     if d == 0.0:
         line = (math.cos(theta), math.sin(theta))
     inv_d2 = 1.0 / (dx * dx + dy * dy) if d > 0.0 else 0.0
-    sight = (pt, pred, (dx, dy), inv_d2)
     sight_bounds = (min(px, qx), min(py, qy), max(px, qx), max(py, qy))
     motion_bounds = (min(px, ox), min(py, oy), max(px, ox), max(py, oy))
-    cap2 = proximity_range * proximity_range
+    cap2 = sensed_range * sensed_range
+    # The disk of the sensed boundary points (closed, padded against rounding).
+    disk_range = sensed_range * (1.0 + RANGE_PAD_REL)
+    disk2 = disk_range * disk_range
+    sight = (pt, pred, (dx, dy), inv_d2, disk2)
+    # A predecessor beyond the sensed range: only the part [p_i, sensed_end] of L_i is within
+    # it, and only a crossing there is a sensed boundary point on L_i.
+    sight_truncated = d > disk_range
+    sensed_end = pred
+    if sight_truncated:
+        k_end = disk_range / d
+        sensed_end = (px + k_end * dx, py + k_end * dy)
     wall_l = cap2
     wall_r = cap2
     sight_l = cap2
     sight_r = cap2
     clear2 = math.inf
     occluded = False
+    # d_l = d_r = 0: a sensed boundary point lies on L_i (an occluding crossing within the
+    # sensed range and sector)
+    sight_zero = False
     motion_hit = False
     # The proximity sector: the closed half-planes left of the ray theta - alpha (cross(r-, v)
     # >= 0) and right of the ray theta + alpha (cross(v, r+) >= 0), v = b - p; their
@@ -185,7 +225,8 @@ def sense_candidates(
     convex = half_angle <= 0.5 * math.pi
     ray_minus, ray_plus = (0.0, 0.0), (0.0, 0.0)
     # Occluded => d_l = d_r = 0 as long as L_i's crossing point is sensed, i.e. L_i lies in the
-    # sector; otherwise the sight clearances come from the sensed boundary like the others.
+    # sector (and the crossing within the sensed range); otherwise the sight clearances come
+    # from the sensed boundary like the others.
     occlusion_zeroes_sight = True
     if sectored:
         ray_minus = (math.cos(theta - half_angle), math.sin(theta - half_angle))
@@ -210,12 +251,22 @@ def sense_candidates(
         ):
             motion_hit = True
         sight_box = boxes_overlap(sight_bounds, ebox)
-        if sight_box and not occluded and segments_intersect(pt, pred, a, b):
+        if (
+            sight_box
+            and not sight_zero
+            and (not occluded or sight_truncated)
+            and segments_intersect(pt, pred, a, b)
+        ):
             occluded = True
-        # Once occluded, d_l = d_r = 0: only the wall clearances remain to be found.
+            if occlusion_zeroes_sight and (
+                not sight_truncated or segments_intersect(pt, sensed_end, a, b)
+            ):
+                sight_zero = True
+        # Once d_l = d_r = 0, only the wall clearances remain to be found. An edge wholly
+        # beyond the sensed range of p_i adds nothing to d_l, d_r (nor to d_W_l, d_W_r).
         lb_sight = 0.0
         need_sight = False
-        if not occluded or not occlusion_zeroes_sight:
+        if not sight_zero and lb_point <= disk2:
             if not sight_box:
                 lb_sight = box_distance2(sight_bounds, ebox)
             need_sight = lb_sight < max(sight_l, sight_r)
@@ -280,12 +331,11 @@ def sense_candidates(
     out[SENSE_BETA] = beta
     out[SENSE_OCCLUDED] = 1.0 if occluded else 0.0
     out[SENSE_VISIBLE] = 1.0 if (d < p.d_con and abs(beta) < p.beta_con and not occluded) else 0.0
-    out[SENSE_D_WALL_LEFT] = _capped(wall_l, cap2, proximity_range)
-    out[SENSE_D_WALL_RIGHT] = _capped(wall_r, cap2, proximity_range)
-    zero_sight = occluded and occlusion_zeroes_sight
-    out[SENSE_D_SIGHT_LEFT] = 0.0 if zero_sight else _capped(sight_l, cap2, proximity_range)
-    out[SENSE_D_SIGHT_RIGHT] = 0.0 if zero_sight else _capped(sight_r, cap2, proximity_range)
-    out[SENSE_CLEARANCE] = math.sqrt(clear2)
+    out[SENSE_D_WALL_LEFT] = _reading(wall_l, cap2, sensed_range, p)
+    out[SENSE_D_WALL_RIGHT] = _reading(wall_r, cap2, sensed_range, p)
+    out[SENSE_D_SIGHT_LEFT] = 0.0 if sight_zero else _reading(sight_l, cap2, sensed_range, p)
+    out[SENSE_D_SIGHT_RIGHT] = 0.0 if sight_zero else _reading(sight_r, cap2, sensed_range, p)
+    out[SENSE_CLEARANCE] = reported_clearance(clear2, p)
     return clear2, motion_hit
 
 
@@ -303,23 +353,63 @@ def _clamped_foot2(w: Point, u: Point, inv_u: float) -> float:
 
 
 @njit(cache=True, inline="always")
+def _disk_interval(v: Point, u: Point, lu: float, range2: float) -> tuple[float, float]:
+    """The parameters ``t in [0, 1]`` where ``|v + t u|² <= range2``, as ``(lo, hi)``.
+
+    ``v``: a segment's start relative to the disk's centre, ``u`` its vector, ``lu = |u|²``.
+    Empty: ``lo > hi``. A start inside the disk gives ``lo = 0`` exactly.
+    """
+    cc = v[0] * v[0] + v[1] * v[1] - range2
+    if lu <= 0.0:
+        return (0.0, 1.0) if cc <= 0.0 else (1.0, 0.0)
+    half_b = v[0] * u[0] + v[1] * u[1]
+    disc = half_b * half_b - lu * cc
+    if disc < 0.0:
+        return 1.0, 0.0
+    # The roots of lu t² + 2 half_b t + cc, in the form that does not cancel.
+    root = -(half_b + math.copysign(math.sqrt(disc), half_b))
+    if root == 0.0:
+        return 0.0, 0.0
+    t0, t1 = root / lu, cc / root
+    if t0 > t1:
+        t0, t1 = t1, t0
+    return max(0.0, t0), min(1.0, t1)
+
+
+@njit(cache=True, inline="always")
 def _part_distances2(sight: Sight, c: Point, e: Point, with_sight: bool) -> tuple[float, float]:
     """Squared distances from ``p`` and (if ``with_sight``) from ``L_i = [p, q]`` to ``[c, e]``.
 
-    ``sight = (p, q, q - p, 1 / |q - p|²)`` (the last 0 when ``p = q``). The segments are known
-    not to cross when the second distance matters (a crossing means occluded, and then
-    ``d_l = d_r = 0`` anyway), so it is attained at one of the four endpoints. Returns
-    ``(near², sight²)``, ``sight² = inf`` without ``with_sight``.
+    ``sight = (p, q, q - p, 1 / |q - p|², R²)`` (the fourth 0 when ``p = q``). The second
+    distance sees only the points of ``[c, e]`` within ``R`` of ``p`` (the proximity range, a
+    disk around the follower): the part is clipped to that disk first. (The first needs no
+    clipping: the point of the part nearest to ``p`` is within ``R`` whenever any is, and the
+    capped reading is ``R`` otherwise.) The segments are known not to cross when the second
+    distance matters (a crossing means occluded, and then ``d_l = d_r = 0`` anyway), so it is
+    attained at one of the four endpoints. Returns ``(near², sight²)``, ``sight² = inf``
+    without ``with_sight`` or when no point of the part lies within ``R``.
     """
-    (px, py), (qx, qy), dq, inv_d2 = sight
+    (px, py), (qx, qy), dq, inv_d2, range2 = sight
     cx, cy = c
     ex, ey = e
     u = (ex - cx, ey - cy)
     lu = u[0] * u[0] + u[1] * u[1]
     inv_u = 1.0 / lu if lu > 0.0 else 0.0
     near = _clamped_foot2((px - cx, py - cy), u, inv_u)
-    if not with_sight:
+    if not with_sight or near > range2:
         return near, math.inf
+    vc = (cx - px, cy - py)
+    ve = (ex - px, ey - py)
+    if vc[0] * vc[0] + vc[1] * vc[1] > range2 or ve[0] * ve[0] + ve[1] * ve[1] > range2:
+        lo, hi = _disk_interval(vc, u, lu, range2)
+        if lo > hi:
+            return near, math.inf
+        cx, cy = _point_at(c, e, lo)
+        ex, ey = _point_at(c, e, hi)
+        u = (ex - cx, ey - cy)
+        lu = u[0] * u[0] + u[1] * u[1]
+        inv_u = 1.0 / lu if lu > 0.0 else 0.0
+    # p (on L_i) to the part: near, attained within R.
     best = near
     # q to the part.
     best = min(best, _clamped_foot2((qx - cx, qy - cy), u, inv_u))
@@ -412,9 +502,23 @@ def _sensed_part_distances2(
 
 
 @njit(cache=True, inline="always")
-def _capped(value2: float, cap2: float, cap: float) -> float:
-    """``sqrt(value2)``, or exactly ``cap`` when the squared value reached the cap."""
-    return cap if value2 >= cap2 else math.sqrt(value2)
+def _reading(value2: float, cap2: float, cap: float, p: np.record) -> float:
+    """A proximity reading from its squared distance to the true boundary within the sensed
+    range ``cap = R_p + m`` (``cap2 = cap²``): ``sqrt(value2)`` capped at ``cap``, then, with an
+    inflation ``m = p.inflation > 0``, less ``m`` and clipped to ``[0, R_p]`` (the distance to
+    the outline inflated by ``m``; nothing sensed reads exactly ``R_p``)."""
+    value = cap if value2 >= cap2 else math.sqrt(value2)
+    if p.inflation > 0.0:
+        value = min(p.proximity_range, max(0.0, value - p.inflation))
+    return value
+
+
+@njit(cache=True, inline="always")
+def reported_clearance(clear2: float, p: np.record) -> float:
+    """The reported ``clearance`` of a follower whose squared true clearance is ``clear2``: the
+    distance to the outline inflated by ``m = p.inflation`` (``sqrt(clear2) - m``; negative when
+    the robot's centre is within the margin)."""
+    return math.sqrt(clear2) - p.inflation
 
 
 @njit(cache=True)
@@ -430,18 +534,25 @@ def sense_follower_grid(
 ) -> tuple[float, bool]:
     """:func:`sense_candidates` over the edges the grid lists near ``L_i`` (and ``[prev, p_i]``).
 
-    ``cand`` is scratch space for at least ``E`` edge indices. The clearance is exact: when no
-    edge lies within the proximity range, a widening grid search finds the nearest one.
+    ``cand`` is scratch space for at least ``E`` edge indices. The query box holds the disk of
+    the sensed range ``R_p + m`` around ``p_i``, ``L_i`` and the motion (what
+    :func:`sense_candidates` needs). The clearance is exact: when no edge lies within the
+    sensed range, a widening grid search finds the nearest one.
     """
     px, py, _ = pose
-    proximity_range = p.proximity_range
-    reach = proximity_range * (1.0 + _PAD_REL) + _PAD_ABS
-    query = padded_box((px, py), pred, prev, reach)
+    sensed_range = p.proximity_range + p.inflation
+    reach = sensed_range * (1.0 + _PAD_REL) + _PAD_ABS
+    query = (
+        min(px - reach, min(pred[0], prev[0])),
+        min(py - reach, min(pred[1], prev[1])),
+        max(px + reach, max(pred[0], prev[0])),
+        max(py + reach, max(pred[1], prev[1])),
+    )
     n = grid_candidates(walls, query, cand)
     clear2, hit = sense_candidates(pose, pred, prev, check_motion, walls, cand[:n], p, out)
-    if clear2 > proximity_range * proximity_range and not covers_grid(walls.grid, query):
+    if clear2 > sensed_range * sensed_range and not covers_grid(walls.grid, query):
         clear2 = nearest_edge_distance2(walls, (px, py), reach, cand)
-        out[SENSE_CLEARANCE] = math.sqrt(clear2)
+        out[SENSE_CLEARANCE] = reported_clearance(clear2, p)
     return clear2, hit
 
 
@@ -488,6 +599,7 @@ def sensing_params(
     beta_con: float,
     proximity_range: float,
     proximity_half_angle: float = math.pi,
+    inflation: float = 0.0,
 ) -> np.ndarray:
     """A ``(1,)`` :data:`~platoon_env.records.PARAMS_DTYPE` array holding the sensing
     parameters (every other field 0); pass its record ``[0]`` to the kernels."""
@@ -496,6 +608,7 @@ def sensing_params(
     params["beta_con"] = beta_con
     params["proximity_range"] = proximity_range
     params["proximity_half_angle"] = proximity_half_angle
+    params["inflation"] = inflation
     return params
 
 
@@ -508,13 +621,15 @@ def sense(
     grid: EdgeGrid | None = None,
     *,
     proximity_half_angle: float = math.pi,
+    inflation: float = 0.0,
 ) -> np.ndarray:
     """Sense all followers; returns an ``(N, SENSE_SIZE)`` float64 array of ``SENSE_*`` columns.
 
     Convenience entry point for tests and plots; the env calls the compiled kernel directly.
     ``grid`` (built over the same ``edges``) culls distant edges; without it every edge is
     visited. Both give the same result. ``proximity_half_angle``: the proximity sensor's
-    sector ``theta_i ± proximity_half_angle`` (default ``pi``: all around).
+    sector ``theta_i ± proximity_half_angle`` (default ``pi``: all around). ``inflation``: the
+    obstacle inflation ``m`` [m] (``safety.inflation``; default 0).
     """
     poses = np.ascontiguousarray(poses, dtype=np.float64)
     edges = np.ascontiguousarray(edges, dtype=np.float64).reshape(-1, 4)
@@ -523,7 +638,9 @@ def sense(
     half_angle = float(proximity_half_angle)
     if not 0.0 < half_angle:
         raise ValueError(f"proximity_half_angle must be > 0, got {proximity_half_angle}")
-    params = sensing_params(d_con, beta_con, proximity_range, half_angle)
+    if not (math.isfinite(inflation) and inflation >= 0.0):
+        raise ValueError(f"inflation must be finite and >= 0, got {inflation}")
+    params = sensing_params(d_con, beta_con, proximity_range, half_angle, float(inflation))
     out = np.empty((poses.shape[0] - 1, SENSE_SIZE), dtype=np.float64)
     if grid is None:
         sense_into(poses, EdgeGrid.single_cell(edges).walls, params[0], out)

@@ -120,14 +120,21 @@ class Workspace:
 
 
 def check_leader_path(
-    free_space: Polygon, path_xy: np.ndarray, radius: float, where: str = "scenario.leader.path"
+    free_space: Polygon,
+    path_xy: np.ndarray,
+    radius: float,
+    where: str = "scenario.leader.path",
+    *,
+    inflation: float = 0.0,
 ) -> None:
     """Reject a leader path that leaves ``W_f`` or comes closer than ``r`` + margin to ∂W_f.
 
-    The message gives the point of the path where it happens and the clearance there.
+    ``inflation``: the obstacles' margin ``m`` (``safety.inflation``): the path must then keep
+    ``r + m + LEADER_PATH_MARGIN``. The message gives the point of the path where it happens
+    and the clearance there.
     """
     line = LineString(path_xy)
-    required = radius + LEADER_PATH_MARGIN
+    required = radius + inflation + LEADER_PATH_MARGIN
     if not free_space.covers(line):
         outside = line.difference(free_space)
         pt = outside.representative_point() if not outside.is_empty else Point(path_xy[0])
@@ -137,8 +144,11 @@ def check_leader_path(
     dist = float(line.distance(free_space.boundary))
     if dist < required:
         on_path, on_wall = nearest_points(line, free_space.boundary)
+        needs = f"r + {LEADER_PATH_MARGIN}"
+        if inflation > 0:
+            needs = f"r + safety.inflation + {LEADER_PATH_MARGIN}"
         raise ScenarioError(
             f"{where}: the leader's path comes within {dist:.3f} m of an obstacle at "
             f"({on_path.x:.3f}, {on_path.y:.3f}) (wall point ({on_wall.x:.3f}, {on_wall.y:.3f})); "
-            f"it needs at least r + {LEADER_PATH_MARGIN} = {required:.3f} m"
+            f"it needs at least {needs} = {required:.3f} m"
         )

@@ -14,8 +14,10 @@ Two kinds of option:
 * **Blocks** (:data:`BLOCK_OPTIONS`): a mapping for a top-level block of the schema, merged key
   by key into the scenario's block, nested mappings too (``camera={"noise": {"position":
   0.01}}`` keeps the other noise fields), e.g. ``camera={"half_angle": 0.5}``. In
-  ``workspace`` a given key replaces the scenario's (a new outline or obstacle list). Keys are
-  the file's keys (``ppc={"lambda": 0.5}``).
+  ``workspace`` a given key replaces the scenario's (a new outline or obstacle list). In
+  ``leader`` the two modes replace each other: a given ``trajectory`` drops the scenario's
+  ``path`` (and its ``speed``, which a trajectory derives), a given ``path`` drops its
+  ``trajectory``. Keys are the file's keys (``ppc={"lambda": 0.5}``).
 * **A sensor profile** (:data:`PROFILE_OPTION`, ``sensor_profile="aruco"``): a shipped name or
   a YAML file of :mod:`platoon_env.scenarios.profiles`, whose camera, proximity and robot
   blocks are merged before the block options (so those override single fields of it).
@@ -136,6 +138,20 @@ def _relabel(
     )
 
 
+def _leader_base(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
+    """The scenario's leader block without what ``update`` replaces: ``path`` and
+    ``trajectory`` are alternatives (giving one drops the other, and a trajectory derives its
+    own ``speed``)."""
+    out = dict(base)
+    if "trajectory" in update and "path" not in update:
+        out.pop("path", None)
+        if "speed" not in update:
+            out.pop("speed", None)
+    if "path" in update and "trajectory" not in update:
+        out.pop("trajectory", None)
+    return out
+
+
 def _merged(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
     """``base`` with ``update`` merged in, nested mappings key by key (``camera={"noise":
     {"position": 0.01}}`` keeps the other noise fields)."""
@@ -201,10 +217,13 @@ def apply_overrides(
         labels[f"{_ROOT}.{name}"] = name
         for key in block:
             labels[f"{_ROOT}.{name}.{key}"] = f"{name}.{key}"
+        base = data.get(name, {})
+        if name == "leader":
+            base = _leader_base(base, block)
         data[name] = (
-            {**data.get(name, {}), **block}
+            {**base, **block}
             if name == "workspace"  # a new outline or obstacle list replaces the old one
-            else _merged(data.get(name, {}), block)
+            else _merged(base, block)
         )
     for name in SCENARIO_OPTIONS:
         if name not in given:

@@ -11,9 +11,14 @@ from shapely.geometry import Polygon
 from platoon_env.dynamics.leader import path_arclength, point_at
 from platoon_env.geometry.grid import EdgeGrid
 from platoon_env.geometry.workspace import Workspace, build_free_space, check_leader_path
-from platoon_env.records import constraint_params
+from platoon_env.records import PATH_T, PATH_THETA, PATH_X, PATH_Y, constraint_params
 from platoon_env.safety import configuration_problems
-from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError, check_ranges
+from platoon_env.scenarios.schema import (
+    ScenarioConfig,
+    ScenarioError,
+    check_ranges,
+    trajectory_route,
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -24,11 +29,15 @@ class Scenario:
         config: the typed scenario (``docs/scenarios.md``).
         workspace: the free space and its boundary-edge arrays.
         leader_path: ``(M, 2)`` polyline of the leader; ``path_s`` its cumulative arc length.
+            With a timed trajectory: the samples' positions (the linear interpolation drives
+            the leader exactly along it).
         initial_poses: ``(N+1, 3)`` default initial configuration ``[x, y, theta]``, leader first.
         initial_progress: the leader's arc length along its path in that configuration.
         layout_index: for a layout of a procedural scenario (built by
             :func:`~platoon_env.scenarios.procedural.generate_scenario`), its number in the
             template's split; None for a fixed workspace.
+        leader_times, leader_headings: ``(M,)`` the trajectory's sample times [s] and headings
+            [rad] (``leader.trajectory``; None for a pure-pursuit path).
     """
 
     config: ScenarioConfig
@@ -38,6 +47,8 @@ class Scenario:
     initial_poses: np.ndarray
     initial_progress: float
     layout_index: int | None = None
+    leader_times: np.ndarray | None = None
+    leader_headings: np.ndarray | None = None
 
     @property
     def name(self) -> str:
@@ -64,8 +75,10 @@ class Scenario:
 
 
 def default_max_steps(cfg: ScenarioConfig, path_length: float) -> int:
-    """Steps for twice the leader's driving time, its settle time and 10 s more."""
-    seconds = 2.0 * path_length / cfg.leader.speed + cfg.leader.settle_time + 10.0
+    """Steps for twice the slowest leader's driving time (speed ``leader.speed * (1 -
+    leader.speed_variation)``; a trajectory: its mean speed), its settle time and 10 s more."""
+    slowest = cfg.leader.speed * (1.0 - cfg.leader.speed_variation)
+    seconds = 2.0 * path_length / slowest + cfg.leader.settle_time + 10.0
     return math.ceil(seconds / cfg.simulation.control_period)
 
 
@@ -122,22 +135,44 @@ def default_initial_poses(
     return poses, float(s_robot[0])
 
 
+def trajectory_initial_poses(cfg: ScenarioConfig) -> np.ndarray:
+    """The default initial configuration of a timed trajectory (``docs/scenarios.md``): the
+    leader at the first sample's pose, each follower ``d_des`` behind its predecessor along the
+    leader's initial heading, facing it (the platoon lined up behind the leader)."""
+    _, x0, y0, theta0 = cfg.leader.trajectory[0]
+    n, d_des = cfg.followers, cfg.formation.d_des
+    back = np.arange(n + 1, dtype=np.float64) * d_des
+    poses = np.empty((n + 1, 3))
+    poses[:, 0] = x0 - back * math.cos(theta0)
+    poses[:, 1] = y0 - back * math.sin(theta0)
+    poses[:, 2] = theta0
+    poses[0] = x0, y0, theta0  # exactly the sample
+    return poses
+
+
+def leader_clear(cfg: ScenarioConfig, workspace: Workspace, xy: tuple[float, float]) -> bool:
+    """Whether a leader at ``xy`` keeps a clearance above ``r + m`` (its disk clear of the
+    obstacles inflated by ``safety.inflation``): the leader's part of a feasible start."""
+    return workspace.clearance(float(xy[0]), float(xy[1])) > cfg.obstacle_reach
+
+
 def initial_violations(cfg: ScenarioConfig, workspace: Workspace, poses: np.ndarray) -> list[str]:
     """Which constraints of the initial configuration (after Problem 1) ``poses`` violates.
 
     The followers' rules are the env's own (:func:`platoon_env.safety.configuration_masks`,
-    applied after every sub-step of a step); the leader, which the rules do not cover, must
-    keep a clearance above ``r``. Returns messages naming the robot and the constraint; empty
-    when feasible.
+    applied after every sub-step of a step, with the obstacles inflated by
+    ``safety.inflation``); the leader, which the rules do not cover, must keep a clearance
+    above ``r + m`` (:func:`leader_clear`). Returns messages naming the robot and the
+    constraint; empty when feasible.
     """
-    r = cfg.robot.radius
     walls = EdgeGrid.build(workspace.edges, reach=cfg.proximity_range).walls
     problems = configuration_problems(poses, walls, constraint_params(cfg))
-    leader_clear = workspace.clearance(float(poses[0, 0]), float(poses[0, 1]))
-    if not leader_clear > r:
-        problems.append(
-            f"leader: clearance {leader_clear:.3f} to the obstacles must exceed r = {r}"
-        )
+    if not leader_clear(cfg, workspace, (poses[0, 0], poses[0, 1])):
+        clearance = workspace.clearance(float(poses[0, 0]), float(poses[0, 1]))
+        margin = f"r + safety.inflation = {cfg.obstacle_reach:g}"
+        if cfg.safety.inflation == 0:
+            margin = f"r = {cfg.robot.radius}"
+        problems.append(f"leader: clearance {clearance:.3f} to the obstacles must exceed {margin}")
     return problems
 
 
@@ -166,20 +201,38 @@ def build_scenario(cfg: ScenarioConfig, free_space: Polygon | None = None) -> Sc
     if free_space is None:
         free_space = build_free_space(cfg.workspace)
     workspace = Workspace.from_free_space(free_space)
-    path = np.asarray(cfg.leader.path, dtype=np.float64)
-    check_leader_path(free_space, path, cfg.robot.radius)
-    cum = path_arclength(path)
-    if cum[-1] <= 0.0:
-        raise ScenarioError("scenario.leader.path: the path has zero length")
-    poses, progress = default_initial_poses(cfg, path, cum)
+    times: np.ndarray | None = None
+    headings: np.ndarray | None = None
+    if cfg.leader.trajectory:
+        # The interpolation drives the leader along the samples' polyline exactly: its
+        # clearance is that polyline's.
+        route, cum = trajectory_route(cfg.leader.trajectory)
+        path = np.ascontiguousarray(route[:, PATH_X : PATH_Y + 1])
+        times = np.ascontiguousarray(route[:, PATH_T])
+        headings = np.ascontiguousarray(route[:, PATH_THETA])
+        check_leader_path(
+            free_space,
+            path,
+            cfg.robot.radius,
+            "scenario.leader.trajectory",
+            inflation=cfg.safety.inflation,
+        )
+        poses, progress = trajectory_initial_poses(cfg), 0.0
+    else:
+        path = np.asarray(cfg.leader.path, dtype=np.float64)
+        check_leader_path(free_space, path, cfg.robot.radius, inflation=cfg.safety.inflation)
+        cum = path_arclength(path)
+        if cum[-1] <= 0.0:
+            raise ScenarioError("scenario.leader.path: the path has zero length")
+        poses, progress = default_initial_poses(cfg, path, cum)
     problems = initial_violations(cfg, workspace, poses)
     if problems:
         raise ScenarioError(
             "scenario: the default initial configuration is infeasible: " + "; ".join(problems)
         )
-    path.setflags(write=False)
-    cum.setflags(write=False)
-    poses.setflags(write=False)
+    for array in (path, cum, poses, times, headings):
+        if array is not None:
+            array.setflags(write=False)
     return Scenario(
         config=cfg,
         workspace=workspace,
@@ -187,4 +240,6 @@ def build_scenario(cfg: ScenarioConfig, free_space: Polygon | None = None) -> Sc
         path_s=cum,
         initial_poses=poses,
         initial_progress=progress,
+        leader_times=times,
+        leader_headings=headings,
     )

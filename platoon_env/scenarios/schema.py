@@ -27,6 +27,8 @@ from platoon_env.violations import VIOLATION_CAUSES
 
 Point = tuple[float, float]
 Polygon = tuple[Point, ...]
+#: One sample of a timed leader trajectory: ``(t [s], x [m], y [m], theta [rad])``.
+TrajectorySample = tuple[float, float, float, float]
 
 
 #: [m/s or rad/s] Range of ``robot.u_max`` and ``robot.omega_max``. They are the bounds of the
@@ -63,6 +65,25 @@ MAX_COORDINATE: float = 1e6
 
 #: Longest camera latency, in control periods (the core keeps a frame history this long).
 MAX_LATENCY_STEPS = 1000
+#: Most samples of ``leader.trajectory`` (the core keeps them in its map bank, like a path).
+MAX_TRAJECTORY_SAMPLES: int = 100_000
+#: [s] Shortest interval between two samples of ``leader.trajectory``, and longest trajectory
+#: (its last sample's time): together they keep every sample time apart from the next by far
+#: more than the replay's clock tolerance
+#: (:data:`~platoon_env.dynamics.leader.TRAJECTORY_TIME_TOLERANCE`).
+MIN_TRAJECTORY_INTERVAL: float = 1e-6
+MAX_TRAJECTORY_DURATION: float = 1e6
+#: Relative tolerance of the trajectory's feasibility rule (``|u| <= u_max``, ``|omega| <=
+#: max_turn_rate``): a log written with its values rounded passes (a heading rounded to 0.1 mrad
+#: at samples 0.1 s apart changes a turn rate by up to 1e-3 rad/s); 1 % beyond a limit fails.
+TRAJECTORY_LIMIT_TOLERANCE: float = 1e-2
+#: Largest ``leader.speed_variation`` (the slowest leader drives at 1 - this of its speed).
+MAX_SPEED_VARIATION: float = 0.9
+
+#: Metadata of a field added after scenario fingerprints were first recorded: left out of
+#: :func:`config_to_mapping` at its default, so that a scenario that does not use it keeps its
+#: mapping (and its :mod:`~platoon_env.scenarios.fingerprint`).
+_OMIT_DEFAULT = {"omit_default": True}
 
 
 class ScenarioError(ValueError):
@@ -108,16 +129,30 @@ class WorkspaceConfig:
 
 @dataclass(frozen=True)
 class LeaderConfig:
-    """The scripted leader ``R_0``: pure pursuit along a polyline at constant speed.
+    """The scripted leader ``R_0`` (:mod:`platoon_env.dynamics.leader`), in one of two modes:
 
-    ``path`` may be omitted only in a procedural scenario (one with a ``generator`` block).
+    * ``path``: pure pursuit along a polyline at constant ``speed``;
+    * ``trajectory``: ``[[t, x, y, theta], ...]`` replayed exactly (a planner's output, a
+      recorded log): at each sample time the leader is at the sample's pose, in between at
+      their interpolation (linear in ``x, y``, the shorter way round in ``theta``), after the
+      last one it stays there (arrived). ``speed`` is then derived, the trajectory's mean speed
+      (its length over its duration): leave it out (given, it must equal that).
+
+    Exactly one of ``path`` and ``trajectory`` is given, except in a procedural scenario (one
+    with a ``generator`` block), which has neither: each layout draws its own path.
+    ``speed_variation`` ``v``: each episode draws a speed factor ``f`` uniformly in
+    ``[1 - v, 1 + v]`` from the env's seeded RNG at reset; the leader drives at ``f * speed``
+    (a trajectory: replayed ``f`` times as fast). 0 (default): ``f = 1``, nothing drawn.
     """
 
-    speed: float  # [m/s]
+    speed: float  # [m/s] (a trajectory's mean speed, derived)
     path: tuple[Point, ...] = ()
+    trajectory: tuple[TrajectorySample, ...] = field(default=(), metadata=_OMIT_DEFAULT)
     lookahead: float = 0.5  # [m] pure-pursuit lookahead distance
     max_turn_rate: float = 1.5  # [rad/s] bound on the leader's |omega|
     settle_time: float = 2.0  # [s] after the leader stops, the episode is truncated
+    #: relative half-range v of the episode's speed factor f in [1 - v, 1 + v]
+    speed_variation: float = field(default=0.0, metadata=_OMIT_DEFAULT)
 
 
 @dataclass(frozen=True)
@@ -179,10 +214,19 @@ class ProximityConfig:
 
 @dataclass(frozen=True)
 class SafetyConfig:
-    """Safety limits (eqs. 4-5) and which violation causes end an episode."""
+    """Safety limits (eqs. 4-5) and which violation causes end an episode.
+
+    ``inflation`` ``m`` [m]: the obstacles are inflated by ``m`` for every rule (the paper's
+    study B "augmented the obstacles' boundary by 0.1 m", §4.2): a follower collides when its
+    centre comes within ``r + m`` of an obstacle, its proximity sensor measures the four
+    clearances to the inflated outline, the reported ``clearance`` is to it (true less ``m``),
+    and the leader's path and the initial configuration must be feasible with it. 0 (default):
+    the true obstacles.
+    """
 
     d_col: float  # [m] minimum inter-robot distance
     terminate_on: tuple[str, ...] = VIOLATION_CAUSES
+    inflation: float = field(default=0.0, metadata=_OMIT_DEFAULT)  # [m] m
 
 
 @dataclass(frozen=True)
@@ -285,6 +329,13 @@ class ScenarioConfig:
     def proximity_half_angle(self) -> float:
         """Half-angle of the proximity sensor's sector (``pi``, all around, unless set)."""
         return math.pi if self.proximity.half_angle is None else self.proximity.half_angle
+
+    @property
+    def obstacle_reach(self) -> float:
+        """``r + m`` [m]: how close a robot's centre may come to a true obstacle before it
+        collides with the inflated one (``safety.inflation`` ``m``; the compiled rule is
+        :func:`platoon_env.safety.obstacle_contact`)."""
+        return self.robot.radius + self.safety.inflation
 
 
 # --------------------------------------------------------------------------------------------
@@ -397,11 +448,76 @@ def parse_scenario(data: Any, path: str = "scenario") -> ScenarioConfig:
 
     Raises :class:`ScenarioError` naming the field for unknown keys, wrong types and
     out-of-range parameters (``docs/safety.md``: ``d_col >= 2r``, ``d_col < d_des < d_con``,
-    ``0 < beta_con < pi/2``).
+    ``0 < beta_con < pi/2``). A ``leader.trajectory`` without ``leader.speed`` gets its mean
+    speed (:func:`trajectory_mean_speed`).
     """
-    cfg = parse_section(ScenarioConfig, data, path)
+    cfg = parse_section(ScenarioConfig, _with_trajectory_speed(data, path), path)
     check_ranges(cfg, path)
     return cfg
+
+
+#: The parsed type of ``leader.trajectory``.
+_TRAJECTORY_TYPE = tuple[TrajectorySample, ...]
+
+
+def _with_trajectory_speed(data: Any, path: str) -> Any:
+    """``data`` with ``leader.speed`` set to the trajectory's mean speed, when the leader block
+    gives a ``trajectory`` and no ``speed`` (anything else is returned as is)."""
+    if not isinstance(data, Mapping):
+        return data
+    leader = data.get("leader")
+    if not isinstance(leader, Mapping) or "trajectory" not in leader or "speed" in leader:
+        return data
+    where = f"{path}.leader.trajectory"
+    samples = _parse_value(_TRAJECTORY_TYPE, leader["trajectory"], where)
+    check_trajectory_times(samples, where)
+    return {**data, "leader": {**leader, "speed": trajectory_mean_speed(samples)}}
+
+
+def check_trajectory_times(samples: tuple[TrajectorySample, ...], where: str) -> None:
+    """The samples of a timed leader trajectory: at least two, at most
+    :data:`MAX_TRAJECTORY_SAMPLES`; ``t`` starts at 0, increases by at least
+    :data:`MIN_TRAJECTORY_INTERVAL` per sample and ends by :data:`MAX_TRAJECTORY_DURATION`; the
+    leader moves (a length > 0). ``ScenarioError`` naming ``where`` (and the sample) otherwise.
+    """
+    n = len(samples)
+    _require(n >= 2, where, f"needs at least two samples [t, x, y, theta], got {n}")
+    _require(
+        n <= MAX_TRAJECTORY_SAMPLES,
+        where,
+        f"must have at most {MAX_TRAJECTORY_SAMPLES} samples (MAX_TRAJECTORY_SAMPLES), got {n}",
+    )
+    t0 = samples[0][0]
+    _require(t0 == 0.0, f"{where}[0]", f"the first sample's time t must be 0, got {t0!r}")
+    for k in range(1, n):
+        dt = samples[k][0] - samples[k - 1][0]
+        _require(
+            dt >= MIN_TRAJECTORY_INTERVAL,
+            f"{where}[{k}]",
+            f"sample times must increase by at least {MIN_TRAJECTORY_INTERVAL:g} s "
+            f"(MIN_TRAJECTORY_INTERVAL), got t = {samples[k][0]!r} after {samples[k - 1][0]!r}",
+        )
+    end = samples[-1][0]
+    _require(
+        end <= MAX_TRAJECTORY_DURATION,
+        f"{where}[{n - 1}]",
+        f"the last sample's time must be at most {MAX_TRAJECTORY_DURATION:g} s "
+        f"(MAX_TRAJECTORY_DURATION), got {end!r}",
+    )
+    length = _trajectory_length(samples)
+    _require(length > 0.0, where, "the leader never moves: every sample is at the same position")
+
+
+def _trajectory_length(samples: tuple[TrajectorySample, ...]) -> float:
+    """Length [m] of the polyline of the samples' positions (the leader's path)."""
+    xy = np.asarray([(x, y) for _, x, y, _ in samples], dtype=np.float64)
+    return float(np.sum(np.hypot(np.diff(xy[:, 0]), np.diff(xy[:, 1]))))
+
+
+def trajectory_mean_speed(samples: tuple[TrajectorySample, ...]) -> float:
+    """A trajectory's mean speed [m/s]: its length over its duration (``leader.speed`` of the
+    trajectory mode). The samples must pass :func:`check_trajectory_times`."""
+    return _trajectory_length(samples) / samples[-1][0]
 
 
 def _require(cond: bool, where: str, message: str) -> None:
@@ -441,6 +557,14 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
     lead = cfg.leader
     for name, unit in (("speed", "m/s"), ("max_turn_rate", "rad/s")):
         value = getattr(lead, name)
+        if name == "speed" and lead.trajectory:
+            _require(
+                lo <= value <= hi,
+                f"{path}.leader.trajectory",
+                f"its mean speed (length over duration) must lie in [{lo:g}, {hi:g}] {unit} "
+                f"(ACTION_BOUND_RANGE), got {value!r}",
+            )
+            continue
         _require(
             lo <= value <= hi,
             f"{path}.leader.{name}",
@@ -458,13 +582,42 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
         f"must be at most {MAX_SETTLE_TIME:g} s (MAX_SETTLE_TIME), got {lead.settle_time!r}",
     )
     _check_coordinates(cfg, path)
+    variation = lead.speed_variation
+    _require(
+        0.0 <= variation <= MAX_SPEED_VARIATION,
+        f"{path}.leader.speed_variation",
+        f"must lie in [0, {MAX_SPEED_VARIATION:g}] (MAX_SPEED_VARIATION), got {variation!r}",
+    )
+    _require(
+        lead.speed * (1.0 + variation) <= hi,
+        f"{path}.leader.speed_variation",
+        f"the fastest leader, speed * (1 + speed_variation) = "
+        f"{lead.speed * (1.0 + variation):g} m/s, must be at most {hi:g} m/s "
+        "(ACTION_BOUND_RANGE)",
+    )
     if cfg.generator is None:
         _require(
-            len(lead.path) >= 2,
-            f"{path}.leader.path",
-            f"needs at least two points, got {len(lead.path)}",
+            (len(lead.path) > 0) != (len(lead.trajectory) > 0),
+            f"{path}.leader",
+            "give exactly one of 'path' (pure pursuit at 'speed') and 'trajectory' "
+            "([[t, x, y, theta], ...] replayed exactly), got "
+            + ("both" if lead.path else "neither"),
         )
+        if lead.trajectory:
+            _check_trajectory(cfg, path)
+        else:
+            _require(
+                len(lead.path) >= 2,
+                f"{path}.leader.path",
+                f"needs at least two points, got {len(lead.path)}",
+            )
     else:
+        _require(
+            not lead.trajectory,
+            f"{path}.leader.trajectory",
+            "a procedural scenario (with a 'generator' block) draws each layout's leader "
+            "path; it takes no trajectory",
+        )
         gen = cfg.generator
         _require(
             gen.kind in GENERATOR_KINDS,
@@ -493,6 +646,18 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
         dcol < ddes < dcon,
         f"{path}.formation.d_des",
         f"d_des must lie in (d_col, d_con) = ({dcol:g}, {dcon:g}), got {ddes:g}",
+    )
+    inflation = cfg.safety.inflation
+    _require(
+        inflation >= 0.0,
+        f"{path}.safety.inflation",
+        f"must be >= 0 (the obstacles' margin), got {inflation!r}",
+    )
+    _require(
+        inflation < cfg.proximity_range,
+        f"{path}.safety.inflation",
+        f"must be below the proximity range {cfg.proximity_range:g} m (a sensor that sees no "
+        f"farther than the margin reads 0 everywhere), got {inflation!r}",
     )
     for cause in cfg.safety.terminate_on:
         _require(
@@ -540,10 +705,61 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
     _check_realism(cfg, path)
 
 
+def _check_trajectory(cfg: ScenarioConfig, path: str) -> None:
+    """A timed leader trajectory: its samples (:func:`check_trajectory_times`), its speed and
+    its feasibility. The rule: on every segment the velocity the interpolation implies
+    (:func:`platoon_env.dynamics.leader.segment_velocity`), times the fastest speed factor
+    ``1 + speed_variation``, keeps ``|u| <= robot.u_max`` and ``|omega| <=
+    leader.max_turn_rate`` (the leader is a robot of the platoon, and Problem 1 asks for a
+    leader with bounded velocities), up to :data:`TRAJECTORY_LIMIT_TOLERANCE`."""
+    # Imported here: the schema is read by every module, the compiled kernels only on demand.
+    from platoon_env.dynamics.leader import trajectory_velocities
+
+    lead = cfg.leader
+    where = f"{path}.leader.trajectory"
+    check_trajectory_times(lead.trajectory, where)
+    mean = trajectory_mean_speed(lead.trajectory)
+    _require(
+        abs(lead.speed - mean) <= 1e-9 * mean,
+        f"{path}.leader.speed",
+        f"with a trajectory the leader's speed is the trajectory's mean speed (its length over "
+        f"its duration), {mean!r} m/s: leave it out, got {lead.speed!r}",
+    )
+    u, omega = trajectory_velocities(trajectory_route(lead.trajectory))
+    fastest = 1.0 + lead.speed_variation
+    scaled = " times 1 + leader.speed_variation" if lead.speed_variation > 0 else ""
+    limits = (
+        (np.abs(u) * fastest, cfg.robot.u_max, "speed", "m/s", "robot.u_max"),
+        (np.abs(omega) * fastest, lead.max_turn_rate, "turn rate", "rad/s", "leader.max_turn_rate"),
+    )
+    for values, limit, what, unit, name in limits:
+        worst = int(np.argmax(values))
+        _require(
+            values[worst] <= limit * (1.0 + TRAJECTORY_LIMIT_TOLERANCE),
+            f"{where}[{worst + 1}]",
+            f"infeasible: from sample {worst} to {worst + 1} the leader's {what}{scaled} would "
+            f"be {values[worst]:.6g} {unit}, above {name} = {limit:g} {unit}",
+        )
+
+
+def trajectory_route(samples: tuple[TrajectorySample, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """A trajectory's samples as the compiled leader reads them (a
+    :data:`~platoon_env.records.Route`): the path ``(M, 4)`` with columns ``x, y, t, theta``
+    (:data:`~platoon_env.records.PATH_X` ...) and the cumulative arc length ``(M,)`` of its
+    positions."""
+    arr = np.asarray(samples, dtype=np.float64).reshape(-1, 4)
+    path = np.ascontiguousarray(arr[:, [1, 2, 0, 3]])
+    seg = np.hypot(np.diff(path[:, 0]), np.diff(path[:, 1]))
+    return path, np.concatenate([[0.0], np.cumsum(seg)])
+
+
 def _check_coordinates(cfg: ScenarioConfig, path: str) -> None:
     """Every coordinate of the workspace and the leader's path within ``MAX_COORDINATE``."""
     ws = cfg.workspace
-    groups: list[tuple[str, tuple[Point, ...]]] = [("leader.path", cfg.leader.path)]
+    groups: list[tuple[str, tuple[Point, ...]]] = [
+        ("leader.path", cfg.leader.path),
+        ("leader.trajectory", tuple((x, y) for _, x, y, _ in cfg.leader.trajectory)),
+    ]
     if ws.bounds is not None:
         x0, y0, x1, y1 = ws.bounds
         groups.append(("workspace.bounds", ((x0, y0), (x1, y1))))
@@ -553,6 +769,12 @@ def _check_coordinates(cfg: ScenarioConfig, path: str) -> None:
             groups.append((f"workspace.free_space.holes[{k}]", hole))
     for k, obstacle in enumerate(ws.obstacles):
         groups.append((f"workspace.obstacles[{k}]", obstacle))
+    for k, sample in enumerate(cfg.leader.trajectory):
+        _require(
+            abs(sample[3]) <= MAX_COORDINATE,
+            f"{path}.leader.trajectory[{k}]",
+            f"theta must lie in [-{MAX_COORDINATE:g}, {MAX_COORDINATE:g}] rad, got {sample[3]!r}",
+        )
     for where, points in groups:
         for k, (x, y) in enumerate(points):
             _require(
@@ -597,20 +819,24 @@ def _check_simulation(cfg: ScenarioConfig, path: str) -> None:
             where,
             f"must be at most {MAX_EPISODE_STEPS} (MAX_EPISODE_STEPS), got {_shown(steps)}",
         )
-    elif cfg.generator is None and len(cfg.leader.path) >= 2:
+    elif cfg.generator is None and (len(cfg.leader.path) >= 2 or cfg.leader.trajectory):
         # The default limit follows the path (a procedural template has none yet; each layout
         # is checked when it is built). The bounds above keep it finite; bound it as a given one.
         from platoon_env.scenarios.scenario import default_max_steps  # scenario imports us
 
-        xy = np.asarray(cfg.leader.path, dtype=np.float64)
-        length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+        if cfg.leader.trajectory:
+            length = _trajectory_length(cfg.leader.trajectory)
+        else:
+            xy = np.asarray(cfg.leader.path, dtype=np.float64)
+            length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
         default = default_max_steps(cfg, length)
         _require(
             default <= MAX_EPISODE_STEPS,
             where,
-            f"not given, and the default (2 * path length / leader.speed + settle_time + 10 s "
-            f"in control periods) would be {default} steps, more than {MAX_EPISODE_STEPS} "
-            "(MAX_EPISODE_STEPS): set it, or a faster leader.speed or a longer control_period",
+            f"not given, and the default (2 * path length / (leader.speed * (1 - "
+            f"speed_variation)) + settle_time + 10 s in control periods) would be {default} "
+            f"steps, more than {MAX_EPISODE_STEPS} (MAX_EPISODE_STEPS): set it, or a faster "
+            "leader.speed or a longer control_period",
         )
 
 
@@ -633,8 +859,11 @@ def _section_to_mapping(section: Any) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for f in fields(section):
         value = getattr(section, f.name)
-        # An absent optional (None by default) is left out, as a file would leave it out.
+        # An absent optional (None by default) is left out, as a file would leave it out; so is
+        # a field added later at its default (it would change every scenario's fingerprint).
         if value is None and f.default is None:
+            continue
+        if f.metadata.get("omit_default") and value == f.default:
             continue
         out[_key_of(f)] = _to_plain(value)
     return out

@@ -1,0 +1,166 @@
+"""Seed diversity: ``leader.speed_variation`` draws the leader's speed per episode (issue 13).
+
+Without it, seeds 0, 1, 2 of a study give the same leader and, once the 5 cm / 0.05 rad start
+perturbation has settled under PPC, nearly the same episode. With ``speed_variation = v`` every
+reset draws a factor ``f`` uniformly in ``[1 - v, 1 + v]`` from the env's own seeded RNG (after
+the initial configuration); the leader drives at ``f * leader.speed`` (a trajectory: replayed
+``f`` times as fast). ``v = 0`` (default) draws nothing: every episode is bit for bit as before.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+from test_golden import rollout_digest
+
+import platoon_env
+from baselines import PPCPolicy
+from platoon_env.batched import BatchedPlatoon
+from platoon_env.rollout import run_episode
+from platoon_env.scenarios.schema import ScenarioError, config_to_mapping
+
+STUDIES = ["study_a", "study_b", "study_c"]
+#: 15 s of PPC: long enough for the start perturbation to settle (measured on the studies of
+#: commit 6dc2508 at 15 s: seeds 0, 1, 2 within 0.013 m of each other without variation, 0.3 to
+#: 3.3 m apart with it).
+STEPS = 1500
+VARIED = {"speed_variation": 0.2}
+
+
+def _poses(env: Any, seed: int) -> np.ndarray:
+    """The poses (T+1, N+1, 3) of a PPC episode from ``reset(seed)``, at most STEPS steps."""
+    return run_episode(env, PPCPolicy(env), seed=seed, max_steps=STEPS, record_signals=False).poses
+
+
+def _final_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """The largest distance between the same robot of two episodes at their last common step
+    (robots along the last axis but one)."""
+    n = min(len(a), len(b))
+    return float(np.max(np.hypot(*(a[n - 1, :, :2] - b[n - 1, :, :2]).T)))
+
+
+@pytest.mark.parametrize("study", STUDIES)
+def test_without_variation_every_seed_has_the_same_leader(study: str) -> None:
+    """The issue: the seed moves only the followers' start; the leader is the same."""
+    env = platoon_env.make(study)
+    runs = [_poses(env, seed) for seed in (0, 1, 2)]
+    n = min(len(r) for r in runs)
+    for other in runs[1:]:
+        np.testing.assert_array_equal(other[:n, 0], runs[0][:n, 0])
+
+
+@pytest.mark.parametrize("study", STUDIES)
+def test_speed_variation_gives_each_seed_its_own_episode(study: str) -> None:
+    """With ``speed_variation = 0.2`` seeds 0, 1, 2 draw different factors, and their leaders
+    and followers take different trajectories (more than 0.1 m apart at the end); the same seed
+    gives the same episode bit for bit."""
+    env = platoon_env.make(study, leader=VARIED)
+    runs, factors = [], []
+    for seed in (0, 1, 2):
+        runs.append(_poses(env, seed))
+        factors.append(env.leader_speed_factor)
+    assert len(set(factors)) == 3 and all(0.8 <= f <= 1.2 for f in factors), factors
+    for i in range(3):
+        for j in range(i + 1, 3):
+            assert _final_gap(runs[i][:, :1], runs[j][:, :1]) > 0.1, (i, j)  # the leaders
+            assert _final_gap(runs[i][:, 1:], runs[j][:, 1:]) > 0.1, (i, j)  # the followers
+    again = platoon_env.make(study, leader=VARIED)
+    np.testing.assert_array_equal(_poses(again, 1), runs[1])
+    assert again.leader_speed_factor == factors[1]
+
+
+def test_pure_pursuit_drives_at_the_drawn_speed(corridor: dict[str, Any]) -> None:
+    """The leader's command on a straight is exactly ``f * leader.speed``; successive resets
+    without a seed continue the RNG (new factors); ``v = 0`` gives ``f = 1``."""
+    corridor["leader"]["speed_variation"] = 0.5
+    env = platoon_env.make(corridor)
+    seen = set()
+    for _ in range(4):
+        env.reset()
+        f = env.leader_speed_factor
+        env.step({a: [0.0, 0.0] for a in env.agents})
+        assert env.leader_velocity[0] == 0.3 * f
+        assert 0.5 <= f <= 1.5
+        seen.add(f)
+    assert len(seen) == 4
+    corridor["leader"]["speed_variation"] = 0.0
+    plain = platoon_env.make(corridor)
+    plain.reset(seed=0)
+    plain.step({a: [0.0, 0.0] for a in plain.agents})
+    assert plain.leader_speed_factor == 1.0 and plain.leader_velocity[0] == 0.3
+
+
+def test_a_failed_reset_restores_the_rng(corridor: dict[str, Any]) -> None:
+    """A reset that fails (infeasible given poses) leaves the RNG as it was: the next reset
+    draws the factor (and perturbation) a fresh env draws."""
+    corridor["leader"]["speed_variation"] = 0.3
+    env, fresh = platoon_env.make(corridor), platoon_env.make(corridor)
+    env.reset(seed=3)
+    fresh.reset(seed=3)
+    bad = env.poses
+    bad[1, :2] = bad[0, :2]  # follower 1 on the leader
+    with pytest.raises(ScenarioError):
+        env.reset(options={"poses": bad})
+    env.reset()
+    fresh.reset()
+    assert env.leader_speed_factor == fresh.leader_speed_factor
+    np.testing.assert_array_equal(env.poses, fresh.poses)
+
+
+def test_batched_draws_as_the_single_env(corridor: dict[str, Any]) -> None:
+    """Env ``b`` of a batch reset with seed ``s`` draws the factor the single env draws, and
+    follows it bit for bit; ``auto_reset`` continues each env's own RNG."""
+    corridor["leader"]["speed_variation"] = 0.25
+    seeds = [4, 5, 6]
+    batch = BatchedPlatoon(corridor, 3, auto_reset=True, max_episode_steps=60)
+    batch.reset(seeds)
+    singles = [platoon_env.make(corridor, max_episode_steps=60) for _ in seeds]
+    for env, seed in zip(singles, seeds, strict=True):
+        env.reset(seed=seed)
+    rng = np.random.default_rng(0)
+    for step in range(150):
+        act = rng.uniform([0.0, -0.3], [0.4, 0.3], size=(3, 2, 2))
+        batch.step(act)
+        for b, env in enumerate(singles):
+            _, _, term, trunc, _ = env.step({a: act[b, i] for i, a in enumerate(env.agents)})
+            if any(term.values()) or any(trunc.values()):
+                env.reset()
+            np.testing.assert_array_equal(batch.poses[b], env.poses, err_msg=f"{step} {b}")
+            assert batch.leader_speed_factor[b] == env.leader_speed_factor
+
+
+def test_default_step_limit_covers_the_slowest_leader(corridor: dict[str, Any]) -> None:
+    """The default step limit allows twice the slowest leader's driving time."""
+    corridor["leader"]["speed_variation"] = 0.5
+    env = platoon_env.make(corridor)
+    length = 19.5
+    assert env.max_episode_steps == math.ceil((2 * length / (0.3 * 0.5) + 2.0 + 10.0) / 0.01)
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        (-0.1, r"must lie in \[0, 0\.9\]"),
+        (0.95, r"must lie in \[0, 0\.9\]"),
+        (math.nan, "must be finite"),
+        (True, "expected a number"),
+    ],
+)
+def test_bad_speed_variation(corridor: dict[str, Any], value: Any, message: str) -> None:
+    corridor["leader"]["speed_variation"] = value
+    with pytest.raises(ScenarioError, match=r"scenario\.leader\.speed_variation: " + message):
+        platoon_env.make(corridor)
+
+
+def test_zero_variation_changes_nothing() -> None:
+    """Spelled out, ``speed_variation: 0`` is the default: same config, mapping, episodes."""
+    default = platoon_env.make("study_b")
+    explicit = platoon_env.make("study_b", leader={"speed_variation": 0.0})
+    assert explicit.source.config == default.source.config
+    assert "speed_variation" not in config_to_mapping(default.source.config)["leader"]
+    assert rollout_digest("study_b", 1, steps=150) == rollout_digest(
+        "study_b", 1, steps=150, leader={"speed_variation": 0.0}
+    )
