@@ -459,7 +459,9 @@ def _draw_background(ax: Axes, free_space: Any, config: SceneConfig, bounds: Any
             zorder=_Z_OBSTACLES,
         )
     )
-    path = np.asarray(config.leader.path, dtype=float).reshape(-1, 2)
+    # the leader's route: its path, or the positions of its timed trajectory
+    route = config.leader.path or tuple(sample[1:3] for sample in config.leader.trajectory)
+    path = np.asarray(route, dtype=float).reshape(-1, 2)
     style: dict[str, Any] = {"color": _LEADER, "alpha": 0.6, "zorder": _Z_PATH}
     ax.plot(path[:, 0], path[:, 1], linestyle="--", linewidth=1.0, **style)
     ax.plot(path[-1, 0], path[-1, 1], marker="x", markersize=6, **style)

@@ -13,18 +13,30 @@ scenario (a YAML file or a shipped name) it
 * samples the leader path densely and measures its clearance to the obstacle boundary, the
   passage width across the path (perpendicular rays to the left and right), the stretches where
   a robot on the path has ``clearance - r < delta`` on *both* sides (where the PPC ``F_l`` and
-  ``F_r`` terms engage together), and the path curvature;
+  ``F_r`` terms engage together), and the largest turn at a vertex;
+* finds the path's *sharp corners* (vertices where the polyline turns by at least
+  :data:`SHARP_CORNER_DEG`) and the passage width on either side of each, so that a corner
+  inside a narrow passage is seen as one;
 * for a follower standing *on* the path, facing along it, with its predecessor on the path a
   chord ``d_des`` ahead, senses the pair with the env's sensing
   (:func:`platoon_env.geometry.sensing.sense`: the bearing ``|beta|``, the line-of-sight
   clearances ``d_l``, ``d_r``) and applies the env's constraints to it
   (:func:`platoon_env.scenarios.scenario.initial_violations`, the rules the env checks after
-  every sub-step): any violation a follower driving on the path would commit;
+  every sub-step): the violations a follower that *retraced the leader's path* at ``d_des``
+  would commit. This is reported, not required: the studies' corners are sharp on purpose, and
+  a follower does not retrace the path (it steers towards its predecessor and, under PPC, closes
+  up where walls come near), so whether a map is feasible is shown by running the controllers;
+* requires the same for a *closed-up* pair: the follower on the path facing its predecessor, a
+  chord ``d_close`` ahead, where ``d_close = d_col + 2 rho_d_inf`` is the closest spacing the PPC
+  distance funnel can demand (the least upper bound ``d_des + rho_d_hi``, ``rho_d_hi`` in its
+  projection set) (``(d_col + d_des) / 2`` without a ``ppc`` block): a corner so tight that
+  even a closed-up pair loses sight there on the path is rejected;
 * takes the default initial configuration the library builds (``Scenario.initial_poses``), checks
   it with :func:`platoon_env.scenarios.scenario.initial_violations` and measures its clearances;
 * drives the env's own leader: :func:`platoon_env.make` with ``terminate_on=()``, stepped with
-  the followers standing still, reading ``env.poses[0]``; reports its run time, its clearance
-  and how far it cuts corners, and checks the driven trajectory with ``check_leader_path`` too;
+  the followers standing still, reading ``env.poses[0]``; reports its run time, its clearance,
+  how far it cuts corners and its tightest turn, and checks the driven trajectory with
+  ``check_leader_path`` too;
 
 then writes ``<outdir>/<name>.png``. The exit status is 1 if a requirement fails.
 
@@ -74,6 +86,25 @@ STUDIES = ("study_a", "study_b", "study_c")
 
 SAMPLE_STEP = 0.02  # [m] spacing of the dense samples along the path (measurement only)
 RAY_LENGTH = 10.0  # [m] perpendicular rays for the passage width are cut at this length
+#: [deg] a path vertex turning by at least this much is a sharp corner (reported)
+SHARP_CORNER_DEG = 45.0
+#: [m] the passage width at a corner is the narrowest one measured on the path between these
+#: distances before and after the corner's vertex (on the legs: right at the vertex the
+#: normals of the two legs would measure the diagonal)
+CORNER_WIDTH_WINDOW = (0.3, 1.0)
+#: [m] arc-length step at which the driven leader's turning radius is measured
+TURN_STEP = 0.05
+
+
+@dataclass(frozen=True)
+class Corner:
+    """A sharp corner of the leader's path: a vertex and the passage width beside it."""
+
+    x: float  # [m] the vertex
+    y: float  # [m]
+    s: float  # [m] arc length of the vertex along the path
+    turn_deg: float  # [deg] heading change of the path at the vertex
+    width: float  # [m] narrowest passage width on the legs within CORNER_WIDTH_WINDOW of it
 
 
 @dataclass
@@ -83,6 +114,7 @@ class Report:
     name: str
     values: dict[str, str] = field(default_factory=dict)
     failures: list[str] = field(default_factory=list)
+    corners: list[Corner] = field(default_factory=list)
 
     def add(self, key: str, value: str) -> None:
         self.values[key] = value
@@ -217,6 +249,66 @@ def pair_problems(scenario: Scenario, follower: np.ndarray, predecessor: np.ndar
     return initial_violations(scenario.config, scenario.workspace, chain)
 
 
+def sharp_corners(
+    raw: np.ndarray, s: np.ndarray, pts: np.ndarray, width: np.ndarray
+) -> list[Corner]:
+    """The vertices of the polyline ``raw`` turning by at least :data:`SHARP_CORNER_DEG`, each
+    with the narrowest of the passage widths ``width`` (measured at the samples ``pts``, arc
+    lengths ``s``) on the legs within :data:`CORNER_WIDTH_WINDOW` of it."""
+    seg = np.diff(raw, axis=0)
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    cum = np.concatenate([[0.0], np.cumsum(length)])
+    out = []
+    lo, hi = CORNER_WIDTH_WINDOW
+    for k in range(1, len(raw) - 1):
+        a, b = seg[k - 1], seg[k]
+        if length[k - 1] == 0.0 or length[k] == 0.0:
+            continue
+        turn = abs(math.degrees(math.atan2(a[0] * b[1] - a[1] * b[0], float(np.dot(a, b)))))
+        if turn < SHARP_CORNER_DEG - 1e-6:  # a 45.000 deg corner given to the mm is one
+            continue
+        gap = np.abs(s - cum[k])
+        near = (gap >= lo) & (gap <= hi)
+        w = float(width[near].min()) if near.any() else float("nan")
+        out.append(Corner(float(raw[k, 0]), float(raw[k, 1]), float(cum[k]), turn, w))
+    return out
+
+
+def closest_spacing(scenario: Scenario) -> float:
+    """``d_close``: the closest spacing the PPC distance funnel can demand, ``d_col + 2 rho_d_inf``
+    (the least value of ``d_des + rho_d_hi`` over ``rho_d_hi``'s projection set), or
+    ``(d_col + d_des) / 2`` when the scenario has no ``ppc`` block."""
+    cfg = scenario.config
+    if cfg.ppc is None:
+        return 0.5 * (cfg.safety.d_col + cfg.formation.d_des)
+    return cfg.safety.d_col + 2.0 * cfg.ppc.rho_d_inf
+
+
+def tightest_turn(traj: np.ndarray) -> float:
+    """The smallest turning radius [m] of a driven trajectory ``(T, 2)``: the largest heading
+    change between its points resampled every :data:`TURN_STEP` metres of travel (a turn in
+    place shows as a radius of at most ``TURN_STEP`` over its angle; 0 for 90 deg or more)."""
+    step = np.hypot(*np.diff(traj, axis=0).T)
+    keep = np.concatenate([[True], step > 1e-9])
+    pts, _ = resample(traj[keep], TURN_STEP)
+    d = np.diff(pts, axis=0)
+    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    turn = np.abs(np.diff(heading))
+    if not len(turn) or turn.max() <= 0.0:
+        return math.inf
+    if turn.max() >= 0.5 * math.pi:
+        return 0.0
+    return float(TURN_STEP / turn.max())
+
+
+def violation_summary(bad: list[tuple[float, list[str]]], total: int) -> str:
+    """``"none"`` or how many of ``total`` samples violate, and the first one's problems."""
+    if not bad:
+        return "none"
+    at, problems = bad[0]
+    return f"{len(bad)} of {total} samples, first at s={at:.2f}: {'; '.join(problems)}"
+
+
 # --------------------------------------------------------------------------------------------
 # The checks
 # --------------------------------------------------------------------------------------------
@@ -274,26 +366,24 @@ def check(source: str, outdir: Path) -> Report:
         f"{both.sum() * SAMPLE_STEP:.1f} m (passage < 2(r+delta) = {2 * (r + delta):.2f} m)",
     )
 
-    # --- curvature: circle through each vertex and its two neighbours (exact on sampled arcs),
-    # and the heading change at each vertex (a kink between long straights shows up there)
-    a, b, c = raw[:-2], raw[1:-1], raw[2:]
-    cross = np.abs((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0])
-    sides_abc = np.hypot(*(b - a).T) * np.hypot(*(c - b).T) * np.hypot(*(c - a).T)
-    kappa = 2.0 * cross / np.maximum(sides_abc, 1e-12)
-    k_k = int(np.argmax(kappa)) if len(kappa) else 0
-    report.add(
-        "max curvature",
-        f"{kappa[k_k]:.3f} 1/m (radius {1 / max(kappa[k_k], 1e-9):.2f} m) at "
-        f"({b[k_k, 0]:.2f}, {b[k_k, 1]:.2f})"
-        if len(kappa)
-        else "0 (a single segment)",
-    )
+    # --- the path's vertices: the largest turn and the sharp corners, with the passage width on
+    # the legs either side of each (a corner inside a narrow passage, or one in an open room)
     seg = np.diff(raw, axis=0)
     seg = seg[np.hypot(seg[:, 0], seg[:, 1]) > 0.0]
     seg_heading = np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))
     vertex_turn = np.degrees(np.abs(np.diff(seg_heading)))
     report.add(
         "max turn at a path vertex", f"{vertex_turn.max():.1f} deg" if len(vertex_turn) else "0"
+    )
+    corners = sharp_corners(raw, s, pts, width)
+    report.corners = corners
+    report.add(
+        f"sharp corners (turn >= {SHARP_CORNER_DEG:g} deg)",
+        "; ".join(
+            f"{c.turn_deg:.0f} deg at ({c.x:.2f}, {c.y:.2f}), passage {c.width:.2f} m"
+            for c in corners
+        )
+        or "none",
     )
 
     # --- a follower on the path, facing along it, its predecessor a chord d_des ahead: the
@@ -319,16 +409,29 @@ def check(source: str, outdir: Path) -> Report:
         for k, pose in zip(idx, on_path, strict=True)
         if (problems := pair_problems(scenario, pose, pts[partner[k]]))
     ]
+    report.add(
+        f"a follower retracing the path {d_des} m behind (reported, not required)",
+        violation_summary(bad, len(idx)),
+    )
+
+    # --- a closed-up pair on the path, the follower facing its predecessor: required
+    d_close = closest_spacing(scenario)
+    partner = chord_partner(pts, d_close)
+    idx = np.nonzero(partner >= 0)[0]
+    ahead = pts[partner[idx]] - pts[idx]
+    facing = np.column_stack([pts[idx], np.arctan2(ahead[:, 1], ahead[:, 0])])
+    bad = [
+        (float(s[k]), problems)
+        for k, pose in zip(idx, facing, strict=True)
+        if (problems := pair_problems(scenario, pose, pts[partner[k]]))
+    ]
+    summary = violation_summary(bad, len(idx))
+    report.add(f"a closed-up pair on the path, {d_close:.2f} m apart", summary)
     if bad:
-        at, problems = bad[0]
-        summary = f"{len(bad)} of {len(idx)} samples, first at s={at:.2f}: {'; '.join(problems)}"
         report.failures.append(
-            f"a follower on the path, {d_des} m behind its predecessor, violates a constraint "
-            f"({summary})"
+            f"a follower on the path facing its predecessor {d_close:.2f} m ahead (the closest "
+            f"spacing the PPC funnel allows) violates a constraint ({summary})"
         )
-    else:
-        summary = "none"
-    report.add("on-path violations", summary)
 
     # --- the default initial configuration (leader first), as the library builds it
     poses = np.asarray(scenario.initial_poses)
@@ -366,7 +469,8 @@ def check(source: str, outdir: Path) -> Report:
     report.add(
         "env leader",
         f"{driven} at {cfg.leader.speed} m/s, min clearance {lead_clear.min():.3f} m, "
-        f"max deviation from path {deviation:.3f} m",
+        f"max deviation from path {deviation:.3f} m, tightest turn: radius "
+        f"{tightest_turn(traj):.2f} m",
     )
     try:
         check_leader_path(free, traj, r, where="the env's leader as driven")
@@ -480,7 +584,8 @@ def draw(
         f"{cfg.name}: {report.values['path length']}, leader {report.values['env leader']}",
         f"min clearance {report.values['min path clearance']}",
         f"narrowest passage {report.values['narrowest passage']}; "
-        f"max curvature {report.values['max curvature']}",
+        f"{len(report.corners)} sharp corners (>= {SHARP_CORNER_DEG:g} deg), "
+        f"max turn at a vertex {report.values['max turn at a path vertex']}",
     ]
     ax.set_title("\n".join(lines), fontsize=8)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -202,7 +202,10 @@ def test_study_c_ppc_keeps_sight_last_seen_loses_it() -> None:
     ls = run("study_c", "last-seen [32]", 0)
     steps, transitions = visibility_breaks(ls)
     assert steps.sum() >= 1 and transitions.sum() >= 1
-    assert not ls.terminated  # no collision
+    # sight is lost first (at the snaky corridor's first sharp corner); a collision may end the
+    # episode later (a follower driving to a last-seen point round a 90-degree corner)
+    assert ls.first_violation is not None
+    assert ls.first_violation[1] in ("out_of_range", "out_of_fov", "occluded")
     # odometry: in leader-loss mode, the target is the predecessor's position at its last
     # visible sample, seen from the follower's current ground-truth pose
     vis = ls.sensed[:, :, SENSE_VISIBLE] > 0

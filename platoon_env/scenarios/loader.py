@@ -227,10 +227,55 @@ def _read_text(path: Path) -> str:
         ) from exc
 
 
+#: The key of a leader block that names a trajectory data file (see :func:`_with_trajectory_file`).
+TRAJECTORY_FILE = "trajectory_file"
+
+
+def _with_trajectory_file(data: Any, base: Any, source: str) -> Any:
+    """``data`` with ``leader.trajectory_file`` replaced by the trajectory it names.
+
+    A scenario file may keep a long timed trajectory (a planner's output, a recorded log) in a
+    data file: ``leader: {trajectory_file: trajectories/x.yaml}``, a path relative to the
+    scenario file's folder (``base``: a :class:`~pathlib.Path` or a package resource), whose
+    YAML document is the list ``[[t, x, y, theta], ...]``. The file is read by the same strict
+    rules as a scenario file; it may not lie outside ``base`` (no ``..`` or absolute paths).
+    A scenario given as a mapping has no folder: it must give ``trajectory`` itself.
+    """
+    leader = data.get("leader") if isinstance(data, Mapping) else None
+    if not isinstance(leader, Mapping) or TRAJECTORY_FILE not in leader:
+        return data
+    where = f"{source}: leader.{TRAJECTORY_FILE}"
+    name = leader[TRAJECTORY_FILE]
+    if "trajectory" in leader:
+        raise ScenarioError(f"{where}: give trajectory or trajectory_file, not both")
+    if base is None:
+        raise ScenarioError(f"{where}: only a scenario file can name a trajectory file")
+    if not isinstance(name, str) or not name.strip():
+        raise ScenarioError(f"{where}: must be a relative file path, got {name!r}")
+    rel = Path(name)
+    if rel.is_absolute() or ".." in rel.parts:
+        raise ScenarioError(f"{where}: must be a path inside the scenario's folder, got {name!r}")
+    ref = base.joinpath(*rel.parts)
+    if isinstance(ref, Path):
+        if not ref.is_file():
+            raise ScenarioError(f"{where}: no such file {ref}")
+        text = _read_text(ref)
+    else:
+        try:
+            text = ref.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ScenarioError(f"{where}: cannot read {name!r} ({exc})") from None
+    samples = read_yaml(text, f"{source} -> {name}")
+    out = dict(data)
+    out["leader"] = {k: v for k, v in leader.items() if k != TRAJECTORY_FILE}
+    out["leader"]["trajectory"] = samples
+    return out
+
+
 def _config_from_file(path: Path) -> ScenarioConfig:
     if not path.is_file():
         raise ScenarioError(f"{path}: no such scenario file")
-    data = read_yaml(_read_text(path), str(path))
+    data = _with_trajectory_file(read_yaml(_read_text(path), str(path)), path.parent, str(path))
     try:
         return parse_scenario(data)
     except ScenarioError as exc:
@@ -244,12 +289,15 @@ def load_config(scenario: ScenarioLike) -> ScenarioConfig:
     if isinstance(scenario, ScenarioConfig):
         return scenario
     if isinstance(scenario, Mapping):
-        return parse_scenario(scenario)
+        return parse_scenario(_with_trajectory_file(scenario, None, "scenario"))
     if isinstance(scenario, (str, Path)):
         text = str(scenario)
         if text in list_scenarios():
             ref = resources.files(_DATA).joinpath(f"{text}.yaml")
-            return parse_scenario(read_yaml(ref.read_text(encoding="utf-8"), f"{text}.yaml"))
+            data = read_yaml(ref.read_text(encoding="utf-8"), f"{text}.yaml")
+            return parse_scenario(
+                _with_trajectory_file(data, resources.files(_DATA), f"{text}.yaml")
+            )
         path = Path(text)
         if path.suffix in (".yaml", ".yml") or path.exists():
             return _config_from_file(path)
