@@ -81,6 +81,9 @@ class _LeaderLike(Protocol):
     @property
     def path(self) -> Sequence[Sequence[float]]: ...  # polyline [[x, y], ...]
 
+    @property
+    def trajectory(self) -> Sequence[Sequence[float]]: ...  # timed samples [[t, x, y, theta]]
+
 
 class SceneConfig(Protocol):
     """What rendering reads from a scenario: satisfied by
