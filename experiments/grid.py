@@ -114,10 +114,11 @@ def _effective_overrides(cell: Cell) -> dict[str, Any]:
     return {k: v for k, v in json.loads(cell.overrides).items() if k not in _PRESENTATION_OPTIONS}
 
 
-def resolve_cells(cells: Iterable[Cell]) -> list[ResolvedCell]:
-    """Resolve the cells (configs and fingerprints); a cell whose key an earlier cell has is
-    dropped (it would run the same episode). Bad scenarios and overrides raise the schema's
-    errors (``ScenarioError``, ``TypeError``, ``OSError``) here, before anything runs."""
+def resolve_cells(cells: Iterable[Cell], *, unique: bool = True) -> list[ResolvedCell]:
+    """Resolve the cells (configs and fingerprints). With ``unique``, a cell whose key an
+    earlier cell has is dropped (it would run the same episode); else there is one resolved
+    cell per cell, in order. Bad scenarios and overrides raise the schema's errors
+    (``ScenarioError``, ``TypeError``, ``OSError``) here, before anything runs."""
     from platoon_env.scenarios.loader import load_config
     from platoon_env.scenarios.options import apply_overrides
 
@@ -138,7 +139,7 @@ def resolve_cells(cells: Iterable[Cell]) -> list[ResolvedCell]:
             cell.seed,
             cell.measure,
         )
-        if key in seen:
+        if unique and key in seen:
             continue
         seen.add(key)
         out.append(ResolvedCell(cell, key, mapping))
@@ -304,6 +305,7 @@ def run_grid(
     resolved: list[ResolvedCell] = [c for c in cells if isinstance(c, ResolvedCell)]
     if len(resolved) != len(cells):
         resolved = resolve_cells(c for c in cells if isinstance(c, Cell))
+    resolved = list({rc.key: rc for rc in resolved}.values())  # a key runs once
     keep = keep or (lambda cell: False)
     start = time.perf_counter()
     run_id = db.begin_run(tool, stamp)

@@ -66,7 +66,7 @@ from experiments.report import (
     wilson,
     write_csv,
 )
-from experiments.stamp import metadata_stamp
+from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store, StoreError
 from platoon_env.rollout import METRIC_NAMES, Episode, PolicyLike
 from platoon_env.scenarios.schema import ScenarioError, config_to_mapping
@@ -316,10 +316,15 @@ def _slug(scenario: str) -> str:
 
 
 def plot_scenario(
-    scenario: str, episodes: dict[str, Episode], out: Path, slug: str | None = None
+    scenario: str,
+    episodes: dict[str, Episode],
+    out: Path,
+    slug: str | None = None,
+    metadata: dict[str, str] | None = None,
 ) -> list[Path]:
     """Comparison plots of one scenario (one episode per policy) and a GIF per policy, into
-    ``out`` under the file-name stem ``slug`` (default: the scenario's name)."""
+    ``out`` under the file-name stem ``slug`` (default: the scenario's name); ``metadata``
+    are the PNG text fields (the run's stamp)."""
     from platoon_env.plots import (
         new_figure,
         plot_commands,
@@ -349,17 +354,17 @@ def plot_scenario(
             n_snapshots=5,
             title=f"{scenario}, seed {ep.seed}: {name}",
         )
-    paths = [save_figure(fig, out / f"{slug}_trajectories.png")]
+    paths = [save_figure(fig, out / f"{slug}_trajectories.png", metadata)]
     n = sc.config.followers
     followers = [1, n] if n > 2 else None
     fig = new_figure(9, 1.2 + 1.4 * (len(followers) if followers else n))
     plot_errors(fig, sc, eps, labels=names, followers=followers)
     fig.suptitle(f"{scenario}, seed {eps[0].seed}: errors and safety limits (dashed)")
-    paths.append(save_figure(fig, out / f"{slug}_errors.png"))
+    paths.append(save_figure(fig, out / f"{slug}_errors.png", metadata))
     fig = new_figure(9, 1.2 + 1.2 * (len(followers) if followers else n))
     plot_commands(fig, sc, eps, labels=names, followers=followers)
     fig.suptitle(f"{scenario}, seed {eps[0].seed}: velocity commands")
-    paths.append(save_figure(fig, out / f"{slug}_commands.png"))
+    paths.append(save_figure(fig, out / f"{slug}_commands.png", metadata))
     for name, ep in zip(names, eps, strict=True):
         paths.append(save_gif(sc, ep, out / f"{slug}_{name}.gif", frame_every=1.0, size_px=360))
     return paths
@@ -570,7 +575,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     (out / "summary.md").write_text(header + summary + "\n" + _failures(result))
     print(summary)
     if not args.no_plots:
-        _plots(args, result, out / "plots")
+        _plots(args, result, out / "plots", png_metadata(stamp))
     print(
         f"wrote {out / 'results.csv'}, {out / 'summary.md'}"
         + ("" if args.no_plots else f", {out / 'plots'}/")
@@ -617,7 +622,9 @@ def _failures(result: GridResult) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _plots(args: argparse.Namespace, result: GridResult, out: Path) -> None:
+def _plots(
+    args: argparse.Namespace, result: GridResult, out: Path, metadata: dict[str, str]
+) -> None:
     by_scenario: dict[str, dict[str, Episode]] = defaultdict(dict)
     for rc in result.cells:
         ep = result.episodes.get(rc.key)
@@ -631,7 +638,7 @@ def _plots(args: argparse.Namespace, result: GridResult, out: Path) -> None:
         slugs[s] = slug
     for s in tqdm(args.scenario, desc="plots", unit="scenario"):
         if by_scenario[s]:
-            plot_scenario(s, by_scenario[s], out, slugs[s])
+            plot_scenario(s, by_scenario[s], out, slugs[s], metadata)
 
 
 if __name__ == "__main__":
