@@ -5,8 +5,9 @@ Usage::
     python -m baselines.comparison [--out docs/figures] [--seeds 20] [--workers 2]
                                    [--store results/comparison/results.sqlite]
 
-Both policies (:class:`baselines.PPCPolicy` and :class:`baselines.LastSeenPolicy`) run from the
-same initial configuration (the same ``reset`` seed) behind the same scripted leader, with
+The policies (:class:`baselines.PPCPolicy`, :class:`baselines.LastSeenPolicy` — ref. [32] as the
+paper describes it — and its variant :class:`baselines.LastSeenFOVPolicy` with this project's
+field-of-view slow-down, :data:`POLICIES`) run from the same initial configuration (the same ``reset`` seed) behind the same scripted leader, with
 ``terminate_on`` limited to collisions, so that a lost predecessor does not end the episode but
 is counted (:func:`comparison_metrics`): follower-steps without visibility, and the separate
 *intervals* of lost sight (maximal runs of such steps of one follower) with their durations —
@@ -88,6 +89,7 @@ _TOOL = "python -m baselines.comparison"
 POLICIES: dict[str, PolicySpec] = {
     "PPC": PolicySpec.of("ppc", "PPC"),
     "last-seen [32]": PolicySpec.of("last_seen", "last-seen [32]"),
+    "last-seen + FOV slow-down": PolicySpec.of("last_seen_fov", "last-seen + FOV slow-down"),
 }
 
 

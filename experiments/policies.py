@@ -62,7 +62,12 @@ REGISTRY: dict[str, PolicyKind] = {
     ),
     "last_seen": PolicyKind(
         "baselines.last_seen:LastSeenPolicy",
-        "ref. [32]'s baseline: drive to where the predecessor was last seen",
+        "ref. [32] as the paper describes it: saturated tracking, drive to where the "
+        "predecessor was last seen",
+    ),
+    "last_seen_fov": PolicyKind(
+        "baselines.last_seen:LastSeenFOVPolicy",
+        "the last-seen baseline with this project's field-of-view slow-down (not in the paper)",
     ),
 }
 
