@@ -6,10 +6,14 @@ A trained model is saved as two files side by side::
     DIR/model.json   everything else needed to act with it, and how it was made:
 
         {
-          "format": "platoon_env.learned_policy", "format_version": 1,
+          "format": "platoon_env.learned_policy", "format_version": 2,
           "algo": "ppo",                       # which SB3 class loads model.zip
-          "scenario": "study_c",               # scenario trained on
+          "zip_sha256": "3f1c...",             # SHA-256 of the zip beside this file
+          "scenario": "study_c",               # scenario trained on, as it was given
+          "scenario_fingerprint": "5d48...",   # SHA-256 of the resolved scenario config
+          "scenario_config": {...},            # that resolved config (after the overrides)
           "control_period": 0.05,              # [s] period the policy was trained at
+          "observation_layout": ["visible", "x_rel", ...], "action_layout": ["u", "omega"],
           "observation_normalization": {"type": "fixed_scale", "scale": [1, 1.5, ...]},
           "action_range": {"u_low": -0.5, "u_high": 1.5, "omega_high": 2.0},
           "config": {...}, "git_commit": "...", "seed": 0, "timesteps": ..., ...
@@ -17,10 +21,29 @@ A trained model is saved as two files side by side::
 
 The observation normalisation is fixed (not a running mean): the policy sees
 ``obs / scale``, with ``scale`` the upper bound of the training env's observation Box, stored
-as numbers so that the same division is applied whatever env the policy is evaluated on. The
-action rescaling maps the policy's ``[-1, 1]^2`` to ``[u_low, u_high] x [-omega_high,
-omega_high]`` (:class:`training.vec_env.ActionRange`). ``null`` for either means none was used.
+as numbers so that the same division is applied whatever env the policy is evaluated on
+(``null``: the policy was trained on raw observations). The action rescaling maps the policy's
+``[-1, 1]^2`` to ``[u_low, u_high] x [-omega_high, omega_high]``
+(:class:`training.vec_env.ActionRange`); it is required: a ``model.json`` without a valid one
+is refused, since the policy's normalised outputs would otherwise be applied as m/s and rad/s.
 So ``LearnedPolicy.load("DIR/model.zip")`` needs no other file.
+
+What :meth:`LearnedPolicy.load` checks (every refusal is a ``ValueError`` naming the file and
+the reason):
+
+* ``model.json`` must exist (``FileNotFoundError`` otherwise: without it there is no action
+  range, normalisation or control period to act with) and be a ``format_version`` this code
+  reads;
+* ``zip_sha256`` must be the SHA-256 of the zip: a zip and a JSON from different runs (or a
+  save cut off between the two files) are refused. ``format_version`` 1 files (written before
+  the hash was recorded) load with a ``UserWarning``, once per file; a version 2 file without
+  the hash is refused. Both shipped models (``models/``) have it (backfilled);
+* ``action_range``, ``observation_normalization`` and ``control_period`` must be present and
+  well-formed; the model must map 7 observations to 2 actions.
+
+:meth:`LearnedPolicy.check_env` then compares the model with the env it is about to act in:
+which differences make a result meaningless (refused) and which are experiments (allowed, and
+returned as notes) is listed there.
 
 ``"engine"`` says what wrote the model (absent: ``"sb3"``). A model trained by
 ``platoon-train --engine rllib`` (:mod:`training.rllib`) has ``"engine": "rllib"``: its
@@ -33,14 +56,17 @@ NumPy alone, so an RLlib model evaluates without Ray installed, through the same
 .. warning::
     Loading an SB3 model unpickles Python objects from the zip, which can execute arbitrary
     code. Load only model files you trust. (An exported RLlib actor is read with
-    ``allow_pickle=False``.)
+    ``allow_pickle=False``.) The hash check guards against mixed-up files, not against an
+    attacker, who can rewrite both.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Protocol
@@ -50,25 +76,38 @@ from numpy.typing import NDArray
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from platoon_env.observation import ACT_SIZE, OBS_SIZE
+from platoon_env.observation import ACT_SIZE, OBS_NAMES, OBS_SIZE
+from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping, file_sha256
 from training.vec_env import ActionRange
 
 __all__ = [
+    "ACTION_LAYOUT",
     "ALGORITHMS",
     "ENGINES",
     "METADATA_FORMAT",
+    "OBSERVATION_LAYOUT",
     "LearnedPolicy",
     "MLPActor",
     "adapter_metadata",
     "metadata_path",
+    "parse_action_range",
     "save_exported_policy",
     "save_model",
+    "scenario_differences",
+    "zip_mismatch",
 ]
 
 #: The SB3 algorithms a learned policy can be, by the name stored in ``model.json``.
 ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC}
 METADATA_FORMAT = "platoon_env.learned_policy"
-METADATA_VERSION = 1
+#: 2: ``zip_sha256``, the resolved scenario, the observation/action layout and the training
+#: segments are recorded. 1: none of them (still read; see the module doc).
+METADATA_VERSION = 2
+#: The per-follower observation a policy reads, by name (``model.json``'s
+#: ``observation_layout``; :mod:`platoon_env.observation`).
+OBSERVATION_LAYOUT: tuple[str, ...] = tuple(OBS_NAMES)
+#: The per-follower action a policy outputs (``model.json``'s ``action_layout``).
+ACTION_LAYOUT: tuple[str, ...] = ("u", "omega")
 #: The trainers whose models ``LearnedPolicy.load`` reads (``model.json``'s ``engine``).
 ENGINES = ("sb3", "rllib")
 
@@ -104,8 +143,9 @@ def adapter_metadata(venv: VecAdapter) -> dict[str, Any]:
     }
 
 
-def _atomic_write(path: Path, write: Any) -> None:
-    """Call ``write(file)`` on a temporary file beside ``path``, then rename it into place."""
+def _atomic_write(path: Path, write: Any) -> str:
+    """Call ``write(file)`` on a temporary file beside ``path``, then rename it into place;
+    returns the hex SHA-256 of the bytes written."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
@@ -113,11 +153,110 @@ def _atomic_write(path: Path, write: Any) -> None:
             write(f)
             f.flush()
             os.fsync(f.fileno())
+        digest = file_sha256(tmp)
         os.chmod(tmp, 0o644)  # mkstemp creates 0600; outputs are meant to be shared
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    return digest
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def parse_action_range(value: Any, where: str = "model.json") -> ActionRange:
+    """The :class:`ActionRange` of ``model.json``'s ``action_range``; ``ValueError`` naming the
+    reason for a missing (``None``), malformed or invalid one.
+
+    A model's outputs are normalised to ``[-1, 1]^2``: without its range they would be applied
+    as m/s and rad/s, silently, so there is no "no range" case.
+    """
+    if value is None:
+        raise ValueError(
+            f"{where}: action_range is null or missing: the policy's normalised [-1, 1] "
+            "outputs would be applied as raw m/s and rad/s; record the range it was trained "
+            'with, e.g. {"u_low": -0.5, "u_high": 1.5, "omega_high": 2.0}'
+        )
+    keys = ("u_low", "u_high", "omega_high")
+    if not isinstance(value, Mapping) or set(value) != set(keys):
+        raise ValueError(f"{where}: action_range must be a mapping with keys {keys}, got {value!r}")
+    bad = [k for k in keys if not _is_number(value[k]) or not math.isfinite(value[k])]
+    if bad:
+        raise ValueError(
+            f"{where}: action_range {', '.join(bad)} must be finite numbers: {value!r}"
+        )
+    try:
+        return ActionRange(**{k: float(value[k]) for k in keys})
+    except ValueError as e:
+        raise ValueError(f"{where}: action_range: {e}") from None
+
+
+def _parse_normalization(value: Any, where: str) -> NDArray[np.float32] | None:
+    """The observation divisor of ``observation_normalization`` (None: raw observations)."""
+    if value is None:
+        return None
+    if not isinstance(value, Mapping) or value.get("type") != "fixed_scale":
+        raise ValueError(f"{where}: unknown observation normalisation {value!r}")
+    scale = value.get("scale")
+    if (
+        not isinstance(scale, list)
+        or len(scale) != OBS_SIZE
+        or not all(_is_number(x) and math.isfinite(x) and x > 0 for x in scale)
+    ):
+        raise ValueError(
+            f"{where}: observation_normalization.scale must be {OBS_SIZE} finite positive "
+            f"numbers, got {scale!r}"
+        )
+    return np.asarray(scale, dtype=np.float32)
+
+
+def _parse_control_period(value: Any, where: str) -> float:
+    if not _is_number(value) or not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{where}: control_period must be a positive number, got {value!r}")
+    return float(value)
+
+
+def _check_metadata(metadata: Mapping[str, Any], where: str) -> None:
+    """What :func:`save_model` and :meth:`LearnedPolicy.load` both require of the metadata."""
+    missing = {"algo", "control_period", "observation_normalization", "action_range"} - set(
+        metadata
+    )
+    if missing:
+        raise ValueError(f"{where}: metadata lacks {sorted(missing)}")
+    parse_action_range(metadata["action_range"], where)
+    _parse_normalization(metadata["observation_normalization"], where)
+    _parse_control_period(metadata["control_period"], where)
+
+
+def _document(metadata: Mapping[str, Any], digest: str) -> bytes:
+    doc = {
+        "format": METADATA_FORMAT,
+        "format_version": METADATA_VERSION,
+        **metadata,
+        "zip_sha256": digest,
+    }
+    return json.dumps(doc, indent=2, sort_keys=False, default=str).encode()
+
+
+def zip_mismatch(path: str | os.PathLike[str], metadata: Mapping[str, Any]) -> str | None:
+    """Why the zip at ``path`` does not belong with ``metadata`` (its JSON), or None.
+
+    None also when ``metadata`` records no ``zip_sha256`` (a ``format_version`` 1 file): the
+    caller decides what an unchecked pair means.
+    """
+    recorded = metadata.get("zip_sha256")
+    if recorded is None:
+        return None
+    actual = file_sha256(Path(path))
+    if actual != recorded:
+        return (
+            f"{Path(path).name} has SHA-256 {actual[:16]}..., its JSON records "
+            f"{str(recorded)[:16]}...: the two files are not from the same save (another run's "
+            "zip, an edited file, or a save cut off between the two)"
+        )
+    return None
 
 
 def save_model(
@@ -125,21 +264,19 @@ def save_model(
 ) -> Path:
     """Write ``model`` to ``path`` (a ``.zip``) and ``metadata`` to the JSON beside it.
 
-    Both files are written atomically (temporary file + ``os.replace``), so an interruption
-    leaves the previous version intact. ``metadata`` must hold at least ``algo`` and
-    ``control_period``, plus the keys of :func:`adapter_metadata`. Returns the zip's path.
+    Both files are written atomically (temporary file + ``os.replace``), the zip first, so an
+    interruption leaves the previous version intact; the JSON records the zip's SHA-256
+    (``zip_sha256``), so a zip and a JSON of different saves do not load as a pair.
+    ``metadata`` must hold at least ``algo`` and ``control_period``, plus the keys of
+    :func:`adapter_metadata`, with a valid ``action_range`` (what :meth:`LearnedPolicy.load`
+    requires). Returns the zip's path.
     """
     path = Path(path)
     if path.suffix != ".zip":
         raise ValueError(f"model path must end in .zip, got {path}")
-    missing = {"algo", "control_period", "observation_normalization", "action_range"} - set(
-        metadata
-    )
-    if missing:
-        raise ValueError(f"metadata lacks {sorted(missing)}")
-    doc = {"format": METADATA_FORMAT, "format_version": METADATA_VERSION, **metadata}
-    text = json.dumps(doc, indent=2, sort_keys=False, default=str).encode()
-    _atomic_write(path, model.save)
+    _check_metadata(metadata, "save_model")
+    digest = _atomic_write(path, model.save)
+    text = _document(metadata, digest)
     _atomic_write(metadata_path(path), lambda f: f.write(text))
     return path
 
@@ -153,20 +290,13 @@ def save_exported_policy(
     path = Path(path)
     if path.suffix != ".zip":
         raise ValueError(f"model path must end in .zip, got {path}")
-    missing = {
-        "engine",
-        "algo",
-        "control_period",
-        "observation_normalization",
-        "action_range",
-    } - set(metadata)
-    if missing:
-        raise ValueError(f"metadata lacks {sorted(missing)}")
+    if "engine" not in metadata:
+        raise ValueError("save_exported_policy: metadata lacks ['engine']")
+    _check_metadata(metadata, "save_exported_policy")
     MLPActor.from_arrays(arrays)  # fail before writing anything if the layers do not chain
-    doc = {"format": METADATA_FORMAT, "format_version": METADATA_VERSION, **metadata}
-    text = json.dumps(doc, indent=2, sort_keys=False, default=str).encode()
     arrays = {k: np.asarray(v, dtype=np.float32) for k, v in arrays.items()}
-    _atomic_write(path, lambda f: np.savez(f, allow_pickle=False, **arrays))
+    digest = _atomic_write(path, lambda f: np.savez(f, allow_pickle=False, **arrays))
+    text = _document(metadata, digest)
     _atomic_write(metadata_path(path), lambda f: f.write(text))
     return path
 
@@ -237,6 +367,53 @@ class MLPActor:
         return x.astype(np.float32), None
 
 
+#: ``model.json`` files already warned about (a ``format_version`` 1 file has no zip hash).
+_WARNED_UNCHECKED: set[Path] = set()
+
+
+def _dotted(value: Any, prefix: str = "") -> dict[str, Any]:
+    """A nested mapping flattened to ``{"a.b.c": leaf}`` (lists are leaves)."""
+    if isinstance(value, Mapping):
+        out: dict[str, Any] = {}
+        for k, v in value.items():
+            out.update(_dotted(v, f"{prefix}{k}."))
+        return out
+    return {prefix[:-1]: value}
+
+
+def scenario_differences(
+    first: Mapping[str, Any],
+    second: Mapping[str, Any],
+    labels: tuple[str, str] = ("trained", "env"),
+    limit: int = 8,
+) -> list[str]:
+    """The dotted fields in which two resolved scenario mappings differ, as ``"field: trained
+    X, env Y"`` (``labels`` name the two sides; at most ``limit``, then a count of the rest).
+    ``name`` and ``description`` are left out: they change nothing the robots do."""
+    a, b = _dotted(first), _dotted(second)
+    keys = sorted(k for k in set(a) | set(b) if k not in ("name", "description"))
+    diffs = [k for k in keys if a.get(k) != b.get(k)]
+
+    def shown(v: Any) -> str:
+        text = repr(v)
+        return text if len(text) <= 40 else text[:37] + "..."
+
+    out = [
+        f"{k}: {labels[0]} {shown(a.get(k))}, {labels[1]} {shown(b.get(k))}" for k in diffs[:limit]
+    ]
+    if len(diffs) > limit:
+        out.append(f"and {len(diffs) - limit} more")
+    return out
+
+
+def _family(mapping: Mapping[str, Any] | None, name: Any) -> str:
+    """``procedural corridor/train layouts`` or ``fixed workspace 'study_c'``."""
+    gen = (mapping or {}).get("generator")
+    if isinstance(gen, Mapping):
+        return f"procedural {gen.get('kind')}/{gen.get('split')} layouts"
+    return f"fixed workspace {name!r}"
+
+
 class LearnedPolicy:
     """A trained model (SB3, or an RLlib actor) acting for every follower (parameter sharing).
 
@@ -246,7 +423,7 @@ class LearnedPolicy:
 
     Evaluate it at :attr:`control_period` (the period it was trained at), e.g.
     ``platoon_env.make(scenario, control_period=policy.control_period)``, unless you mean to
-    test it at another one.
+    test it at another one; :meth:`check_env` says whether an env suits the model.
 
     .. warning::
         :meth:`load` unpickles code from the model zip: load only files you trust.
@@ -254,7 +431,8 @@ class LearnedPolicy:
     Args:
         model: the SB3 model (its action space ``[-1, 1]^2`` if ``action_range`` is given), or
             an :class:`MLPActor` (an RLlib-trained policy).
-        action_range: physical range of the normalised action, or None (physical actions).
+        action_range: physical range of the normalised action, or None (a model that outputs
+            physical actions; :meth:`load` never gives None, see :func:`parse_action_range`).
         obs_scale: the observation divisor used in training, or None (raw observations).
         control_period: [s] the env control period the model was trained at.
         metadata: the rest of ``model.json`` (scenario, config, seed, ...), for reference.
@@ -279,14 +457,26 @@ class LearnedPolicy:
 
     @property
     def scenario(self) -> str | None:
-        """The scenario the model was trained on (from ``model.json``), if recorded."""
+        """The scenario the model was trained on, as it was given (from ``model.json``)."""
         scenario = self.metadata.get("scenario")
         return None if scenario is None else str(scenario)
+
+    @property
+    def scenario_fingerprint(self) -> str | None:
+        """The SHA-256 of the resolved training scenario (None: not recorded, an old model)."""
+        fp = self.metadata.get("scenario_fingerprint")
+        return None if fp is None else str(fp)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], device: str = "cpu") -> LearnedPolicy:
         """Load ``DIR/model.zip`` (or ``DIR``) and the ``model.json`` beside it, by its
         ``engine``: an SB3 model, or an RLlib actor exported as arrays (:class:`MLPActor`).
+
+        Refuses (``ValueError`` with the reason) a zip whose SHA-256 is not the one its JSON
+        records, a missing, null or malformed ``action_range``, a malformed normalisation or
+        control period, and a model that does not map 7 observations to 2 actions; a missing
+        ``model.json`` is a ``FileNotFoundError``. A ``format_version`` 1 file (no zip hash)
+        loads with a ``UserWarning`` (once per file). See the module doc.
 
         .. warning:: For SB3 this unpickles code from the zip: load only files you trust.
         """
@@ -296,28 +486,53 @@ class LearnedPolicy:
         meta_file = metadata_path(path)
         if not meta_file.is_file():
             raise FileNotFoundError(
-                f"{meta_file} not found: a learned policy needs the JSON written beside its zip"
+                f"{meta_file} not found: a learned policy needs the JSON written beside its zip "
+                "(action range, observation normalisation, control period)"
             )
-        meta = json.loads(meta_file.read_text())
-        if meta.get("format") != METADATA_FORMAT:
+        try:
+            meta = json.loads(meta_file.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise ValueError(f"{meta_file} is not valid JSON: {e}") from None
+        if not isinstance(meta, dict) or meta.get("format") != METADATA_FORMAT:
             raise ValueError(f"{meta_file} is not a {METADATA_FORMAT} file")
-        if int(meta.get("format_version", 0)) > METADATA_VERSION:
+        version = meta.get("format_version", 0)
+        if not isinstance(version, int) or version > METADATA_VERSION:
             raise ValueError(
-                f"{meta_file} has format_version {meta['format_version']}; this code reads "
-                f"up to {METADATA_VERSION}"
+                f"{meta_file} has format_version {version!r}; this code reads up to "
+                f"{METADATA_VERSION}"
             )
+        if not path.is_file():
+            raise FileNotFoundError(f"{path} not found (its JSON {meta_file.name} is there)")
+        where = str(meta_file)
+        if meta.get("zip_sha256") is None:
+            if version >= 2:
+                raise ValueError(
+                    f"{where}: format_version {version} but no zip_sha256: cannot tell whether "
+                    f"{path.name} belongs to it"
+                )
+            key = meta_file.resolve()
+            if key not in _WARNED_UNCHECKED:
+                _WARNED_UNCHECKED.add(key)
+                warnings.warn(
+                    f"{where} predates zip hashes (format_version {version}): cannot check "
+                    f"that {path.name} belongs to it",
+                    UserWarning,
+                    stacklevel=2,
+                )
+        else:
+            reason = zip_mismatch(path, meta)
+            if reason is not None:
+                raise ValueError(f"{where}: refusing to load: {reason}")
+        _check_metadata(meta, where)
         engine = str(meta.get("engine", "sb3")).lower()
         model: BaseAlgorithm | MLPActor
+        dims: tuple[Any, Any]
         if engine == "rllib":
             actor = meta.get("actor") or {}
             if actor.get("type", "mlp") != "mlp" or actor.get("activation", "tanh") != "tanh":
                 raise ValueError(f"{meta_file}: unknown exported actor {actor!r}")
             model = MLPActor.load(path)
-            if model.input_dim != OBS_SIZE or model.output_dim != ACT_SIZE:
-                raise ValueError(
-                    f"{meta_file}: the actor maps {model.input_dim} -> {model.output_dim}, "
-                    f"expected {OBS_SIZE} -> {ACT_SIZE}"
-                )
+            dims = (model.input_dim, model.output_dim)
         elif engine == "sb3":
             algo = str(meta["algo"]).lower()
             if algo not in ALGORITHMS:
@@ -325,19 +540,156 @@ class LearnedPolicy:
                     f"{meta_file}: unknown algo {algo!r}, expected one of {list(ALGORITHMS)}"
                 )
             model = ALGORITHMS[algo].load(path, device=device)
+            obs_shape = getattr(model.observation_space, "shape", None) or (None,)
+            act_shape = getattr(model.action_space, "shape", None) or (None,)
+            dims = (obs_shape[0], act_shape[0])
         else:
             raise ValueError(f"{meta_file}: unknown engine {engine!r}, expected one of {ENGINES}")
-        norm = meta.get("observation_normalization")
-        if norm is not None and norm.get("type") != "fixed_scale":
-            raise ValueError(f"{meta_file}: unknown observation normalisation {norm!r}")
-        act = meta.get("action_range")
+        if dims != (OBS_SIZE, ACT_SIZE):
+            raise ValueError(
+                f"{meta_file}: the model maps {dims[0]} -> {dims[1]}, expected {OBS_SIZE} -> "
+                f"{ACT_SIZE}"
+            )
         return cls(
             model,
-            action_range=None if act is None else ActionRange(**act),
-            obs_scale=None if norm is None else np.asarray(norm["scale"], dtype=np.float32),
-            control_period=float(meta["control_period"]),
+            action_range=parse_action_range(meta["action_range"], where),
+            obs_scale=_parse_normalization(meta["observation_normalization"], where),
+            control_period=_parse_control_period(meta["control_period"], where),
             metadata=meta,
         )
+
+    def check_env(self, env: Any, *, allow_control_period: bool = False) -> list[str]:
+        """Check that ``env`` is one this model can meaningfully act in; returns notes on the
+        legitimate differences. ``env``: a ``PlatoonParallelEnv`` (or anything with its
+        ``possible_agents``, ``observation_space(agent)``, ``action_space(agent)``,
+        ``control_period`` and, to compare scenarios, ``source.config``).
+
+        Refused (``ValueError`` listing every reason):
+
+        * an observation or action layout other than the one the model was trained on (the
+          model would read the wrong quantities or command the wrong ones: the numbers mean
+          nothing);
+        * another control period, unless ``allow_control_period`` (the model would hold each
+          action a different time than it learned to; almost always a forgotten
+          ``control_period=policy.control_period``, but testing robustness to the period is a
+          legitimate experiment, hence the switch).
+
+        Allowed, each returned as a note (these are the experiments the benchmark is for):
+
+        * another scenario, or another family: a model trained on procedural layouts evaluated
+          on ``study_a``, on held-out layouts, with a sensor profile, other robots or camera
+          (the note names the fields that differ);
+        * another number of followers (one shared per-follower policy acts for each);
+        * observations that can exceed the training normalisation (the policy extrapolates),
+          and an action range beyond the env's actuator limits (the env clips the commands);
+        * a model whose ``model.json`` does not record its training scenario's content.
+
+        A model evaluated on its own training scenario gets no note (a procedural training
+        split: a note that the layouts are not held out).
+        """
+        refusals: list[str] = []
+        notes: list[str] = []
+        meta = self.metadata
+        agents = list(env.possible_agents)
+        obs_space = env.observation_space(agents[0])
+        act_space = env.action_space(agents[0])
+        if tuple(obs_space.shape) != (OBS_SIZE,):
+            refusals.append(
+                f"env observations have shape {obs_space.shape}, the model reads {OBS_SIZE}"
+            )
+        if tuple(act_space.shape) != (ACT_SIZE,):
+            refusals.append(
+                f"env actions have shape {act_space.shape}, the model outputs {ACT_SIZE}"
+            )
+        for key, current in (
+            ("observation_layout", OBSERVATION_LAYOUT),
+            ("action_layout", ACTION_LAYOUT),
+        ):
+            recorded = meta.get(key)
+            if recorded is not None and tuple(recorded) != current:
+                refusals.append(
+                    f"{key}: trained on {list(recorded)}, this code's env has {list(current)}"
+                )
+        period = float(env.control_period)
+        if not math.isclose(period, self.control_period, rel_tol=1e-9, abs_tol=0.0):
+            text = (
+                f"control period: trained at {self.control_period:g} s, the env steps at "
+                f"{period:g} s"
+            )
+            if allow_control_period:
+                notes.append(text + " (allowed: allow_control_period)")
+            else:
+                refusals.append(
+                    text + " (make the env with control_period=policy.control_period, or pass "
+                    "allow_control_period=True to test the policy at another period)"
+                )
+        trained_n = meta.get("n_followers")
+        if trained_n is not None and int(trained_n) != len(agents):
+            notes.append(
+                f"followers: trained with {trained_n}, the env has {len(agents)} (allowed: one "
+                "shared per-follower policy)"
+            )
+        source = getattr(env, "source", None)
+        cfg = getattr(source, "config", None)
+        fingerprint = self.scenario_fingerprint
+        if cfg is None:
+            notes.append("the env exposes no resolved scenario config: scenario not compared")
+        elif fingerprint is None:
+            notes.append(
+                f"model.json records no training scenario content (only the name "
+                f"{self.scenario!r}): scenario not compared"
+            )
+        else:
+            given = config_fingerprint(cfg)
+            mapping = config_mapping(cfg)
+            trained_map = meta.get("scenario_config")
+            if given != fingerprint:
+                fields = (
+                    scenario_differences(trained_map, mapping)
+                    if isinstance(trained_map, Mapping)
+                    else []
+                )
+                notes.append(
+                    f"scenario: trained on {_family(trained_map, self.scenario)} "
+                    f"({fingerprint[:12]}), the env is {_family(mapping, cfg.name)} "
+                    f"({given[:12]}); allowed (an evaluation on another scenario)"
+                    + (f"; differs in {'; '.join(fields)}" if fields else "")
+                )
+            elif getattr(source, "procedural", False):
+                notes.append(
+                    f"scenario: the env draws from the training layouts "
+                    f"({_family(mapping, cfg.name)}): not held out"
+                )
+        if self.obs_scale is not None:
+            bound = np.maximum(np.abs(obs_space.low), np.abs(obs_space.high))
+            over = [
+                f"{name} {b:g} > {s:g}"
+                for name, b, s in zip(OBSERVATION_LAYOUT, bound, self.obs_scale, strict=False)
+                if b > s * (1 + 1e-6)
+            ]
+            if over:
+                notes.append(
+                    "observations can exceed the training normalisation ("
+                    + ", ".join(over)
+                    + "): the policy extrapolates there"
+                )
+        if self.action_range is not None:
+            r = self.action_range
+            high = np.asarray(act_space.high, dtype=np.float64)
+            if max(r.u_high, -r.u_low) > high[0] * (1 + 1e-6) or r.omega_high > high[1] * (
+                1 + 1e-6
+            ):
+                notes.append(
+                    f"the action range (u in [{r.u_low:g}, {r.u_high:g}] m/s, |omega| <= "
+                    f"{r.omega_high:g} rad/s) exceeds the env's actuator limits (|u| <= "
+                    f"{high[0]:g}, |omega| <= {high[1]:g}): the env clips the commands"
+                )
+        if refusals:
+            raise ValueError(
+                f"model trained on {self.scenario!r} cannot act meaningfully in this env: "
+                + "; ".join(refusals)
+            )
+        return notes
 
     def reset(self, seed: int | None = None) -> None:
         """Nothing to restore: the policy is stateless and acts deterministically."""

@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
-import json
 import math
 import os
 import platform
@@ -76,7 +75,7 @@ from training.policies import save_exported_policy
 from training.vec_env import ActionRange, observation_scale
 
 if TYPE_CHECKING:
-    from training.train import TrainConfig
+    from training.train import RunPlan, TrainConfig
 
 __all__ = [
     "CRITICS",
@@ -536,33 +535,76 @@ def _sampled(result: Mapping[str, Any], key: str) -> int:
     return int(value or 0)
 
 
-def train_rllib(cfg: TrainConfig) -> tuple[Path, bool]:
+def train_rllib(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bool]:
     """``platoon-train --engine rllib``: train as ``cfg`` says; returns ``(model.zip,
-    interrupted)``. ``--timesteps`` counts follower transitions, as for SB3."""
-    from training.train import env_metadata, git_commit
+    interrupted)``. ``--timesteps`` counts follower transitions, as for SB3.
 
+    ``plan``: :func:`training.train.plan_run`'s decision for ``--out`` (computed here if None):
+    the same ``--out``/``--resume``/``--force`` rules as the SB3 engine; a resume restores
+    ``rllib_checkpoint/`` and continues ``checkpoint.json``'s counts and segments.
+    """
+    from training.train import (
+        check_config,
+        check_scenario,
+        env_metadata,
+        git_commit,
+        plan_run,
+        segment_metadata,
+        start_run,
+        timing_metadata,
+    )
+
+    errors = check_config(cfg)
+    if errors:
+        raise ValueError("; ".join(errors))
     out = cfg.out_dir
-    out.mkdir(parents=True, exist_ok=True)
+    probe = PlatoonMultiAgentEnv(env_config(cfg))
+    try:
+        errors = check_scenario(cfg, probe.env)
+        if errors:
+            raise ValueError("; ".join(errors))
+        if plan is None:
+            plan = plan_run(cfg, probe.env)
+    except BaseException:
+        probe.close()
+        raise
+    if plan.mode == "finished":
+        probe.close()
+        print(plan.message, file=sys.stderr)
+        assert plan.source is not None
+        return plan.source, False
+    start_run(cfg, plan)
     torch.set_num_threads(cfg.torch_threads)
     init_ray(cfg.address, num_cpus=max(2, cfg.num_env_runners + cfg.num_learners))
     algo = ppo_config(cfg).build_algo()
-    probe = PlatoonMultiAgentEnv(env_config(cfg))
     ckpt_dir = out / RLLIB_CHECKPOINT
     timesteps = env_steps = 0
-    if cfg.resume and ckpt_dir.is_dir() and (out / "checkpoint.json").is_file():
-        algo.restore_from_path(str(ckpt_dir.resolve()))
-        prev = json.loads((out / "checkpoint.json").read_text())
-        timesteps, env_steps = int(prev["timesteps"]), int(prev.get("env_steps", 0))
-        print(f"resuming from {ckpt_dir} at {timesteps} timesteps", file=sys.stderr)
+    resumed_from: str | None = None
+    if plan.mode == "resume":
+        assert plan.source is not None
+        algo.restore_from_path(str(plan.source.resolve()))
+        timesteps = plan.timesteps
+        env_steps = int(plan.stored.get("env_steps", 0) or 0)
+        resumed_from = plan.source.name
+        print(plan.message, file=sys.stderr)
     commit = git_commit()
     started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     t0 = time.perf_counter()
     start_steps = timesteps
+    previous = plan.segments
     last_result: dict[str, Any] = {}
 
     def metadata(**extra: Any) -> dict[str, Any]:
-        wall = time.perf_counter() - t0
-        done = timesteps - start_steps
+        segment = segment_metadata(
+            started_at=started,
+            wall_time_s=time.perf_counter() - t0,
+            timesteps_start=start_steps,
+            timesteps_end=timesteps,
+            resumed_from=resumed_from,
+            commit=commit,
+        )
+        timing = timing_metadata([*previous, segment], timesteps)
+        wall = timing["wall_time_s"]
         return {
             "engine": "rllib",
             "algo": "ppo",
@@ -586,10 +628,8 @@ def train_rllib(cfg: TrainConfig) -> tuple[Path, bool]:
             "num_learners": cfg.num_learners,
             "rllib_checkpoint": RLLIB_CHECKPOINT,
             **commit,
-            "started_at": started,
-            "wall_time_s": round(wall, 3),
-            "timesteps_per_s": round(done / wall, 1) if wall > 0 else None,
-            "env_steps_per_s": round(env_steps_run / wall, 1) if wall > 0 else None,
+            **timing,
+            "env_steps_per_s": round(env_steps / wall, 1) if wall > 0 else None,
             "episode_return_mean": last_result.get("env_runners", {}).get("episode_return_mean"),
             "episode_len_mean": last_result.get("env_runners", {}).get("episode_len_mean"),
             **extra,
@@ -614,7 +654,6 @@ def train_rllib(cfg: TrainConfig) -> tuple[Path, bool]:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=cfg.timesteps, initial=timesteps, unit="step")
-    env_steps_run = 0
     last_ckpt = timesteps
     interrupted = False
     try:
@@ -625,7 +664,6 @@ def train_rllib(cfg: TrainConfig) -> tuple[Path, bool]:
             envs = _sampled(result, "num_env_steps_sampled")
             timesteps += agent
             env_steps += envs
-            env_steps_run += envs
             if bar is not None:
                 bar.n = min(timesteps, cfg.timesteps)
                 bar.refresh()

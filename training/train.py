@@ -24,16 +24,66 @@ thousands of steps long; training uses ``--control-period`` (default 0.05 s). Th
 recorded in ``model.json`` and exposed as ``LearnedPolicy.control_period``; evaluate at that
 period unless you mean to test the policy at another one.
 
+Every option is range-checked before anything is written (:func:`check_config`, then
+:func:`check_scenario` against the resolved scenario): a bad value is an ``argparse`` error
+naming the option (exit status 2), e.g. ``--timesteps`` below 1, ``--gamma`` outside [0, 1], a
+``--device`` that is not available, an action range beyond the scenario's actuator limits or a
+PPO ``--batch-size`` larger than its rollout.
+
 Outputs in ``--out DIR``:
 
-* ``model.zip`` + ``model.json`` — the final model and its description (full config, git commit,
-  algo, scenario, seed, timesteps, wall time, action range, observation normalisation); see
+* ``model.zip`` + ``model.json`` — the final model and its description; see
   :mod:`training.policies`. Load with ``LearnedPolicy.load("DIR/model.zip")``.
 * ``checkpoint.zip`` + ``checkpoint.json`` — the latest periodic checkpoint, replaced atomically,
   so an interrupted run keeps its last one. On Ctrl-C the model so far is saved as
   ``model.zip`` (``"interrupted": true`` in ``model.json``) before exiting with status 130.
 * ``tb/`` — TensorBoard logs (``tensorboard --logdir DIR/tb``): SB3's losses, per-follower
   episode return/length (``rollout/``) and how follower episodes end (``platoon/``).
+
+One run per directory: ``--out``, ``--resume``, ``--force``
+-----------------------------------------------------------
+
+A directory *holds a run* when it has any of :data:`RUN_FILES` (``model.zip``/``.json``,
+``checkpoint.zip``/``.json``, ``rllib_checkpoint/``, ``tb/``); an empty or missing one does not.
+Every refusal below is an ``argparse``-style error (exit status 2) with nothing written.
+
+* Without ``--resume`` or ``--force``, a ``--out`` that holds a run is refused: training into it
+  would overwrite the earlier model, or mix two runs' checkpoints and logs.
+* ``--force`` starts over: it says so, removes the earlier run's :data:`RUN_FILES` (nothing
+  else in the directory) once the new run's options are checked, and trains from scratch.
+* ``--resume`` continues the run in ``--out``. The stored config must match the given one on
+  everything that defines the run (:func:`run_fields`: engine, algo, seed, ``--n-envs``, the
+  action range and normalisation, every hyper-parameter of the algorithm, the RLlib runners,
+  learners and critic) and on the *resolved* scenario (its fingerprint: the scenario content
+  after ``--control-period``, ``--physics-substeps``, ``--max-episode-steps`` and
+  ``--sensor-profile``, so ``./x.yaml`` and ``x.yaml`` are one scenario and an edited
+  ``x.yaml`` is another); else the error names each differing field, stored vs given.
+  ``--timesteps`` may differ: it is the new total. What does not define the run may change
+  too: ``--device``, ``--torch-threads``, ``--batched``/``--env-threads`` (same trajectories),
+  ``--checkpoint-every``, ``--progress-bar``, ``--verbose``, ``--address``.
+  It continues from the newer (more timesteps; a tie: ``model.zip``) of ``checkpoint.zip`` and
+  ``model.zip`` (the final or Ctrl-C model), each only if its JSON's ``zip_sha256`` matches. If
+  that already has ``--timesteps`` (a finished run), nothing is trained and nothing written:
+  it says so and exits 0. With neither a checkpoint nor a model to continue from, it is an
+  error. ``--resume --force`` together is an error.
+
+``model.json`` (and ``checkpoint.json``) fields
+-----------------------------------------------
+
+``format``/``format_version`` (2), ``engine``, ``algo``, ``zip_sha256`` (of the zip beside
+it: :meth:`LearnedPolicy.load <training.policies.LearnedPolicy.load>` refuses a pair that does
+not match), ``scenario`` (as given), ``scenario_fingerprint`` and ``scenario_config`` (the
+resolved scenario config of the training env and its SHA-256:
+:func:`platoon_env.scenarios.fingerprint.config_fingerprint`), ``seed``, ``control_period``,
+``physics_substeps``, ``max_episode_steps`` (None for procedural layouts, each of which derives
+its own), ``terminate_on``, ``n_followers``, ``observation_layout``/``action_layout``,
+``observation_normalization``, ``action_range``, ``timesteps`` (trained),
+``timesteps_requested``, ``git_commit``/``git_dirty`` (of this segment), ``started_at`` (of the
+first segment), ``wall_time_s`` (the total over every segment that led to this model),
+``timesteps_per_s`` (timesteps / total wall time), ``segments`` (one entry per invocation:
+``started_at``, ``wall_time_s``, ``timesteps_start``/``timesteps_end``, ``resumed_from``,
+``git_commit``, ``git_dirty``), ``interrupted`` (model.json only), ``config`` (every option),
+``versions``, ``command``.
 """
 
 from __future__ import annotations
@@ -42,17 +92,20 @@ import argparse
 import dataclasses
 import datetime as dt
 import json
+import math
 import platform
+import shutil
 import subprocess
 import sys
 import time
 import types
 import typing
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 import stable_baselines3
 import torch
@@ -64,12 +117,53 @@ from stable_baselines3.common.vec_env import VecMonitor
 
 import platoon_env
 from platoon_env.env import PlatoonParallelEnv
-from platoon_env.scenarios.schema import VIOLATION_CAUSES
+from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping
+from platoon_env.scenarios.schema import (
+    ACTION_BOUND_RANGE,
+    MAX_CONTROL_PERIOD,
+    MAX_EPISODE_STEPS,
+    MAX_PHYSICS_SUBSTEPS,
+    MIN_CONTROL_PERIOD,
+    VIOLATION_CAUSES,
+    ScenarioError,
+)
 from training.batched_vec_env import BatchedPlatoonVecEnv
-from training.policies import ALGORITHMS, adapter_metadata, save_model
+from training.policies import (
+    ACTION_LAYOUT,
+    ALGORITHMS,
+    OBSERVATION_LAYOUT,
+    adapter_metadata,
+    save_model,
+    scenario_differences,
+    zip_mismatch,
+)
 from training.vec_env import ActionRange, PlatoonVecEnv
 
-__all__ = ["TrainConfig", "build_model", "build_vec_env", "main", "parse_args", "train"]
+__all__ = [
+    "RUN_FILES",
+    "RunError",
+    "RunPlan",
+    "TrainConfig",
+    "build_model",
+    "build_vec_env",
+    "check_config",
+    "check_scenario",
+    "main",
+    "parse_args",
+    "plan_run",
+    "run_fields",
+    "train",
+]
+
+#: What marks ``--out`` as holding a run (and what ``--force`` removes).
+RUN_FILES = (
+    "model.zip",
+    "model.json",
+    "checkpoint.zip",
+    "checkpoint.json",
+    "rllib_checkpoint",
+    "tb",
+)
 
 
 def _opt(default: Any, help: str, **argparse_kwargs: Any) -> Any:
@@ -159,14 +253,18 @@ class TrainConfig:
     checkpoint_every: int = _opt(100_000, "timesteps between checkpoints (0: none)")
     resume: bool = _opt(
         False,
-        "continue an interrupted run in --out: from model.zip if it was saved on Ctrl-C, else "
-        "from checkpoint.zip, up to --timesteps in total (SAC restarts with an empty replay "
-        "buffer; a resumed run is not bit-identical to an uninterrupted one)",
+        "continue the run in --out (same config and resolved scenario; --timesteps may be "
+        "raised) from the newer of checkpoint.zip and model.zip, up to --timesteps in total; a "
+        "finished run is left as is (SAC restarts with an empty replay buffer; a resumed run "
+        "is not bit-identical to an uninterrupted one)",
+    )
+    force: bool = _opt(
+        False, "start over in an --out that holds an earlier run (its model, checkpoints, logs)"
     )
     progress_bar: bool = _opt(True, "show a progress bar (tqdm + rich)")
     torch_threads: int = _opt(1, "torch intra-op threads (1 is fastest for these small MLPs)")
-    device: str = _opt("cpu", "torch device")
-    verbose: int = _opt(0, "SB3 verbosity (0, 1, 2)")
+    device: str = _opt("cpu", "torch device (cpu, cuda, cuda:N, mps, auto); must be available")
+    verbose: int = _opt(0, "SB3 verbosity", choices=(0, 1, 2))
 
     @property
     def run_name(self) -> str:
@@ -222,9 +320,218 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+@dataclass(frozen=True)
+class Bound:
+    """The closed (or, with ``*_open``, open) interval an option must lie in."""
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+
+    def __contains__(self, value: float) -> bool:
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            return False
+        return self.high is None or (value < self.high if self.high_open else value <= self.high)
+
+    def __str__(self) -> str:
+        if self.high is None:
+            return f"{'>' if self.low_open else '>='} {self.low:g}"
+        left = "(" if self.low_open else "["
+        right = ")" if self.high_open else "]"
+        return f"in {left}{self.low:g}, {self.high:g}{right}"
+
+
+#: Largest --n-envs (copies stepped in lockstep; the slots' buffers grow with it).
+MAX_N_ENVS = 4096
+#: Largest --timesteps: 10**12 follower transitions, years at this machine's rate.
+MAX_TIMESTEPS = 10**12
+#: Seeds are numpy/torch/python seeds, below 2**32; env j gets seed + j.
+MAX_SEED = 2**32 - 1
+_U_MAX = ACTION_BOUND_RANGE[1]
+
+#: The range of every numeric option (None values of optional ones are not checked).
+BOUNDS: dict[str, Bound] = {
+    "timesteps": Bound(1, MAX_TIMESTEPS),
+    "seed": Bound(0, MAX_SEED),
+    "n_envs": Bound(1, MAX_N_ENVS),
+    "env_threads": Bound(1),  # and at most numba's thread pool (check_config)
+    "num_env_runners": Bound(0, 1024),
+    "num_learners": Bound(0, 1024),
+    "control_period": Bound(MIN_CONTROL_PERIOD, MAX_CONTROL_PERIOD),
+    "physics_substeps": Bound(1, MAX_PHYSICS_SUBSTEPS),
+    "max_episode_steps": Bound(1, MAX_EPISODE_STEPS),
+    "u_low": Bound(-_U_MAX, _U_MAX),
+    "u_high": Bound(-_U_MAX, _U_MAX),
+    "omega_high": Bound(0, _U_MAX, low_open=True),
+    "learning_rate": Bound(0, 1, low_open=True),
+    "gamma": Bound(0, 1),
+    "batch_size": Bound(1, 10**9),  # PPO: >= 2 and at most the rollout (check_scenario)
+    "n_steps": Bound(1, 10**9),
+    "n_epochs": Bound(1, 10**6),
+    "gae_lambda": Bound(0, 1),
+    "clip_range": Bound(0, 1, low_open=True),
+    "ent_coef": Bound(0),
+    "vf_coef": Bound(0),
+    "max_grad_norm": Bound(0, low_open=True),
+    "buffer_size": Bound(1, 10**9),
+    "learning_starts": Bound(0),
+    "tau": Bound(0, 1, low_open=True),
+    "train_freq": Bound(1),
+    "gradient_steps": Bound(1),  # or -1 (one per transition collected)
+    "checkpoint_every": Bound(0),
+    "torch_threads": Bound(1, 1024),
+}
+#: Largest layer of --net-arch.
+MAX_LAYER = 65536
+
+
+def device_error(name: str) -> str | None:
+    """Why torch device ``name`` cannot be used here, or None (``auto``: SB3's choice)."""
+    if name == "auto":
+        return None
+    try:
+        device = torch.device(name)
+    except (RuntimeError, TypeError, ValueError):
+        return f"unknown torch device {name!r} (cpu, cuda, cuda:N, mps, auto)"
+    if device.type == "cpu":
+        return None
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            built = "with" if torch.backends.cuda.is_built() else "without"
+            return (
+                f"{name!r}: no CUDA device is available (torch {torch.__version__}, built "
+                f"{built} CUDA)"
+            )
+        count = torch.cuda.device_count()
+        if device.index is not None and device.index >= count:
+            return f"{name!r}: there are {count} CUDA device(s)"
+        return None
+    if device.type == "mps":
+        return None if torch.backends.mps.is_available() else f"{name!r}: MPS is not available"
+    return f"{name!r}: device type {device.type!r} is not supported (cpu, cuda, mps)"
+
+
+def check_config(cfg: TrainConfig) -> list[str]:
+    """Every problem with ``cfg`` that needs no scenario, each as an ``argparse`` message
+    naming its option (``argument --gamma: must be in [0, 1], got 5.0``); empty when fine.
+
+    Numbers must lie in :data:`BOUNDS` (floats finite), ``--u-low < --u-high``, ``seed + n_envs
+    - 1`` must be a valid seed, ``--gradient-steps`` is ``-1`` or ``>= 1``, PPO needs
+    ``--batch-size >= 2`` and SAC ``--batch-size <= --buffer-size``; ``--device`` must be
+    available; ``--engine rllib`` trains PPO without ``--batched``; ``--resume`` and
+    ``--force`` exclude each other; ``--out`` must not be a file.
+    """
+    errors: list[str] = []
+
+    def bad(name: str, message: str) -> None:
+        errors.append(f"argument {_flag(name)}: {message}")
+
+    for name, bound in BOUNDS.items():
+        value = getattr(cfg, name)
+        if value is None:
+            continue
+        if name == "gradient_steps" and value == -1:
+            continue
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            bad(name, f"must be a number, got {value!r}")
+        elif not math.isfinite(value):
+            bad(name, f"must be a finite number, got {value!r}")
+        elif value not in bound:
+            extra = " or -1" if name == "gradient_steps" else ""
+            bad(name, f"must be {bound}{extra}, got {value!r}")
+    threads = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+    if cfg.env_threads > threads:
+        bad("env_threads", f"must be at most numba's {threads} threads, got {cfg.env_threads}")
+    if not errors:
+        if not cfg.u_low < cfg.u_high:
+            bad("u_high", f"must be > --u-low = {cfg.u_low:g}, got {cfg.u_high:g}")
+        if cfg.seed + cfg.n_envs - 1 > MAX_SEED:
+            bad("seed", "seed + n_envs - 1 must be <= 2**32 - 1 (env j is seeded with seed + j)")
+        if cfg.algo == "ppo" and cfg.batch_size < 2:
+            bad(
+                "batch_size",
+                f"PPO needs at least 2 (advantage normalisation), got {cfg.batch_size}",
+            )
+        if cfg.algo == "sac" and cfg.batch_size > cfg.buffer_size:
+            bad("batch_size", f"must be <= --buffer-size = {cfg.buffer_size}, got {cfg.batch_size}")
+    if cfg.net_arch is not None and not all(1 <= h <= MAX_LAYER for h in cfg.net_arch):
+        bad("net_arch", f"layer sizes must be in [1, {MAX_LAYER}], got {cfg.net_arch}")
+    if not str(cfg.scenario).strip():
+        bad("scenario", "must name a scenario or a YAML file")
+    reason = device_error(cfg.device)
+    if reason is not None:
+        bad("device", reason)
+    if cfg.engine == "rllib" and cfg.algo != "ppo":
+        bad("algo", f"--engine rllib trains PPO only, got {cfg.algo!r}")
+    if cfg.engine == "rllib" and cfg.batched:
+        bad("batched", "--engine rllib samples with its own env runners, not --batched")
+    if cfg.resume and cfg.force:
+        bad("force", "--resume continues the run in --out, --force discards it: pass one")
+    if cfg.out_dir.exists() and not cfg.out_dir.is_dir():
+        bad("out", f"{cfg.out_dir} exists and is not a directory")
+    return errors
+
+
+def check_scenario(cfg: TrainConfig, env: Any) -> list[str]:
+    """The problems of ``cfg`` against its resolved training env ``env`` (one
+    :func:`make_env`, or a batched core: anything with ``source``), as :func:`check_config`
+    words them: an action range beyond the scenario's actuator limits, a PPO
+    ``--batch-size`` larger than the rollout (``n_steps * n_envs * followers`` follower
+    transitions; SB3 engine)."""
+    errors: list[str] = []
+    resolved = env.source.config
+    u_max, omega_max = float(resolved.robot.u_max), float(resolved.robot.omega_max)
+    followers = int(resolved.followers)
+    tol = 1e-6
+    if cfg.u_high > u_max + tol:
+        errors.append(
+            f"argument --u-high: {cfg.u_high:g} m/s exceeds the scenario's robot.u_max = {u_max:g}"
+        )
+    if cfg.u_low < -u_max - tol:
+        errors.append(
+            f"argument --u-low: {cfg.u_low:g} m/s exceeds the scenario's robot.u_max = {u_max:g}"
+        )
+    if cfg.omega_high > omega_max + tol:
+        errors.append(
+            f"argument --omega-high: {cfg.omega_high:g} rad/s exceeds the scenario's "
+            f"robot.omega_max = {omega_max:g}"
+        )
+    if cfg.engine == "sb3" and cfg.algo == "ppo":
+        rollout = cfg.n_steps * cfg.n_envs * followers
+        if cfg.batch_size > rollout:
+            errors.append(
+                f"argument --batch-size: {cfg.batch_size} exceeds the PPO rollout n_steps * "
+                f"n_envs * followers = {cfg.n_steps} * {cfg.n_envs} * {followers} = {rollout}"
+            )
+    return errors
+
+
+def _scenario_option(error: ScenarioError) -> str:
+    """The option a scenario error is about (the env options map to their flags)."""
+    path = error.path or ""
+    for name in ("control_period", "physics_substeps", "max_episode_steps"):
+        if path.endswith("simulation." + name):
+            return _flag(name)
+    text = str(error)
+    if text.startswith("sensor profile") or "sensor_profile" in text:
+        return "--sensor-profile"
+    return "--scenario"
+
+
 def parse_args(argv: Sequence[str] | None = None) -> TrainConfig:
-    """Parse the command line into a :class:`TrainConfig`."""
-    return TrainConfig(**vars(build_parser().parse_args(argv)))
+    """Parse the command line into a :class:`TrainConfig`; a value out of range (see
+    :func:`check_config`) is an ``argparse`` error (``SystemExit(2)``, the message on stderr)."""
+    parser = build_parser()
+    cfg = TrainConfig(**vars(parser.parse_args(argv)))
+    errors = check_config(cfg)
+    if errors:
+        parser.error("; ".join(errors))
+    return cfg
 
 
 # ------------------------------------------------------------------------------------------------
@@ -336,19 +643,25 @@ def git_commit() -> dict[str, Any]:
 
 
 def env_metadata(cfg: TrainConfig, env: Any) -> dict[str, Any]:
-    """What ``model.json`` records of the training env, for every engine: scenario, seed, time
-    step, step limit, episode-ending causes and the number of followers."""
+    """What ``model.json`` records of the training env, for every engine: scenario (as given,
+    and the resolved config with its fingerprint), seed, time step, step limit, episode-ending
+    causes, the number of followers and the observation/action layout."""
     # A procedural source's layouts each derive the limit from their own path: record only a
     # set one.
     procedural = env.source.procedural
+    resolved = env.source.config
     return {
         "scenario": cfg.scenario,
+        "scenario_fingerprint": config_fingerprint(resolved),
+        "scenario_config": config_mapping(resolved),
         "seed": cfg.seed,
         "control_period": env.control_period,
         "physics_substeps": env.physics_substeps,
         "max_episode_steps": cfg.max_episode_steps if procedural else env.max_episode_steps,
         "terminate_on": sorted(env.terminate_on),
         "n_followers": env.n_followers,
+        "observation_layout": list(OBSERVATION_LAYOUT),
+        "action_layout": list(ACTION_LAYOUT),
     }
 
 
@@ -390,6 +703,11 @@ class CheckpointCallback(BaseCallback):
         self.every = every
         self.metadata = metadata
         self._last = 0
+
+    def _on_training_start(self) -> None:
+        # A resumed run counts on from its restored timesteps: the next checkpoint is due
+        # ``every`` after them, not at the first step.
+        self._last = self.num_timesteps
 
     def _on_step(self) -> bool:
         if self.every > 0 and self.num_timesteps - self._last >= self.every:
@@ -447,44 +765,391 @@ def _sb3_progress_bar_available() -> bool:
 # ------------------------------------------------------------------------------------------------
 # Training
 # ------------------------------------------------------------------------------------------------
-def resume_point(out: Path) -> Path | None:
-    """Where to resume a run in ``out``: an interrupted ``model.zip``, else ``checkpoint.zip``."""
-    model_json = out / "model.json"
-    if model_json.is_file() and json.loads(model_json.read_text()).get("interrupted"):
-        return out / "model.zip"
-    checkpoint = out / "checkpoint.zip"
-    return checkpoint if checkpoint.is_file() else None
+class RunError(ValueError):
+    """A refused ``--out``/``--resume``/``--force`` (``platoon-train`` exits 2 with it)."""
 
 
-def train(cfg: TrainConfig) -> tuple[Path, bool]:
-    """Train as ``cfg`` says; returns ``(path of model.zip, interrupted)``."""
+#: The options that define a run, for every algorithm and engine (:func:`run_fields`).
+RUN_FIELDS_COMMON = (
+    "engine",
+    "algo",
+    "seed",
+    "n_envs",
+    "u_low",
+    "u_high",
+    "omega_high",
+    "normalize_observations",
+    "learning_rate",
+    "gamma",
+    "batch_size",
+    "net_arch",
+)
+#: The options that define a run of one algorithm.
+RUN_FIELDS_ALGO: dict[str, tuple[str, ...]] = {
+    "ppo": (
+        "n_steps",
+        "n_epochs",
+        "gae_lambda",
+        "clip_range",
+        "ent_coef",
+        "vf_coef",
+        "max_grad_norm",
+    ),
+    "sac": ("buffer_size", "learning_starts", "tau", "train_freq", "gradient_steps"),
+}
+#: The options that define a run of one engine.
+RUN_FIELDS_ENGINE: dict[str, tuple[str, ...]] = {
+    "sb3": (),
+    "rllib": ("num_env_runners", "num_learners", "critic"),
+}
+#: The options that shape the training env: compared through the resolved scenario.
+ENV_FIELDS = (
+    "scenario",
+    "control_period",
+    "physics_substeps",
+    "max_episode_steps",
+    "sensor_profile",
+)
+
+
+def run_fields(cfg: TrainConfig) -> tuple[str, ...]:
+    """The options of ``cfg`` that define its run: ``--resume`` requires them unchanged (the
+    env options are compared through the resolved scenario's fingerprint instead)."""
+    return (
+        RUN_FIELDS_COMMON
+        + RUN_FIELDS_ALGO.get(cfg.algo, ())
+        + RUN_FIELDS_ENGINE.get(cfg.engine, ())
+    )
+
+
+def default_net_arch(algo: str, engine: str) -> list[int]:
+    """The hidden layers ``--net-arch`` defaults to: SB3's SAC 256 256, else 64 64."""
+    return [256, 256] if algo == "sac" and engine == "sb3" else [64, 64]
+
+
+def config_differences(
+    cfg: TrainConfig, stored: Mapping[str, Any], fingerprint: str, scenario: Mapping[str, Any]
+) -> list[str]:
+    """How ``cfg`` (whose training env resolves to ``scenario`` with ``fingerprint``) differs
+    from the run that wrote ``stored`` (a ``model.json``/``checkpoint.json``), on what defines a
+    run: ``"--gamma: stored 0.99, given 0.9"``, and the scenario fields that differ."""
+    stored_cfg = stored.get("config") if isinstance(stored.get("config"), Mapping) else {}
+    assert isinstance(stored_cfg, Mapping)
+    defaults = TrainConfig()
+
+    def old(name: str) -> Any:  # a field the writer did not have yet had its default
+        if name == "engine" and "engine" in stored:
+            return stored["engine"]
+        return stored_cfg.get(name, getattr(defaults, name))
+
+    diffs: list[str] = []
+    for name in run_fields(cfg):
+        before, now = old(name), getattr(cfg, name)
+        if name == "net_arch":
+            before = default_net_arch(old("algo"), old("engine")) if before is None else before
+            now = default_net_arch(cfg.algo, cfg.engine) if now is None else now
+            before, now = [int(h) for h in before], [int(h) for h in now]
+        if before != now:
+            diffs.append(f"{_flag(name)}: stored {before!r}, given {now!r}")
+    recorded = stored.get("scenario_fingerprint")
+    if recorded is not None:
+        if recorded != fingerprint:
+            trained = stored.get("scenario_config")
+            fields = (
+                scenario_differences(trained, scenario, labels=("stored", "given"))
+                if isinstance(trained, Mapping)
+                else []
+            )
+            diffs.append(
+                f"the resolved scenario (--scenario {cfg.scenario!r} with the env options): "
+                f"fingerprint stored {str(recorded)[:12]}, given {fingerprint[:12]}"
+                + (" (" + "; ".join(fields) + ")" if fields else "")
+            )
+    else:  # written before the fingerprint was recorded: compare the options themselves
+        for name in ENV_FIELDS:
+            before, now = old(name), getattr(cfg, name)
+            if before != now:
+                diffs.append(f"{_flag(name)}: stored {before!r}, given {now!r}")
+    return diffs
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """What :func:`plan_run` decided for ``--out``.
+
+    ``mode``: ``"new"`` (train from scratch; ``discard``: what ``--force`` removes first),
+    ``"resume"`` (continue from ``source``, whose JSON is ``stored``) or ``"finished"``
+    (nothing to train: ``source`` is the model that already has ``--timesteps``; ``message``
+    says so).
+    """
+
+    mode: str
+    out: Path
+    source: Path | None = None
+    stored: Mapping[str, Any] = field(default_factory=dict)
+    discard: tuple[Path, ...] = ()
+    message: str = ""
+
+    @property
+    def timesteps(self) -> int:
+        """Timesteps already trained (0 for a new run)."""
+        return int(self.stored.get("timesteps", 0) or 0)
+
+    @property
+    def segments(self) -> list[dict[str, Any]]:
+        """The training segments that led to ``source`` (empty for a new run)."""
+        return previous_segments(self.stored)
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise RunError(f"{path} is unreadable ({e}); pass --force to start over") from None
+    if not isinstance(data, dict):
+        raise RunError(f"{path} is not a model description; pass --force to start over")
+    return data
+
+
+@dataclass(frozen=True)
+class _Saved:
+    name: str  # "model" or "checkpoint"
+    meta: dict[str, Any]
+    resume_from: Path | None  # what the engine restores (None: not resumable)
+
+    @property
+    def timesteps(self) -> int:
+        return int(self.meta.get("timesteps", 0) or 0)
+
+
+def _saved_points(cfg: TrainConfig, out: Path) -> tuple[list[_Saved], list[str]]:
+    """The model and checkpoint in ``out`` whose zip matches its JSON, and why others were
+    left out."""
+    points: list[_Saved] = []
+    skipped: list[str] = []
+    for name in ("model", "checkpoint"):
+        zip_path, meta = out / f"{name}.zip", _read_json(out / f"{name}.json")
+        if meta is None or not zip_path.is_file():
+            continue
+        reason = zip_mismatch(zip_path, meta)
+        if reason is not None:
+            skipped.append(f"{name}.zip ({reason})")
+            continue
+        if cfg.engine == "rllib":  # restored from the full RLlib checkpoint beside it
+            ckpt = out / "rllib_checkpoint"
+            resume_from = ckpt if name == "checkpoint" and ckpt.is_dir() else None
+        else:
+            resume_from = zip_path
+        points.append(_Saved(name, meta, resume_from))
+    return points, skipped
+
+
+def plan_run(cfg: TrainConfig, env: Any) -> RunPlan:
+    """Decide what training ``cfg`` does in ``--out`` (the rules of the module doc), given its
+    resolved training env ``env``; raises :class:`RunError` for a refusal. Writes nothing."""
     out = cfg.out_dir
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise RunError(f"argument --out: {out} exists and is not a directory")
+    present = tuple(out / name for name in RUN_FILES if (out / name).exists())
+    if cfg.resume and cfg.force:
+        raise RunError("argument --force: --resume continues the run in --out, --force discards it")
+    if not cfg.resume:
+        if present and not cfg.force:
+            raise RunError(
+                f"argument --out: {out} already holds a run "
+                f"({', '.join(p.name for p in present)}); "
+                "pass --resume to continue it (same options, --timesteps may be raised) or "
+                "--force to discard it and start over"
+            )
+        return RunPlan("new", out, discard=present if cfg.force else ())
+    points, skipped = _saved_points(cfg, out)
+    note = f" (left out: {'; '.join(skipped)})" if skipped else ""
+    if not points:
+        found = ", ".join(p.name for p in present) or "nothing"
+        raise RunError(
+            f"argument --resume: nothing to resume in {out}: no checkpoint and no model "
+            f"(found: {found}){note}"
+        )
+    fingerprint = config_fingerprint(env.source.config)
+    scenario = config_mapping(env.source.config)
+    for point in points:
+        diffs = config_differences(cfg, point.meta, fingerprint, scenario)
+        if diffs:
+            raise RunError(
+                f"argument --resume: the options differ from the run in {out} "
+                f"({point.name}.json) on what defines it: "
+                + "; ".join(diffs)
+                + ". Give the stored options, or --force to start over"
+            )
+    model = next((p for p in points if p.name == "model"), None)
+    if model is not None and model.timesteps >= cfg.timesteps:
+        how = "saved on Ctrl-C" if model.meta.get("interrupted") else "finished"
+        return RunPlan(
+            "finished",
+            out,
+            source=out / "model.zip",
+            stored=model.meta,
+            message=(
+                f"{out}: nothing to do: model.zip ({how}) already has {model.timesteps} "
+                f"timesteps >= --timesteps {cfg.timesteps}; left unchanged (raise --timesteps "
+                "to train on)"
+            ),
+        )
+    resumable = [p for p in points if p.resume_from is not None]
+    if not resumable:
+        raise RunError(
+            f"argument --resume: nothing to resume in {out}: "
+            + ("no rllib_checkpoint/ beside checkpoint.json" if cfg.engine == "rllib" else "")
+            + note
+        )
+    best = max(resumable, key=lambda p: (p.timesteps, p.name == "model"))
+    return RunPlan(
+        "resume",
+        out,
+        source=best.resume_from,
+        stored=best.meta,
+        message=f"resuming from {best.resume_from} at {best.timesteps} timesteps{note}",
+    )
+
+
+def start_run(cfg: TrainConfig, plan: RunPlan) -> None:
+    """Prepare ``--out`` for ``plan`` (not ``"finished"``): with ``--force``, say so and remove
+    the earlier run's files; create the directory."""
+    if cfg.force:
+        if plan.discard:
+            names = ", ".join(p.name for p in plan.discard)
+            print(
+                f"--force: discarding the earlier run in {plan.out} ({names}); starting over",
+                file=sys.stderr,
+            )
+        else:
+            print(f"--force: {plan.out} holds no earlier run; starting a new one", file=sys.stderr)
+        for path in plan.discard:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+    plan.out.mkdir(parents=True, exist_ok=True)
+
+
+def previous_segments(stored: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The training segments recorded in a ``model.json``/``checkpoint.json`` (one per
+    invocation of ``platoon-train``); a file written before segments were recorded gives one
+    segment from its ``wall_time_s``, which then covers only its last segment."""
+    if not stored:
+        return []
+    segments = stored.get("segments")
+    if isinstance(segments, list):
+        return [dict(s) for s in segments]
+    return [
+        {
+            "started_at": stored.get("started_at"),
+            "wall_time_s": stored.get("wall_time_s"),
+            "timesteps_start": None,
+            "timesteps_end": stored.get("timesteps"),
+            "resumed_from": None,
+            "git_commit": stored.get("git_commit"),
+            "git_dirty": stored.get("git_dirty"),
+            "note": "recorded before segments were: the wall time of its last segment only",
+        }
+    ]
+
+
+def segment_metadata(
+    *,
+    started_at: str,
+    wall_time_s: float,
+    timesteps_start: int,
+    timesteps_end: int,
+    resumed_from: str | None,
+    commit: Mapping[str, Any],
+) -> dict[str, Any]:
+    """One entry of ``segments``: one invocation's share of the training."""
+    done = timesteps_end - timesteps_start
+    return {
+        "started_at": started_at,
+        "wall_time_s": round(wall_time_s, 3),
+        "timesteps_start": timesteps_start,
+        "timesteps_end": timesteps_end,
+        "timesteps_per_s": round(done / wall_time_s, 1) if wall_time_s > 0 else None,
+        "resumed_from": resumed_from,
+        **commit,
+        "command": list(sys.argv),
+    }
+
+
+def timing_metadata(segments: list[dict[str, Any]], timesteps: int) -> dict[str, Any]:
+    """``started_at`` (the first segment's), ``wall_time_s`` (the sum over ``segments``),
+    ``timesteps_per_s`` (``timesteps`` over that) and ``segments``."""
+    total = sum(float(s.get("wall_time_s") or 0.0) for s in segments)
+    return {
+        "started_at": segments[0].get("started_at") if segments else None,
+        "wall_time_s": round(total, 3),
+        "timesteps_per_s": round(timesteps / total, 1) if total > 0 else None,
+        "segments": segments,
+    }
+
+
+def train(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bool]:
+    """Train as ``cfg`` says; returns ``(path of model.zip, interrupted)``.
+
+    ``plan``: :func:`plan_run`'s decision for ``--out`` (computed here if None). Raises
+    ``ValueError`` for an option out of range and :class:`RunError` for a refused ``--out``,
+    both before anything is written. A finished run (``--resume``) is left as it is.
+    """
+    errors = check_config(cfg)
+    if errors:
+        raise ValueError("; ".join(errors))
+    out = cfg.out_dir
     torch.set_num_threads(cfg.torch_threads)
     set_random_seed(cfg.seed)
     venv = build_vec_env(cfg)
-    start_from = resume_point(out) if cfg.resume else None
+    try:
+        errors = check_scenario(cfg, venv.envs[0])
+        if errors:
+            raise ValueError("; ".join(errors))
+        if plan is None:
+            plan = plan_run(cfg, venv.envs[0])
+    except BaseException:
+        venv.close()
+        raise
+    if plan.mode == "finished":
+        venv.close()
+        print(plan.message, file=sys.stderr)
+        assert plan.source is not None
+        return plan.source, False
+    start_run(cfg, plan)
+    start_from = plan.source if plan.mode == "resume" else None
     if start_from is not None:
         model = ALGORITHMS[cfg.algo].load(
             start_from, env=VecMonitor(venv), device=cfg.device, tensorboard_log=str(out / "tb")
         )
-        print(f"resuming from {start_from} at {model.num_timesteps} timesteps", file=sys.stderr)
+        print(plan.message, file=sys.stderr)
     else:
         model = build_model(cfg, VecMonitor(venv), tensorboard_log=str(out / "tb"))
     commit = git_commit()
     started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     t0 = time.perf_counter()
+    previous = plan.segments
+    first_timestep = int(model.num_timesteps)
 
     def metadata(**extra: Any) -> dict[str, Any]:
-        wall = time.perf_counter() - t0
+        segment = segment_metadata(
+            started_at=started,
+            wall_time_s=time.perf_counter() - t0,
+            timesteps_start=first_timestep,
+            timesteps_end=int(model.num_timesteps),
+            resumed_from=None if start_from is None else start_from.name,
+            commit=commit,
+        )
         return run_metadata(
             cfg,
             venv,
             model,
             **commit,
-            started_at=started,
-            wall_time_s=round(wall, 3),
-            timesteps_per_s=round(model.num_timesteps / wall, 1) if wall > 0 else None,
+            **timing_metadata([*previous, segment], int(model.num_timesteps)),
             **extra,
         )
 
@@ -515,25 +1180,50 @@ def train(cfg: TrainConfig) -> tuple[Path, bool]:
     return path, interrupted
 
 
+def _fail(parser: argparse.ArgumentParser, message: str) -> typing.NoReturn:
+    parser.error(message)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``platoon-train``; returns the exit status (130 after Ctrl-C)."""
+    """Entry point of ``platoon-train``; returns the exit status (130 after Ctrl-C).
+
+    Every refusal (an option out of range, a scenario that does not resolve, a used
+    ``--out``, a ``--resume`` that does not match) exits with status 2 and an ``argparse``
+    message before anything is written; a ``--resume`` of a finished run exits 0 untouched.
+    """
+    parser = build_parser()
     cfg = parse_args(argv)
     if cfg.engine == "rllib":
-        if cfg.algo != "ppo" or cfg.batched:
-            print("platoon-train: --engine rllib trains PPO without --batched", file=sys.stderr)
-            return 2
         try:
             from training.rllib import train_rllib
         except ImportError as e:
-            print(
-                f"platoon-train: --engine rllib needs Ray RLlib ({e}); install the extra: "
+            _fail(
+                parser,
+                f"argument --engine: rllib needs Ray RLlib ({e}); install the extra: "
                 'pip install torch==2.13.0 -e ".[train,rllib]"',
-                file=sys.stderr,
             )
-            return 2
-        path, interrupted = train_rllib(cfg)
+    try:
+        probe = make_env(cfg)
+    except ScenarioError as e:
+        _fail(parser, f"argument {_scenario_option(e)}: {e}")
+    except (OSError, TypeError, ValueError) as e:
+        _fail(parser, f"argument --scenario: {e}")
+    try:
+        errors = check_scenario(cfg, probe)
+        if errors:
+            _fail(parser, "; ".join(errors))
+        plan = plan_run(cfg, probe)
+    except RunError as e:
+        _fail(parser, str(e))
+    finally:
+        probe.close()
+    if plan.mode == "finished":
+        print(plan.message)
+        return 0
+    if cfg.engine == "rllib":
+        path, interrupted = train_rllib(cfg, plan)
     else:
-        path, interrupted = train(cfg)
+        path, interrupted = train(cfg, plan)
     print(f"saved {path} and {path.with_suffix('.json')}")
     return 130 if interrupted else 0
 
