@@ -516,6 +516,31 @@ def _distinct_scenarios(cells: Sequence[ResolvedCell], given: Sequence[str]) -> 
     return [s for s in given if s in kept]
 
 
+def _model_notes(args: argparse.Namespace) -> list[str]:
+    """What each learned model's ``check_env`` says of each scenario it is evaluated on: the
+    legitimate differences from its training (another scenario family, more followers, ...).
+    A refusal is not raised here: the episodes record it (status ``refused``)."""
+    from training.policies import LearnedPolicy
+
+    notes = []
+    for spec in args.policy:
+        if spec.kind != "model":
+            continue
+        try:
+            policy = LearnedPolicy.load(spec.path)
+        except (OSError, ValueError) as exc:
+            notes.append(f"{spec.name}: cannot be loaded ({exc})")
+            continue
+        for s in args.scenario:
+            env = platoon_env.make(s, **spec.env_overrides(), **args.overrides)
+            try:
+                for note in policy.check_env(env):
+                    notes.append(f"{spec.name} on {s}: {note}")
+            except ValueError as exc:
+                notes.append(f"{spec.name} on {s}: refused ({exc})")
+    return notes
+
+
 def _legacy_csv(out: Path) -> str | None:
     """Why ``out`` cannot be used: a results.csv of the CSV-era platoon-evaluate, no store."""
     if (out / "results.csv").is_file() and not store_path(out).is_file():
@@ -547,6 +572,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         },
         argv,
     )
+    args.model_notes = _model_notes(args)
+    for note in args.model_notes:
+        print(f"note: {note}")
     first_seed = args.seed
 
     def keep(cell: Cell) -> bool:
@@ -608,8 +636,13 @@ def _summary_header(
         f"policies (fingerprint): {policies}\n\n"
         f"realism flags: {args.realism.label}; other overrides: {json.dumps(other)}\n\n"
         f"{scenario_lines}\n"
-        f"{provenance_markdown(store, records, result.run_id)}\n"
+        + "".join(f"- note: {_short(n)}\n" for n in args.model_notes)
+        + f"\n{provenance_markdown(store, records, result.run_id)}\n"
     )
+
+
+def _short(text: str, limit: int = 300) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _failures(result: GridResult) -> str:
