@@ -111,3 +111,31 @@ def test_short_ppo_run_moves_the_multiplier() -> None:
             lam = max(0.0, lam + 0.5 * cost)
         assert new_lam == pytest.approx(lam)
     assert lam > 0.0  # the random early policy violates: the multiplier rose
+
+
+def test_platoon_train_ppo_lagrangian_records_and_resumes_the_multiplier(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from training.policies import LearnedPolicy
+    from training.train import main as train_main
+
+    out = tmp_path / "run"
+    base = ["--algo", "ppo_lagrangian", "--scenario", "study_c", "--n-envs", "1",
+            "--n-steps", "64", "--batch-size", "64", "--n-epochs", "1", "--seed", "0",
+            "--max-episode-steps", "40", "--cost-budget", "0", "--lagrangian-lr", "0.5",
+            "--out", str(out), "--no-progress-bar", "--checkpoint-every", "0"]  # fmt: skip
+    assert train_main([*base, "--timesteps", "256"]) == 0
+    meta = json.loads((out / "model.json").read_text())
+    assert meta["algo"] == "ppo_lagrangian" and meta["lagrange_multiplier"] > 0.0
+    first = meta["lagrange_multiplier"]
+    assert meta["config"]["cost_budget"] == 0.0 and meta["config"]["lagrangian_lr"] == 0.5
+    policy = LearnedPolicy.load(out)  # an SB3 PPO zip
+    assert policy.control_period == meta["control_period"]
+    # Resume continues from the stored multiplier (it only grows with budget 0).
+    assert train_main([*base, "--timesteps", "512", "--resume"]) == 0
+    meta = json.loads((out / "model.json").read_text())
+    assert meta["timesteps"] >= 512 and meta["lagrange_multiplier"] > first  # not restarted
+    # Another budget is another run: resume refuses it, naming the field.
+    with pytest.raises(SystemExit) as exc:
+        train_main([*base, "--timesteps", "768", "--resume", "--cost-budget", "0.1"])
+    assert exc.value.code == 2
