@@ -313,3 +313,47 @@ def test_duplicate_scenarios_run_once_and_headers_count_rows(
     assert "| " + str(copy) + " | ppc | 2 | 0..1 |" in summary
     assert sorted(p.name for p in yaml_dir.iterdir()) == ["my_c.yaml"]
     assert (out / "plots" / "my_c_trajectories.png").is_file()
+
+
+def test_suites() -> None:
+    from experiments.suites import SUITES, suite
+
+    paper = suite("paper")
+    assert paper.scenarios == ("study_a", "study_b", "study_c") and paper.seeds >= 20
+    assert [c.label for c in paper.conditions] == ["ideal", "aruco"]
+    heldout = suite("heldout")
+    assert heldout.scenarios == ("procedural_test",) and heldout.seeds >= 200
+    robust = suite("robustness")
+    labels = [c.label for c in robust.conditions]
+    assert labels[0] == "ideal" and "latency=50" in labels and "profile=aruco" in labels
+    assert len(labels) == len(set(labels)) and all(c.overrides for c in robust.conditions[1:])
+    assert set(SUITES) == {"paper", "heldout", "robustness"}
+    with pytest.raises(KeyError, match="no suite"):
+        suite("nope")
+
+
+def test_suite_run_labels_rows_by_condition(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "eval"
+    args = ["--suite", "paper", "--policy", "ppc", "--episodes", "1", "--no-plots"]
+    args += ["--workers", "1", "--set", "max_episode_steps=30", "--out", str(out)]
+    assert main(args) == 0
+    rows = _rows(out / "results.csv")
+    assert sorted((r["scenario"], r["realism_label"], r["sensor_profile"]) for r in rows) == [
+        (s, label, "aruco" if label == "aruco" else "")
+        for s in ("study_a", "study_b", "study_c")
+        for label in ("aruco", "ideal")
+    ]
+    summary = (out / "summary.md").read_text()
+    assert "### realism: aruco" in summary and "### realism: ideal" in summary
+    assert "suite paper: conditions ideal, aruco" in summary
+    for flags in (
+        ["--scenario", "study_a"],
+        ["--sensor-profile", "aruco"],
+        ["--camera", "latency=0.1"],
+    ):
+        with pytest.raises(SystemExit) as exc:
+            main([*args, *flags])
+        assert exc.value.code == 2
+        assert "--suite paper sets the scenarios and conditions" in capsys.readouterr().err

@@ -48,7 +48,7 @@ import json
 import re
 import sys
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -68,6 +68,7 @@ from experiments.report import (
 )
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store, StoreError
+from experiments.suites import SUITES, Condition, suite
 from platoon_env.rollout import METRIC_NAMES, Episode, PolicyLike
 from platoon_env.scenarios.schema import ScenarioError, config_to_mapping
 
@@ -275,8 +276,9 @@ def _summary_table(rows: Iterable[dict[str, str]]) -> str:
     return "\n".join(lines)
 
 
-def export_rows(result: GridResult, realism: Realism) -> list[dict[str, Any]]:
-    """The ``results.csv`` rows of a grid: every cell with a row in the store."""
+def export_rows(result: GridResult, conditions: Mapping[str, Condition]) -> list[dict[str, Any]]:
+    """The ``results.csv`` rows of a grid: every cell with a row in the store; ``conditions``
+    names each cell's condition by its overrides (JSON)."""
     rows = []
     for rc in result.cells:
         rec = result.records.get(rc.key)
@@ -288,8 +290,8 @@ def export_rows(result: GridResult, realism: Realism) -> list[dict[str, Any]]:
                 "scenario": rc.cell.scenario,
                 "seed": rc.cell.seed,
                 "status": rec.status,
-                "sensor_profile": realism.profile or "",
-                "realism_label": realism.label,
+                "sensor_profile": conditions[rc.cell.overrides].overrides.get("sensor_profile", ""),
+                "realism_label": conditions[rc.cell.overrides].label,
                 **{k: rec.metrics.get(k) for k in METRIC_NAMES},
                 "realism": resolved_realism(rc.config),
                 "policy_fingerprint": rc.key.policy,
@@ -412,7 +414,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help=f"name or YAML path (repeatable); default: {', '.join(DEFAULT_SCENARIOS)}",
     )
     parser.add_argument(
-        "--episodes", type=_positive("count", 1), default=5, help="episodes per policy and scenario"
+        "--suite",
+        choices=SUITES,
+        default=None,
+        help="a named benchmark suite (experiments/suites.py): its scenarios, conditions "
+        "(ideal, aruco, realism levels) and seeds; replaces --scenario and the realism flags",
+    )
+    parser.add_argument(
+        "--episodes",
+        type=_positive("count", 1),
+        default=None,
+        help="episodes (seeds) per policy, scenario and condition (default 5, or the suite's)",
     )
     parser.add_argument(
         "--seed",
@@ -461,6 +473,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             help=f"override a {block} field, e.g. {example} (YAML value; repeatable)",
         )
     args = parser.parse_args(argv)
+    the_suite = suite(args.suite) if args.suite else None
+    if the_suite is not None:
+        given = [f for f in ("scenario", *REALISM_BLOCKS) if getattr(args, f)]
+        given += ["sensor_profile"] if args.sensor_profile else []
+        if given:
+            flags = ", ".join("--" + g.replace("_", "-") for g in given)
+            parser.error(f"--suite {args.suite} sets the scenarios and conditions; drop {flags}")
+    if args.episodes is None:
+        args.episodes = the_suite.seeds if the_suite is not None else 5
     if args.out.exists() and not args.out.is_dir():
         parser.error(f"--out {args.out}: exists and is not a folder")
     args.policy = args.policy or default_policies()
@@ -487,23 +508,36 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     for key in ("render_mode", "diagnostics"):
         if key in args.overrides:
             parser.error(f"--set {key}: not an option of an evaluation episode")
+    if the_suite is not None:
+        conditions = [Condition(c.label, {**c.overrides, **extra}) for c in the_suite.conditions]
+    else:
+        conditions = [Condition(args.realism.label, args.overrides)]
+    args.conditions = conditions
     # Resolve every cell now: a bad scenario, profile or override is a usage error here, and
     # the same scenario given twice (a name, a path to the same content) runs once.
-    scenarios = list(dict.fromkeys(args.scenario or DEFAULT_SCENARIOS))
+    default = the_suite.scenarios if the_suite is not None else DEFAULT_SCENARIOS
+    scenarios = list(dict.fromkeys(args.scenario or default))
     seeds = range(args.seed, args.seed + args.episodes)
     cells = [
-        Cell.of(spec, s, seed, args.overrides)
+        Cell.of(spec, s, seed, cond.overrides)
+        for cond in conditions
         for s in scenarios
         for spec in args.policy
         for seed in seeds
     ]
+    args.condition_of = {
+        Cell.of(args.policy[0], "", 0, c.overrides).overrides: c for c in conditions
+    }
     try:
         args.cells = resolve_cells(cells)
     except (ScenarioError, TypeError, OSError, ValueError) as exc:
         detail = str(exc) if isinstance(exc, ScenarioError | TypeError) else f"{exc}"
         parser.error(f"{detail}")
     args.scenario = _distinct_scenarios(args.cells, scenarios)
-    args.resolved = {rc.cell.scenario: resolved_realism(rc.config) for rc in args.cells}
+    args.resolved = {
+        (rc.cell.scenario, args.condition_of[rc.cell.overrides].label): resolved_realism(rc.config)
+        for rc in args.cells
+    }
     return args
 
 
@@ -561,14 +595,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     if legacy:
         print(f"{_TOOL}: error: {legacy}", file=sys.stderr)
         return 2
-    realism: Realism = args.realism
     stamp = metadata_stamp(
         _TOOL,
         {
             "policies": {p.name: p.description() for p in args.policy},
             "scenarios": list(args.scenario),
             "seeds": [args.seed, args.seed + args.episodes - 1],
-            "overrides": args.overrides,
+            "suite": args.suite,
+            "conditions": {c.label: dict(c.overrides) for c in args.conditions},
         },
         argv,
     )
@@ -596,7 +630,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if result.interrupted:
             print(f"\ninterrupted: finished episodes are in {store.path}; re-run to resume")
             return 130
-        rows = export_rows(result, realism)
+        rows = export_rows(result, args.condition_of)
         write_csv(out / "results.csv", CSV_COLUMNS, rows)
         summary = summarise(_csv_strings(rows))
         header = _summary_header(args, result, store, rows)
@@ -620,21 +654,27 @@ def _summary_header(
     done = [r for r in rows if r["status"] == "done"]
     policies = ", ".join(f"{p.name} (`{p.fingerprint()[:12]}`)" for p in args.policy)
     scenario_lines = "".join(
-        f"- {s}: resolved camera, proximity and robot blocks `{args.resolved[s]}`\n"
-        for s in args.scenario
+        f"- {s} ({label}): resolved camera, proximity and robot blocks `{blocks}`\n"
+        for (s, label), blocks in args.resolved.items()
     )
     records = [result.records[rc.key] for rc in result.cells if rc.key in result.records]
     realism_keys = {*REALISM_BLOCKS, "sensor_profile"}
     other = {k: v for k, v in args.overrides.items() if k not in realism_keys}
+    if args.suite:
+        conditions = ", ".join(c.label for c in args.conditions)
+        realism = f"suite {args.suite}: conditions {conditions}"
+    else:
+        realism = f"realism flags: {args.realism.label}"
     return (
         f"# {_TOOL}\n\n"
         f"{len(done)} episodes summarised (seeds {seed_ranges(int(r['seed']) for r in done)}); "
-        f"grid: {len(args.policy)} policies × {len(args.scenario)} scenarios × seeds "
+        f"grid: {len(args.policy)} policies × {len(args.scenario)} scenarios × "
+        f"{len(args.conditions)} condition(s) × seeds "
         f"{seed_ranges(range(args.seed, args.seed + args.episodes))} = {len(result.cells)} "
         f"episodes, {result.ran} run now and {result.reused} resumed from the store; "
         f"{len(result.failed)} failed; wall time of this run {result.wall_time:.0f} s.\n\n"
         f"policies (fingerprint): {policies}\n\n"
-        f"realism flags: {args.realism.label}; other overrides: {json.dumps(other)}\n\n"
+        f"{realism}; other overrides: {json.dumps(other)}\n\n"
         f"{scenario_lines}\n"
         + "".join(f"- note: {_short(n)}\n" for n in args.model_notes)
         + f"\n{provenance_markdown(store, records, result.run_id)}\n"
@@ -658,20 +698,24 @@ def _failures(result: GridResult) -> str:
 def _plots(
     args: argparse.Namespace, result: GridResult, out: Path, metadata: dict[str, str]
 ) -> None:
-    by_scenario: dict[str, dict[str, Episode]] = defaultdict(dict)
+    """A set of plots per scenario and condition (the condition in the file name when there
+    are several)."""
+    groups: dict[tuple[str, str], dict[str, Episode]] = defaultdict(dict)
     for rc in result.cells:
         ep = result.episodes.get(rc.key)
         if ep is not None:
-            by_scenario[rc.cell.scenario][rc.cell.policy.name] = ep
-    slugs: dict[str, str] = {}
+            label = args.condition_of[rc.cell.overrides].label
+            groups[(rc.cell.scenario, label)][rc.cell.policy.name] = ep
+    slugs: dict[tuple[str, str], str] = {}
     for s in args.scenario:
-        slug = _slug(s)
-        while slug in slugs.values():
-            slug += "_"
-        slugs[s] = slug
-    for s in tqdm(args.scenario, desc="plots", unit="scenario"):
-        if by_scenario[s]:
-            plot_scenario(s, by_scenario[s], out, slugs[s], metadata)
+        for c in args.conditions:
+            slug = _slug(s) + (f"_{_slug(c.label)}" if len(args.conditions) > 1 else "")
+            while slug in slugs.values():
+                slug += "_"
+            slugs[(s, c.label)] = slug
+    for key in tqdm(list(slugs), desc="plots", unit="plot set"):
+        if groups[key]:
+            plot_scenario(key[0], groups[key], out, slugs[key], metadata)
 
 
 if __name__ == "__main__":
