@@ -174,7 +174,9 @@ def test_realism_flag_parsing() -> None:
         "profile aruco; camera.noise.position=0.01; camera.latency=0.02; "
         "proximity.noise=0.02; robot.accel_max=1"
     )
-    resolved = json.loads(args.resolved["study_a"])
+    ((key, text),) = args.resolved.items()
+    assert key == ("study_a", args.realism.label)
+    resolved = json.loads(text)
     assert resolved["camera"]["noise"] == {
         "position": 0.01,
         "position_per_m": 0.01,
