@@ -2,12 +2,19 @@
 
 Usage::
 
-    python -m baselines.comparison [--out docs/figures] [--seeds 5]
+    python -m baselines.comparison [--out docs/figures] [--seeds 20] [--workers 2]
+                                   [--store results/comparison/results.sqlite]
 
-Both policies (:class:`baselines.PPCPolicy` and :class:`baselines.LastSeenPolicy`) run from the
-same initial configuration (the same ``reset`` seed) behind the same scripted leader, with
+The policies (:class:`baselines.PPCPolicy`, :class:`baselines.LastSeenPolicy` — ref. [32] as the
+paper describes it — and its variant :class:`baselines.LastSeenFOVPolicy` with this project's
+field-of-view slow-down, :data:`POLICIES`) run from the same initial configuration (the same ``reset`` seed) behind the same scripted leader, with
 ``terminate_on`` limited to collisions, so that a lost predecessor does not end the episode but
-is counted: per follower-step without visibility and per visible -> not-visible transition.
+is counted (:func:`comparison_metrics`): follower-steps without visibility, and the separate
+*intervals* of lost sight (maximal runs of such steps of one follower) with their durations —
+the paper's "violates periodically".
+
+The episodes run through the shared grid runner (:func:`experiments.grid.run_grid`) into the
+evaluation store ``--store``: a re-run resumes, and only new seeds or changed inputs run.
 
 Figures, from the seed-0 episodes, for each study (``OUT/<study>_vs_last_seen_*.png``):
 
@@ -20,15 +27,16 @@ Figures, from the seed-0 episodes, for each study (``OUT/<study>_vs_last_seen_*.
 and ``OUT/study_c_last_seen_trace.png``: the traces under the last-seen controller in study C
 with the points where sight of the predecessor was lost and where it was last seen (Fig. 15).
 
-Then both studies × both policies over ``--seeds`` seeds: a markdown table of visibility breaks,
-collisions and successes, written to ``OUT/comparison.md`` and printed.
+Then both studies × both policies over ``--seeds`` seeds: a markdown table of visibility
+breaks, collisions and successes (with 95 % intervals), written to ``OUT/comparison.md`` under
+the run's metadata stamp, and printed.
 """
 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,8 +44,11 @@ import numpy as np
 from tqdm import tqdm
 
 import platoon_env
-from baselines.last_seen import LastSeenPolicy
-from baselines.ppc import PPCPolicy
+from experiments.grid import Cell, GridResult, run_grid
+from experiments.policies import PolicySpec, build_policy
+from experiments.report import mean_ci, provenance_markdown, wilson
+from experiments.stamp import metadata_stamp, png_metadata
+from experiments.store import Store
 from platoon_env.geometry.sensing import (
     SENSE_BETA,
     SENSE_D,
@@ -45,7 +56,7 @@ from platoon_env.geometry.sensing import (
     SENSE_D_WALL_RIGHT,
     SENSE_VISIBLE,
 )
-from platoon_env.rollout import Episode, PolicyLike, run_episode
+from platoon_env.rollout import Episode, episode_metrics, run_episode
 from platoon_env.safety import causes_to_mask, mask_to_causes
 from platoon_env.scenarios.schema import VIOLATION_CAUSES
 
@@ -53,7 +64,8 @@ __all__ = [
     "COLLISIONS",
     "POLICIES",
     "STUDIES",
-    "Tally",
+    "break_intervals",
+    "comparison_metrics",
     "comparison_table",
     "make_env",
     "plot_distances",
@@ -67,23 +79,31 @@ STUDIES: tuple[str, ...] = ("study_b", "study_c")
 #: Violation causes that end an episode here: only collisions, so lost sight is counted.
 COLLISIONS: tuple[str, ...] = ("collision_robot", "collision_obstacle")
 _COLLISION_MASK = causes_to_mask(COLLISIONS)
+#: The make() overrides of every comparison episode.
+OVERRIDES: dict[str, Any] = {"terminate_on": list(COLLISIONS)}
+#: The measure of a comparison episode (:func:`comparison_metrics`).
+MEASURE = "baselines.comparison:comparison_metrics"
+_TOOL = "python -m baselines.comparison"
 
-#: Display name -> policy factory.
-POLICIES: dict[str, Callable[[platoon_env.PlatoonParallelEnv], PolicyLike]] = {
-    "PPC": PPCPolicy,
-    "last-seen [32]": LastSeenPolicy,
+#: Display name -> the registered policy (:mod:`experiments.policies`).
+POLICIES: dict[str, PolicySpec] = {
+    "PPC": PolicySpec.of("ppc", "PPC"),
+    "last-seen [32]": PolicySpec.of("last_seen", "last-seen [32]"),
+    "last-seen + FOV slow-down": PolicySpec.of("last_seen_fov", "last-seen + FOV slow-down"),
 }
 
 
 def make_env(study: str) -> platoon_env.PlatoonParallelEnv:
     """The study's env with ``terminate_on`` limited to collisions."""
-    return platoon_env.make(study, terminate_on=COLLISIONS)
+    return platoon_env.make(study, **OVERRIDES)
 
 
 def run(study: str, policy: str, seed: int, *, record_signals: bool = True) -> Episode:
     """One episode of ``policy`` (a key of :data:`POLICIES`) on ``study`` from ``reset(seed)``."""
     env = make_env(study)
-    return run_episode(env, POLICIES[policy](env), seed=seed, record_signals=record_signals)
+    return run_episode(
+        env, build_policy(POLICIES[policy], env), seed=seed, record_signals=record_signals
+    )
 
 
 def visibility_breaks(ep: Episode) -> tuple[np.ndarray, np.ndarray]:
@@ -94,57 +114,77 @@ def visibility_breaks(ep: Episode) -> tuple[np.ndarray, np.ndarray]:
     return np.sum(~vis[1:], axis=0), np.sum(vis[:-1] & ~vis[1:], axis=0)
 
 
-@dataclass
-class Tally:
-    """Counts over the episodes of one study × policy."""
-
-    episodes: int = 0
-    with_break: int = 0  # episodes with at least one follower-step without visibility
-    break_steps: int = 0  # follower-steps without visibility
-    transitions: int = 0  # visible -> not-visible transitions, all followers
-    collisions: int = 0  # episodes ended by a collision
-    successes: int = 0  # leader reached the end, no violation of any cause
-    cause_steps: dict[str, int] = field(default_factory=dict)  # follower-steps per cause
-    control_period: float = 0.0  # [s] of the episodes
-
-    def add(self, ep: Episode) -> None:
-        """Count one episode."""
-        steps, trans = visibility_breaks(ep)
-        self.control_period = ep.control_period
-        self.episodes += 1
-        self.with_break += int(steps.sum() > 0)
-        self.break_steps += int(steps.sum())
-        self.transitions += int(trans.sum())
-        self.collisions += int(bool(np.any(ep.violations & _COLLISION_MASK)))
-        self.successes += int(ep.leader_arrived and ep.first_violation is None)
-        for mask in ep.violations[ep.violations != 0].tolist():
-            for cause in mask_to_causes(int(mask)):
-                self.cause_steps[cause] = self.cause_steps.get(cause, 0) + 1
+def break_intervals(ep: Episode) -> list[tuple[int, int, int]]:
+    """The intervals of lost sight: ``(follower, first step, steps)`` for every maximal run of
+    consecutive steps after which follower ``i`` (1-based) did not see its predecessor."""
+    lost = ~(ep.sensed[1:, :, SENSE_VISIBLE] > 0)
+    out = []
+    for i in range(lost.shape[1]):
+        col = np.concatenate([[False], lost[:, i], [False]]).astype(np.int8)
+        edges = np.flatnonzero(np.diff(col))
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            out.append((i + 1, int(start) + 1, int(stop - start)))
+    return out
 
 
-def comparison_table(tallies: dict[tuple[str, str], Tally]) -> str:
-    """The markdown table: one line per study × policy."""
+def comparison_metrics(ep: Episode) -> dict[str, Any]:
+    """The metrics of one comparison episode: :func:`~platoon_env.rollout.episode_metrics`,
+    and the visibility breaks — ``break_steps`` (follower-steps without sight),
+    ``break_intervals`` (their separate intervals), ``break_durations`` [s] (each interval's),
+    ``transitions`` (visible -> not-visible switches; an interval open from the start is not
+    one) — the collision flag and the follower-steps per violation cause."""
+    steps, trans = visibility_breaks(ep)
+    intervals = break_intervals(ep)
+    cause_steps: dict[str, int] = {}
+    for mask in ep.violations[ep.violations != 0].tolist():
+        for cause in mask_to_causes(int(mask)):
+            cause_steps[cause] = cause_steps.get(cause, 0) + 1
+    return {
+        **episode_metrics(ep),
+        "control_period": float(ep.control_period),
+        "break_steps": int(steps.sum()),
+        "break_intervals": len(intervals),
+        "break_durations": [n * float(ep.control_period) for _, _, n in intervals],
+        "transitions": int(trans.sum()),
+        "collision": bool(np.any(ep.violations & _COLLISION_MASK)),
+        "completed": bool(ep.leader_arrived and ep.first_violation is None),
+        "cause_steps": cause_steps,
+    }
+
+
+def comparison_table(groups: Mapping[tuple[str, str], Sequence[Mapping[str, Any]]]) -> str:
+    """The markdown table: one line per study × policy from its episodes' metrics."""
     lines = [
         "Visibility breaks with `terminate_on` = collisions only. A break step is a "
-        "follower-step after which the predecessor is not visible; transitions count "
-        "visible -> not-visible switches; violation steps count the follower-steps with a "
-        "violation of each cause (checked after every physics sub-step); a success is an "
-        "episode where the leader reached its path's end without any violation.",
+        "follower-step after which the predecessor is not visible; an interval is a maximal "
+        "run of break steps of one follower (its duration in seconds); violation steps count "
+        "the follower-steps with a violation of each cause (checked after every physics "
+        "sub-step); a success is an episode where the leader reached its path's end without "
+        "any violation. Intervals per episode: mean ± 95 % half-width; successes: Wilson 95 %.",
         "",
         "| study | policy | control period [s] | episodes | episodes with a visibility break | "
-        "visibility-break steps | visible -> not-visible transitions | "
-        "violation steps by cause | collisions | successes |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "intervals (per episode) | interval duration median / max [s] | "
+        "visibility-break steps | violation steps by cause | collisions | successes [95% CI] |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for (study, policy), t in tallies.items():
-        causes = (
-            ", ".join(f"{c} {t.cause_steps[c]}" for c in VIOLATION_CAUSES if c in t.cause_steps)
-            or "none"
-        )
+    for (study, policy), ms in groups.items():
+        n = len(ms)
+        steps: dict[str, int] = {}
+        for m in ms:
+            for cause, k in m["cause_steps"].items():
+                steps[cause] = steps.get(cause, 0) + int(k)
+        causes = ", ".join(f"{c} {steps[c]}" for c in VIOLATION_CAUSES if c in steps) or "none"
+        durations = [d for m in ms for d in m["break_durations"]]
+        dur = f"{np.median(durations):.2f} / {max(durations):.2f}" if durations else "–"
+        ok = sum(bool(m["completed"]) for m in ms)
+        lo, hi = wilson(ok, n)
         lines.append(
-            f"| {study} | {policy} | {t.control_period:g} | {t.episodes} | {t.with_break} | "
-            f"{t.break_steps} | "
-            f"{t.transitions} | {causes} | {t.collisions} | {t.successes} |"
+            f"| {study} | {policy} | {ms[0]['control_period']:g} | {n} | "
+            f"{sum(m['break_steps'] > 0 for m in ms)} | "
+            f"{sum(m['break_intervals'] for m in ms)} "
+            f"({mean_ci([float(m['break_intervals']) for m in ms])}) | {dur} | "
+            f"{sum(m['break_steps'] for m in ms)} | {causes} | "
+            f"{sum(bool(m['collision']) for m in ms)} | {ok}/{n} [{lo:.2f}, {hi:.2f}] |"
         )
     return "\n".join(lines)
 
@@ -260,8 +300,11 @@ def plot_last_seen_trace(ax: Any, scenario: Any, ep: Episode) -> str:
     return text
 
 
-def figures(study: str, episodes: dict[str, Episode], out: Path) -> list[Path]:
-    """The comparison figures of one study from one episode per policy; returns their paths."""
+def figures(
+    study: str, episodes: dict[str, Episode], out: Path, metadata: dict[str, str] | None = None
+) -> list[Path]:
+    """The comparison figures of one study from one episode per policy; returns their paths
+    (``metadata``: the PNG text fields, e.g. the run's stamp)."""
     from platoon_env.plots import new_figure, plot_commands, plot_snapshots, save_figure
 
     names = list(episodes)
@@ -277,7 +320,7 @@ def figures(study: str, episodes: dict[str, Episode], out: Path) -> list[Path]:
             fig.add_subplot(1, len(names), k + 1), sc, ep, n_snapshots=6,
             title=f"{study}, seed {ep.seed}: {name}",
         )  # fmt: skip
-    paths = [save_figure(fig, out / f"{study}_vs_last_seen_trajectories.png")]
+    paths = [save_figure(fig, out / f"{study}_vs_last_seen_trajectories.png", metadata)]
     fig = new_figure(11, 1.0 + 1.8 * n)
     plot_distances(fig, sc, eps, names)
     fig.suptitle(
@@ -285,15 +328,15 @@ def figures(study: str, episodes: dict[str, Episode], out: Path) -> list[Path]:
         "constraints dashed, shaded: predecessor not visible",
         fontsize=10,
     )
-    paths.append(save_figure(fig, out / f"{study}_vs_last_seen_distances.png"))
+    paths.append(save_figure(fig, out / f"{study}_vs_last_seen_distances.png", metadata))
     fig = new_figure(10, 1.0 + 1.5 * n)
     plot_commands(fig, sc, eps, labels=names)
     fig.suptitle(f"{study}, seed {eps[0].seed} (Figs. 10, 11): velocity commands", fontsize=10)
-    paths.append(save_figure(fig, out / f"{study}_vs_last_seen_commands.png"))
+    paths.append(save_figure(fig, out / f"{study}_vs_last_seen_commands.png", metadata))
     return paths
 
 
-def trace_figure(episode: Episode, out: Path) -> Path:
+def trace_figure(episode: Episode, out: Path, metadata: dict[str, str] | None = None) -> Path:
     """Fig. 15 from a study C episode of the last-seen controller."""
     from platoon_env.plots import new_figure, save_figure
 
@@ -301,7 +344,7 @@ def trace_figure(episode: Episode, out: Path) -> Path:
     xmin, ymin, xmax, ymax = sc.workspace.bounds
     fig = new_figure(8.5, 8.5 * (ymax - ymin) / (xmax - xmin) + 0.5)
     plot_last_seen_trace(fig.add_subplot(), sc, episode)
-    return save_figure(fig, out / f"{episode.scenario}_last_seen_trace.png")
+    return save_figure(fig, out / f"{episode.scenario}_last_seen_trace.png", metadata)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -312,34 +355,74 @@ def trace_figure(episode: Episode, out: Path) -> Path:
 def main(argv: Sequence[str] | None = None) -> str:
     """Run the comparison; write the figures and ``comparison.md``; return the table."""
     parser = argparse.ArgumentParser(
-        prog="python -m baselines.comparison",
+        prog=_TOOL,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--out", type=Path, default=Path("docs/figures"), help="output folder")
-    parser.add_argument("--seeds", type=int, default=5, help="seeds per study and policy")
+    parser.add_argument("--seeds", type=int, default=20, help="seeds per study and policy")
+    parser.add_argument("--workers", type=int, default=2, help="parallel worker processes")
+    parser.add_argument(
+        "--store",
+        type=Path,
+        default=Path("results/comparison/results.sqlite"),
+        help="the evaluation store the episodes go to (and resume from)",
+    )
     args = parser.parse_args(argv)
     if args.seeds < 1:
         parser.error("--seeds must be >= 1")
+    if args.workers < 1:
+        parser.error("--workers must be >= 1")
     out: Path = args.out
+    cells = [
+        Cell.of(spec, study, seed, OVERRIDES, measure=MEASURE)
+        for study in STUDIES
+        for seed in range(args.seeds)
+        for spec in POLICIES.values()
+    ]
+    stamp = metadata_stamp(_TOOL, {"seeds": args.seeds, "overrides": OVERRIDES}, argv)
+    with Store(args.store) as store:
+        result = run_grid(
+            store, cells, tool=_TOOL, stamp=stamp, workers=args.workers,
+            keep=lambda cell: cell.seed == 0,
+        )  # fmt: skip
+        if result.interrupted:
+            raise SystemExit(130)
+        header = _header(result, store)
     out.mkdir(parents=True, exist_ok=True)
-    tallies = {(s, p): Tally() for s in STUDIES for p in POLICIES}
     first: dict[str, dict[str, Episode]] = {s: {} for s in STUDIES}
-    jobs = [(s, p, k) for s in STUDIES for k in range(args.seeds) for p in POLICIES]
-    for study, policy, seed in tqdm(jobs, desc="episodes", unit="ep"):
-        ep = run(study, policy, seed, record_signals=seed == 0)
-        tallies[study, policy].add(ep)
-        if seed == 0:
-            first[study][policy] = ep
+    for rc in result.cells:
+        if rc.key in result.episodes:
+            first[rc.cell.scenario][rc.cell.policy.name] = result.episodes[rc.key]
     for study in STUDIES:
-        for path in figures(study, first[study], out):
+        for path in figures(study, first[study], out, png_metadata(stamp)):
             tqdm.write(f"wrote {path}")
-    last_seen = next(p for p in POLICIES if POLICIES[p] is LastSeenPolicy)
-    tqdm.write(f"wrote {trace_figure(first['study_c'][last_seen], out)}")
-    table = comparison_table(tallies)
-    (out / "comparison.md").write_text(table + "\n")
+    trace = trace_figure(first["study_c"]["last-seen [32]"], out, png_metadata(stamp))
+    tqdm.write(f"wrote {trace}")
+    table = comparison_table(_groups(result))
+    (out / "comparison.md").write_text(header + table + "\n")
     print(table)
+    if result.failed:
+        print(f"{len(result.failed)} episode(s) failed; re-run to retry them", file=sys.stderr)
+        raise SystemExit(1)
     return table
+
+
+def _groups(result: GridResult) -> dict[tuple[str, str], list[dict[str, Any]]]:
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for rc, rec in result.finished():
+        groups.setdefault((rc.cell.scenario, rc.cell.policy.name), []).append(rec.metrics)
+    return groups
+
+
+def _header(result: GridResult, store: Store) -> str:
+    records = list(result.records.values())
+    return (
+        "# PPC against the last-seen controller of ref. [32]\n\n"
+        f"{len(result.finished())} episodes ({result.ran} run now, {result.reused} from the "
+        f"store {store.path.name}); {len(result.failed)} failed.\n\n"
+        f"{provenance_markdown(store, records, result.run_id)}\n"
+    )
 
 
 if __name__ == "__main__":

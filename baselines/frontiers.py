@@ -23,15 +23,17 @@ An episode **succeeds** when it ends by truncation (the leader reached its path'
 settled, or the step limit) without any violation. Every violation cause ends the episode
 (``terminate_on`` = all causes), so the first violation is the last step.
 
-Every episode is one row of ``OUT/frontiers.csv`` (:data:`CSV_COLUMNS`), keyed by
-(controller, study, axis, level, seed): the outcome, the first violation's cause, time and
+Every point (controller, study, axis, level, seed) is one episode of the evaluation store
+``OUT/results.sqlite`` (:mod:`experiments.store`), run by the shared grid runner
+(:func:`experiments.grid.run_grid`): the outcome, the first violation's cause, time and
 follower, the step count, the minimum obstacle clearance and, for the PPC laws, the signals
 that explain a failure (:func:`ppc_diagnostics`): which funnel saturated first and when, and the
-normalised errors just before the violation, as perceived and as true. Rows are appended and
-fsync'ed as episodes finish; a re-run with the same ``--out`` skips the rows already there (a
-torn last line, from a killed run, is dropped), so the grid can be interrupted and restarted.
-Identical configurations (the ideal level shared by every axis) run once per seed and fill
-every row they stand for.
+normalised errors just before the violation, as perceived and as true. Each episode is written
+in its own transaction as it finishes; a re-run with the same ``--out`` runs only what the
+store lacks (keys are content fingerprints, so another ``--max-episode-steps`` or edited study
+runs anew beside the old rows), and two runs into one ``--out`` share the work. Identical
+configurations (the ideal level shared by every axis) have one key and run once per seed.
+``OUT/frontiers.csv`` (:data:`CSV_COLUMNS`) is an export of the grid's rows.
 
 Then ``OUT/frontiers.md`` holds, per study, a table of level x controller -> successes/seeds
 [Wilson 95 % interval] with the dominant failure cause, and the PPC failure diagnostics; and
@@ -44,31 +46,26 @@ controller, the 95 % intervals as bands.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
-import multiprocessing
-import os
-import signal
 import statistics
 import sys
-import threading
-import time
-from collections import Counter, defaultdict
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
-import platoon_env
-from baselines.last_seen import LastSeenPolicy
-from baselines.ppc import EPS_MAX, PPCPolicy
+from baselines.ppc import EPS_MAX
+from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
+from experiments.policies import REGISTRY, PolicySpec
+from experiments.report import format_value, provenance_markdown, wilson, write_csv
+from experiments.stamp import metadata_stamp, png_metadata
+from experiments.store import Store
 from platoon_env.geometry.sensing import SENSE_BETA, SENSE_D
-from platoon_env.rollout import Episode, PolicyLike, episode_metrics, run_episode
+from platoon_env.rollout import Episode, episode_metrics
 from platoon_env.scenarios.schema import VIOLATION_CAUSES
 
 __all__ = [
@@ -78,15 +75,14 @@ __all__ = [
     "KEY_COLUMNS",
     "STUDIES",
     "Axis",
-    "Job",
+    "Point",
     "build_grid",
     "diagnosed_follower",
     "failure_diagnostics",
     "level_key",
     "main",
     "ppc_diagnostics",
-    "read_rows",
-    "run_job",
+    "rows_of",
     "summarise",
     "wilson_interval",
 ]
@@ -158,31 +154,27 @@ QUICK_SEEDS = 2
 
 @dataclass(frozen=True)
 class Controller:
-    """A controller of the frontier: its display name, its factory, whether it is a PPC law
-    (then its signals are recorded and diagnosed)."""
+    """A controller of the frontier: its display name, its registered policy kind
+    (:data:`experiments.policies.REGISTRY`), and whether it is a PPC law (then its signals are
+    recorded and diagnosed)."""
 
     label: str
-    factory: Callable[[platoon_env.PlatoonParallelEnv], PolicyLike]
+    kind: str
     ppc: bool
 
-
-def _controllers() -> tuple[dict[str, Controller], str]:
-    """The available controllers, and why the filtered PPC is missing ("" if it is not)."""
-    out = {
-        "ppc": Controller("PPC", PPCPolicy, ppc=True),
-        "last_seen": Controller("last-seen [32]", LastSeenPolicy, ppc=False),
-    }
-    try:  # written concurrently: the frontier runs without it until it lands
-        from baselines.filtered_ppc import FilteredPPCPolicy
-    except Exception as exc:
-        return out, f"baselines.filtered_ppc not available ({type(exc).__name__}: {exc})"
-    out["filtered_ppc"] = Controller("filtered PPC", FilteredPPCPolicy, ppc=True)
-    return out, ""
+    @property
+    def spec(self) -> PolicySpec:
+        """The policy of the grid's cells (named by its kind, as in the CSV)."""
+        return PolicySpec.of(self.kind)
 
 
-#: Controller name (the CSV's ``controller``) -> :class:`Controller`; the filtered PPC only
-#: when ``baselines.filtered_ppc`` imports (:data:`FILTERED_PPC_MISSING` says why not).
-CONTROLLERS, FILTERED_PPC_MISSING = _controllers()
+#: Controller name (the CSV's ``controller``) -> :class:`Controller`.
+CONTROLLERS: dict[str, Controller] = {
+    "ppc": Controller("PPC", "ppc", ppc=True),
+    "last_seen": Controller("last-seen [32]", "last_seen", ppc=False),
+    "filtered_ppc": Controller("filtered PPC", "filtered_ppc", ppc=True),
+}
+assert set(CONTROLLERS) <= set(REGISTRY)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -289,17 +281,23 @@ AXES: dict[str, Axis] = {
 }
 
 
-@dataclass(frozen=True)
-class Job:
-    """One episode to run: a controller on a study with the overrides of some (axis, level)
-    points (identical configurations share one episode), from ``reset(seed)``."""
+#: The measure of a frontier episode (:func:`episode_row`).
+MEASURE = "baselines.frontiers:episode_row"
 
-    controller: str
-    study: str
-    seed: int
-    overrides: str  # JSON of the make overrides
-    points: tuple[tuple[str, str], ...]  # (axis, level key) rows this episode fills
-    max_episode_steps: int | None = None
+
+def episode_overrides(
+    level_overrides: Mapping[str, Any], max_episode_steps: int | None = None
+) -> dict[str, Any]:
+    """The make() overrides of a point: its level's, every violation cause ending the episode,
+    the lean info dicts, and the step limit if given."""
+    out: dict[str, Any] = {
+        **level_overrides,
+        "terminate_on": list(VIOLATION_CAUSES),
+        "diagnostics": False,
+    }
+    if max_episode_steps is not None:
+        out["max_episode_steps"] = max_episode_steps
+    return out
 
 
 def build_grid(
@@ -309,20 +307,18 @@ def build_grid(
     seeds: int,
     *,
     quick: bool = False,
-    done: Iterable[tuple[str, ...]] = (),
     max_episode_steps: int | None = None,
-) -> tuple[list[tuple[str, ...]], list[Job], list[str]]:
-    """The grid's row keys, the jobs still to run, and notes on skipped points.
+) -> tuple[list[tuple[tuple[str, ...], Cell]], list[str]]:
+    """The grid's points as (row key, cell), and notes on skipped points.
 
-    Keys are :data:`KEY_COLUMNS` tuples (all strings). Jobs skip keys in ``done``; points with
-    the same overrides (the ideal level of each axis) share one job per controller, study and
-    seed. A point whose overrides cannot be built (the aruco profile before it exists) is left
-    out with a note.
+    Keys are :data:`KEY_COLUMNS` tuples (all strings). Points with the same overrides (the
+    ideal level of each axis) have equal cells, hence one key in the store: one episode per
+    controller, study and seed fills all their rows. A point whose overrides cannot be built
+    is left out with a note. Long episodes (study C) come first, so that the last worker does
+    not run alone for long.
     """
-    done_set = set(done)
-    keys: list[tuple[str, ...]] = []
     notes: list[str] = []
-    points: list[tuple[str, str, str]] = []  # axis, level key, overrides JSON
+    points: list[tuple[str, str, dict[str, Any]]] = []  # axis, level key, overrides
     for name in axes:
         axis = AXES[name]
         for level in axis.quick if quick else axis.levels:
@@ -331,23 +327,20 @@ def build_grid(
             except Exception as exc:
                 notes.append(f"{name}={level_key(level)} skipped: {type(exc).__name__}: {exc}")
                 continue
-            points.append((name, level_key(level), json.dumps(level_overrides, sort_keys=True)))
-    groups: dict[tuple[str, str, int, str], list[tuple[str, str]]] = defaultdict(list)
-    for study in studies:
-        for ctrl in controllers:
-            for seed in range(seeds):
+            points.append((name, level_key(level), level_overrides))
+    order = sorted(studies, key=lambda s: -STUDIES.index(s) if s in STUDIES else 0)
+    grid: list[tuple[tuple[str, ...], Cell]] = []
+    for seed in range(seeds):
+        for study in order:
+            for ctrl in controllers:
+                c = CONTROLLERS[ctrl]
                 for axis_name, lk, ov in points:
-                    key = (ctrl, study, axis_name, lk, str(seed))
-                    keys.append(key)
-                    if key not in done_set:
-                        groups[ctrl, study, seed, ov].append((axis_name, lk))
-    jobs = [
-        Job(ctrl, study, seed, ov, tuple(pts), max_episode_steps)
-        for (ctrl, study, seed, ov), pts in groups.items()
-    ]
-    # Long episodes first (study C), so that the last worker does not run alone for long.
-    jobs.sort(key=lambda j: (-STUDIES.index(j.study) if j.study in STUDIES else 0, j.seed))
-    return keys, jobs, notes
+                    cell = Cell.of(
+                        c.spec, study, seed, episode_overrides(ov, max_episode_steps),
+                        measure=MEASURE, record_signals=c.ppc,
+                    )  # fmt: skip
+                    grid.append(((ctrl, study, axis_name, lk, str(seed)), cell))
+    return grid, notes
 
 
 # ----------------------------------------------------------------------------------------------
@@ -516,119 +509,36 @@ def episode_row(ep: Episode) -> dict[str, Any]:
     return row
 
 
-def make_env(
-    study: str, overrides: Mapping[str, Any], max_episode_steps: int | None = None
-) -> platoon_env.PlatoonParallelEnv:
-    """The study's env with ``overrides``, every violation cause ending the episode."""
-    extra: dict[str, Any] = {"terminate_on": VIOLATION_CAUSES, "diagnostics": False}
-    if max_episode_steps is not None:
-        extra["max_episode_steps"] = max_episode_steps
-    return platoon_env.make(study, **overrides, **extra)
-
-
 #: The ``violation`` of an episode the controller refused to run: its constructor raised a
 #: ``ValueError`` for the configuration (e.g. the filtered PPC when the constraints tightened by
 #: the declared noise leave the PPC law no feasible funnel). It counts as a failure.
 REFUSED = "refused"
 
 
-def run_job(job: Job) -> list[dict[str, Any]]:
-    """Run one :class:`Job`; return a CSV row (:data:`CSV_COLUMNS`) per point it stands for.
-
-    A controller that refuses the configuration (a ``ValueError`` from its constructor) gives
-    a failed row with ``violation`` = :data:`REFUSED` and no steps.
-    """
-    start = time.perf_counter()
-    ctrl = CONTROLLERS[job.controller]
-    env = make_env(job.study, json.loads(job.overrides), job.max_episode_steps)
-    try:
-        policy = ctrl.factory(env)
-    except ValueError:
-        row: dict[str, Any] = dict.fromkeys(CSV_COLUMNS, "")
-        row.update(success=False, truncated=False, violation=REFUSED, steps=0)
-    else:
-        row = episode_row(run_episode(env, policy, seed=job.seed, record_signals=ctrl.ppc))
-    row["wall_time"] = time.perf_counter() - start
-    return [
-        {
-            "controller": job.controller,
-            "study": job.study,
-            "axis": axis,
-            "level": level,
-            "seed": job.seed,
-            **row,
-        }
-        for axis, level in job.points
-    ]
-
-
-# ----------------------------------------------------------------------------------------------
-# The CSV: append, fsync, resume
-# ----------------------------------------------------------------------------------------------
-
-
-def _format(value: Any) -> str:
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        return ("inf" if value > 0 else "-inf") if math.isinf(value) else f"{value:.6g}"
-    return str(value)
-
-
-def read_rows(path: Path) -> list[dict[str, str]]:
-    """The rows of ``path`` ([] if absent), after dropping a torn last line.
-
-    A run killed while writing leaves a last line without its newline; it is cut off the file
-    (so the next append starts on a fresh line) and its episode runs again. A file with other
-    columns than :data:`CSV_COLUMNS` is an error (another version's output: use another --out).
-    """
-    if not path.is_file():
-        return []
-    data = path.read_bytes()
-    if data and not data.endswith(b"\n"):
-        cut = data.rfind(b"\n") + 1
-        with path.open("r+b") as f:
-            f.truncate(cut)
-            f.flush()
-            os.fsync(f.fileno())
-        data = data[:cut]
-    if not data:
-        return []
-    lines = data.decode().splitlines()
-    reader = csv.DictReader(lines)
-    if tuple(reader.fieldnames or ()) != CSV_COLUMNS:
-        raise SystemExit(
-            f"{path}: its columns {reader.fieldnames} are not {list(CSV_COLUMNS)}; "
-            "use another --out"
-        )
-    return [r for r in reader if None not in r and None not in r.values()]
+def rows_of(
+    grid: Sequence[tuple[tuple[str, ...], Cell]],
+    resolved: Sequence[ResolvedCell],
+    result: GridResult,
+) -> list[dict[str, Any]]:
+    """The CSV rows (:data:`CSV_COLUMNS`) of the grid's points that have a result
+    (``resolved``: the grid's cells resolved in order, one per point)."""
+    rows = []
+    for (key, _), rc in zip(grid, resolved, strict=True):
+        rec = result.records.get(rc.key)
+        if rec is None or rec.status not in ("done", "refused"):
+            continue
+        if rec.status == "refused":
+            row: dict[str, Any] = dict.fromkeys(CSV_COLUMNS, "")
+            row.update(success=False, truncated=False, violation=REFUSED, steps=0)
+        else:
+            row = dict(rec.metrics)
+        row.update(dict(zip(KEY_COLUMNS, key, strict=True)), wall_time=rec.wall_time)
+        rows.append(row)
+    return rows
 
 
 def _key(row: Mapping[str, Any]) -> tuple[str, ...]:
     return tuple(str(row[c]) for c in KEY_COLUMNS)
-
-
-class RowWriter:
-    """Appends rows to the CSV (header first if the file is new), flushing and fsync'ing each."""
-
-    def __init__(self, path: Path) -> None:
-        new = not path.is_file() or path.stat().st_size == 0
-        self._file = path.open("a", newline="")
-        self._writer = csv.DictWriter(self._file, fieldnames=CSV_COLUMNS, lineterminator="\n")
-        if new:
-            self._writer.writeheader()
-            self._sync()
-
-    def _sync(self) -> None:
-        self._file.flush()
-        os.fsync(self._file.fileno())
-
-    def write(self, row: Mapping[str, Any]) -> None:
-        self._writer.writerow({k: _format(row.get(k, "")) for k in CSV_COLUMNS})
-        self._sync()
-
-    def close(self) -> None:
-        self._file.close()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -647,18 +557,9 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
     and the interval ``[centre - half, centre + half]`` (clipped to [0, 1] against rounding).
     Unlike the normal approximation it stays inside [0, 1] and is not empty at 0/n or n/n:
     ``wilson_interval(8, 10) ≈ (0.490, 0.943)``, ``wilson_interval(10, 10) ≈ (0.722, 1)``.
-    ``(nan, nan)`` for ``n = 0``.
+    ``(nan, nan)`` for ``n = 0``. The one implementation is :func:`experiments.report.wilson`.
     """
-    if n <= 0:
-        return (math.nan, math.nan)
-    if not 0 <= successes <= n:
-        raise ValueError(f"successes must lie in [0, n = {n}], got {successes}")
-    p = successes / n
-    z2 = z * z
-    denom = 1.0 + z2 / n
-    centre = (p + z2 / (2 * n)) / denom
-    half = z * math.sqrt(p * (1.0 - p) / n + z2 / (4.0 * n * n)) / denom
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    return wilson(successes, n, z)
 
 
 @dataclass
@@ -834,9 +735,11 @@ def plot_study(
     path: Path,
     *,
     quick: bool = False,
+    metadata: dict[str, str] | None = None,
 ) -> Path:
     """``frontier_<study>.png``: a panel per axis, success rate against level, a line per
-    controller, the Wilson 95 % intervals as bands (and error bars)."""
+    controller, the Wilson 95 % intervals as bands (and error bars); ``metadata`` are the PNG
+    text fields (the run's stamp)."""
     from platoon_env.plots import POLICY_COLOURS, new_figure, save_figure
 
     groups = _group(rows, keys)
@@ -882,7 +785,7 @@ def plot_study(
         panels[idx // ncols, idx % ncols].set_visible(False)
     panels[0, 0].legend(loc="lower left", fontsize=8)
     fig.suptitle(f"{study}: success rate against each realism axis (95 % Wilson intervals)")
-    return save_figure(fig, path)
+    return save_figure(fig, path, metadata)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -890,144 +793,11 @@ def plot_study(
 # ----------------------------------------------------------------------------------------------
 
 
-def _watch_parent(parent: int) -> None:
-    while True:
-        time.sleep(1.0)
-        if os.getppid() != parent:  # the parent died: this worker was re-parented
-            os._exit(1)
-
-
-def _init_worker(parent: int) -> None:
-    """In each worker: leave Ctrl-C to the parent (it shuts the pool down) and exit as soon as
-    the parent is gone, however it died."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
-
-
-def _raise_interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt
-
-
-def _failed(job: Job, exc: BaseException) -> str:
-    return (
-        f"episode failed: {job.controller} {job.study} seed {job.seed} "
-        f"{', '.join(f'{a}={lv}' for a, lv in job.points)}: {type(exc).__name__}: {exc}"
-    )
-
-
-def _run_all(jobs: Sequence[Job], writer: RowWriter, workers: int) -> tuple[bool, int]:
-    """Run ``jobs``, writing each row as it finishes; returns (finished, number of failed jobs).
-
-    ``finished`` is False if interrupted (Ctrl-C or SIGTERM): the pending jobs are cancelled and
-    the workers this pool started are terminated. A job that raises is reported and skipped
-    (its rows are not written, so a re-run retries it).
-    """
-    progress = tqdm(
-        total=len(jobs),
-        desc="episodes",
-        unit="ep",
-        mininterval=0.5 if sys.stderr.isatty() else 30.0,
-        smoothing=0.05,
-    )
-    errors = 0
-    try:
-        if workers <= 1:
-            for job in jobs:
-                try:
-                    rows = run_job(job)
-                except Exception as exc:
-                    errors += 1
-                    tqdm.write(_failed(job, exc))
-                else:
-                    for row in rows:
-                        writer.write(row)
-                progress.update()
-            return True, errors
-        ctx = multiprocessing.get_context("spawn")
-        pool = ProcessPoolExecutor(
-            max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(os.getpid(),)
-        )
-        try:
-            futures: dict[Future[list[dict[str, Any]]], Job] = {
-                pool.submit(run_job, job): job for job in jobs
-            }
-            for fut in as_completed(futures):
-                try:
-                    rows = fut.result()
-                except Exception as exc:  # a worker that died breaks the pool: all fail here
-                    errors += 1
-                    tqdm.write(_failed(futures[fut], exc))
-                else:
-                    for row in rows:
-                        writer.write(row)
-                progress.update()
-        except BaseException:
-            # the workers this pool started (shutdown forgets them), to terminate them by pid
-            procs = list((getattr(pool, "_processes", None) or {}).values())
-            pool.shutdown(wait=False, cancel_futures=True)
-            for proc in procs:
-                if proc.is_alive():
-                    proc.terminate()
-            for proc in procs:
-                proc.join(timeout=5)
-            raise
-        pool.shutdown(wait=True)
-        return True, errors
-    except KeyboardInterrupt:
-        return False, errors
-    finally:
-        progress.close()
-
-
 # ----------------------------------------------------------------------------------------------
 # Command line
 # ----------------------------------------------------------------------------------------------
 
-
-def _code_version() -> dict[str, Any]:
-    """The git commit of the source tree and its uncommitted files (read only; {} outside a
-    checkout), recorded per run in ``runs.jsonl``: rows of a resumed grid may come from runs on
-    different code."""
-    import subprocess
-
-    root = Path(__file__).resolve().parents[1]
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True
-        ).stdout.strip()
-        status = subprocess.run(
-            ["git", "status", "--porcelain", "--", "platoon_env", "baselines"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout
-    except (OSError, subprocess.CalledProcessError):
-        return {}
-    return {"commit": commit, "modified": [line[3:] for line in status.splitlines()]}
-
-
-def _settings(args: argparse.Namespace) -> dict[str, Any]:
-    return {"max_episode_steps": args.max_episode_steps}
-
-
-def _runs(out: Path) -> list[str]:
-    """The runs that wrote rows into ``out`` (``runs.jsonl``), one line each."""
-    path = out / "runs.jsonl"
-    if not path.is_file():
-        return []
-    lines = []
-    for text in path.read_text().splitlines():
-        try:
-            run = json.loads(text)
-        except ValueError:
-            continue
-        modified = ", ".join(run.get("modified", [])) or "none"
-        lines.append(
-            f"{run.get('start')}, {run.get('to_run')} rows to run, commit "
-            f"{str(run.get('commit', '?'))[:10]}, uncommitted changes: {modified}"
-        )
-    return lines
+_TOOL = "python -m baselines.frontiers"
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -1077,34 +847,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the grid (resuming), write ``frontiers.csv``, ``.md`` and the PNGs; returns the exit
-    code (130 when interrupted)."""
+    code (1 if an episode failed, 130 when interrupted)."""
     args = parse_args(argv)
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    settings_path = out / "settings.json"
-    settings = _settings(args)
-    if settings_path.is_file():
-        old = json.loads(settings_path.read_text())
-        if old != settings:
-            raise SystemExit(
-                f"{out} holds episodes run with {old}, not {settings}; use another --out"
-            )
-    else:
-        settings_path.write_text(json.dumps(settings, indent=2) + "\n")
-    csv_path = out / "frontiers.csv"
-    rows_before = read_rows(csv_path)
-    done = {_key(r) for r in rows_before}
-    keys, jobs, notes = build_grid(
+    grid, notes = build_grid(
         args.study,
         args.controller,
         args.axis,
         args.seeds,
         quick=args.quick,
-        done=done,
         max_episode_steps=args.max_episode_steps,
     )
-    if FILTERED_PPC_MISSING:
-        notes.append(f"filtered PPC left out: {FILTERED_PPC_MISSING}")
     if "profile" in args.axis and not any(n.startswith("profile=") for n in notes):
         from platoon_env.scenarios.profiles import load_profile
 
@@ -1113,31 +866,23 @@ def main(argv: Sequence[str] | None = None) -> int:
             notes.append(f"profile {name}: the shipped profile's blocks {blocks}")
     for note in notes:
         print(f"note: {note}")
-    todo = sum(len(j.points) for j in jobs)
+    resolved = resolve_cells([cell for _, cell in grid], unique=False)
+    unique = list({rc.key: rc for rc in resolved}.values())
     print(
-        f"{csv_path}: {len(keys)} rows in the grid, {len(keys) - todo} done, {todo} to run "
-        f"in {len(jobs)} episodes on {args.workers} worker(s)"
+        f"{store_path(out)}: {len(grid)} rows in the grid, {len(unique)} distinct episodes, "
+        f"on {args.workers} worker(s)"
     )
-    run_info = {
-        "start": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        "rows_before": len(rows_before),
-        "to_run": todo,
-        **_code_version(),
-    }
-    with (out / "runs.jsonl").open("a") as f:
-        f.write(json.dumps(run_info) + "\n")
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
-    start = time.perf_counter()
-    writer = RowWriter(csv_path)
-    try:
-        finished, errors = _run_all(jobs, writer, args.workers)
-    finally:
-        writer.close()
-        signal.signal(signal.SIGTERM, previous)
-    if not finished:
-        print(f"\ninterrupted: finished episodes are in {csv_path}; re-run to resume")
-        return 130
-    rows = read_rows(csv_path)
+    keys = [k for k, _ in grid]
+    stamp = metadata_stamp(_TOOL, {k: str(v) for k, v in vars(args).items()}, argv)
+    with Store(store_path(out)) as store:
+        result = run_grid(store, unique, tool=_TOOL, stamp=stamp, workers=args.workers)
+        print(f"{result.ran} episode(s) run, {result.reused} already in the store")
+        if result.interrupted:
+            print(f"\ninterrupted: finished episodes are in {store.path}; re-run to resume")
+            return 130
+        provenance = provenance_markdown(store, result.records.values(), result.run_id)
+    rows = [{k: format_value(v) for k, v in r.items()} for r in rows_of(grid, resolved, result)]
+    write_csv(out / "frontiers.csv", CSV_COLUMNS, rows)
     table = summarise(rows, keys, args.study, args.controller, args.axis, quick=args.quick)
     header = (
         "# Robustness frontiers\n\n"
@@ -1146,23 +891,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         "successes/seeds [Wilson 95 % interval]; the dominant failure is the most frequent "
         "first violation among the failed episodes. Controllers: "
         f"{', '.join(CONTROLLERS[c].label for c in args.controller)}. "
-        f"platoon_env {platoon_env.__version__}; wall time of this run "
-        f"{time.perf_counter() - start:.0f} s.\n\n"
+        f"{len(rows)} of {len(grid)} rows have a result; wall time of this run "
+        f"{result.wall_time:.0f} s.\n\n"
         + "".join(f"- note: {n}\n" for n in notes)
-        + "".join(f"- run: {line}\n" for line in _runs(out))
-        + ("\n" if notes else "")
+        + provenance
+        + "\n"
     )
     (out / "frontiers.md").write_text(header + table + "\n")
     paths = [
         plot_study(
-            rows, keys, s, args.controller, args.axis, out / f"frontier_{s}.png", quick=args.quick
+            rows,
+            keys,
+            s,
+            args.controller,
+            args.axis,
+            out / f"frontier_{s}.png",
+            quick=args.quick,
+            metadata=png_metadata(stamp),
         )
         for s in args.study
     ]
     print(table)
-    print(f"wrote {csv_path}, {out / 'frontiers.md'}, " + ", ".join(str(p) for p in paths))
-    if errors:
-        print(f"{errors} episode(s) failed (see above); re-run to retry them")
+    print(f"wrote {out / 'frontiers.csv'}, {out / 'frontiers.md'}, " + ", ".join(map(str, paths)))
+    if result.failed:
+        print(f"{len(result.failed)} episode(s) failed; re-run to retry them", file=sys.stderr)
         return 1
     return 0
 

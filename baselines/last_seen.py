@@ -41,9 +41,8 @@ body frame, at distance ``rho_T = |(x_T, y_T)|`` and bearing ``phi_T = atan2(y_T
 
 Commands, for both modes (vectorised over followers)::
 
-    u     = sat(k_d (rho_T - d_ref) cos(phi_T), u_max) g(phi_T) (1 - s_W min(P, 1))
+    u     = sat(k_d (rho_T - d_ref) cos(phi_T), u_max) (1 - s_W min(P, 1))
     omega = sat(k_beta phi_T + k_wall (|u| / u_max) (P_r - P_l), omega_max)
-    g(phi) = clip((beta_con - |phi|) / (beta_con - beta_slow), 0, 1)
     P_l = max(m_W / (d_W_l - r) - 1, 0),  P_r likewise,  P = max(P_l, P_r)
 
 and ``u = omega = 0`` once arrived (3.). The choices:
@@ -52,10 +51,16 @@ and ``u = omega = 0`` once arrived (3.). The choices:
   default twice the leader's speed from the scenario: a follower must be able to catch up),
   unlike PPC's unbounded transients (§4.2: "our method does not impose any explicit bounds");
   ``cos(phi_T)`` makes it drive only as far as it faces the target;
-* the **field of view** is respected by slowing down: full speed while
-  ``|phi_T| <= beta_slow`` (default ``beta_con / 2``), none at ``|phi_T| >= beta_con``, so the
-  follower turns in place towards a predecessor at the edge of its view (or a last-seen point
-  beside or behind it);
+* the sensor limits are "taken into account" (§1.1) through the gains and the leader-loss mode
+  only: the bearing gain saturates the turn rate at the edge of the view, and a lost
+  predecessor switches the mode. The paper describes no mode that slows the follower to keep
+  its predecessor in view, so :class:`LastSeenPolicy` has none. The variant
+  :class:`LastSeenFOVPolicy` (``last_seen_fov``) adds a **field-of-view slow-down**
+  ``g(phi_T) = clip((beta_con - |phi_T|) / (beta_con - beta_slow), 0, 1)`` on ``u``: full speed
+  while ``|phi_T| <= beta_slow`` (default ``beta_con / 2``), none at ``|phi_T| >= beta_con``,
+  so the follower turns in place towards a predecessor at the edge of its view. That is a
+  choice of this project, which makes field-of-view loss structurally hard; the comparison
+  (``python -m baselines.comparison``) runs both;
 * the bearing law is **proportional** (``omega = k_beta phi_T``, default
   ``k_beta = omega_max / beta_con``: saturation exactly at the field-of-view edge), without
   PPC's feed-forward ``(u/d) sin(beta)`` (eq. 14) or its funnels: when the predecessor turns a
@@ -81,13 +86,8 @@ at ``d_des``; capped by ``robot.omega_max``), ``k_d = 4 u_max / d_des`` (the spe
 ``k_beta = omega_max / beta_con``. Every one can be overridden by keyword (:attr:`TUNABLE
 <LastSeenParams.TUNABLE>`).
 
-Where the behaviour depends on the tuning: on the shipped study C (``baselines.comparison``)
-the defaults keep follower 1 on the leader but follower 2 loses follower 1 at the 60° corner of
-the second corridor (slowed at the inner corner it falls out of range, drives to the last-seen
-point, stops there, and the predecessor is gone); a sweep over ``k_d``, ``k_beta``,
-``wall_margin`` and ``wall_slowdown`` found settings where follower 1 is lost as in Fig. 15,
-many with a collision instead, and a few that pass without any break. Study B's map is mild
-enough (turn radii >= 1 m, ``beta_con = 0.785``) that the defaults keep visibility throughout.
+Where the behaviour depends on the tuning and the variant, ``python -m baselines.comparison``
+measures it on studies B and C over 20 seeds (``docs/figures/comparison.md``).
 """
 
 from __future__ import annotations
@@ -115,6 +115,7 @@ __all__ = [
     "MODE_LOST",
     "MODE_TRACKING",
     "SIGNAL_NAMES",
+    "LastSeenFOVPolicy",
     "LastSeenParams",
     "LastSeenPolicy",
     "commands",
@@ -197,14 +198,16 @@ def commands(
 
     ``u = sat(k_d (rho_T - d_ref) cos(phi_T), u_max) g(phi_T) (1 - max(p_l, p_r))`` and
     ``omega = sat(k_beta phi_T + k_wall (p_r - p_l), omega_max)``, with the field-of-view
-    slow-down ``g`` and the wall terms ``p_l``, ``p_r`` of the module docstring. Elementwise on
+    slow-down ``g`` (1 unless ``p.fov_slowdown``) and the wall terms ``p_l``, ``p_r`` of the
+    module docstring. Elementwise on
     arrays; finite for finite inputs (``phi_T = 0`` for a target at the origin).
     """
     xt, yt = _f(x_t), _f(y_t)
     rho = np.hypot(xt, yt)
     phi = np.arctan2(yt, xt)  # 0 at the origin
     u = np.clip(p.k_d * (rho - _f(d_ref)) * np.cos(phi), -p.u_max, p.u_max)
-    u *= np.clip((p.beta_con - np.abs(phi)) / (p.beta_con - p.beta_slow), 0.0, 1.0)
+    if p.fov_slowdown:  # the variant LastSeenFOVPolicy only: not in the paper's description
+        u *= np.clip((p.beta_con - np.abs(phi)) / (p.beta_con - p.beta_slow), 0.0, 1.0)
     push_l = wall_push(d_wall_left, p.r, p.wall_margin)
     push_r = wall_push(d_wall_right, p.r, p.wall_margin)
     u *= 1.0 - p.wall_slowdown * np.minimum(np.maximum(push_l, push_r), 1.0)
@@ -245,6 +248,7 @@ class LastSeenParams:
     wall_slowdown: float  # fraction of u removed at contact with a wall, in (0, 1]
     k_wall: float  # [rad/s] turn rate away from a wall at contact
     arrive_radius: float  # [m] distance to the last-seen point counted as arrival
+    fov_slowdown: bool = False  # slow down towards the edge of the view (the variant only)
 
     #: names that may be overridden in :meth:`from_config` / :class:`LastSeenPolicy`.
     TUNABLE: ClassVar[tuple[str, ...]] = (
@@ -258,11 +262,16 @@ class LastSeenParams:
         "wall_slowdown",
         "k_wall",
         "arrive_radius",
+        "fov_slowdown",
     )
 
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
+            if f.name == "fov_slowdown":
+                if not isinstance(value, bool):
+                    raise ValueError(f"fov_slowdown must be a bool, got {value!r}")
+                continue
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(
                     f"last-seen parameter {f.name} must be finite and > 0, got {value!r}"
@@ -273,7 +282,9 @@ class LastSeenParams:
             raise ValueError(f"need beta_slow < beta_con, got {self.beta_slow}, {self.beta_con}")
 
     @classmethod
-    def from_config(cls, config: ScenarioConfig, dt: float, **overrides: float) -> LastSeenParams:
+    def from_config(
+        cls, config: ScenarioConfig, dt: float, **overrides: float | bool
+    ) -> LastSeenParams:
         """Parameters for ``config`` with the scenario-scaled defaults of the module docstring.
 
         ``overrides`` may replace any of :attr:`TUNABLE`; a default that depends on an
@@ -284,6 +295,7 @@ class LastSeenParams:
             raise TypeError(
                 f"unknown last-seen override(s) {unknown}; expected some of {cls.TUNABLE}"
             )
+        fov_slowdown = overrides.pop("fov_slowdown", False)
         ov = {k: float(v) for k, v in overrides.items()}
         d_des = float(config.formation.d_des)
         beta_con = float(config.camera.half_angle)
@@ -305,6 +317,7 @@ class LastSeenParams:
             wall_slowdown=ov.get("wall_slowdown", 0.5),
             k_wall=ov.get("k_wall", omega_max),
             arrive_radius=ov.get("arrive_radius", float(config.safety.d_col)),
+            fov_slowdown=fov_slowdown,  # type: ignore[arg-type]
         )
 
 
@@ -335,7 +348,9 @@ class LastSeenPolicy:
     initial configuration requires). :attr:`signals` holds the last call's signals.
     """
 
-    def __init__(self, env: PolicyEnv, *, dt: float | None = None, **overrides: float) -> None:
+    def __init__(
+        self, env: PolicyEnv, *, dt: float | None = None, **overrides: float | bool
+    ) -> None:
         if dt is not None:
             overrides["dt"] = dt
         self.params: LastSeenParams = LastSeenParams.from_config(
@@ -470,3 +485,22 @@ class LastSeenPolicy:
                 merged[idx] = value
                 self._sig[name] = merged
         return np.stack([u, omega], axis=-1)
+
+
+class LastSeenFOVPolicy(LastSeenPolicy):
+    """The variant of :class:`LastSeenPolicy` with the **field-of-view slow-down**: the speed
+    is scaled by ``g(phi_T) = clip((beta_con - |phi_T|) / (beta_con - beta_slow), 0, 1)``, full
+    while ``|phi_T| <= beta_slow`` (default ``beta_con / 2``), zero at ``|phi_T| >= beta_con``,
+    so the follower turns in place towards a predecessor at the edge of its view.
+
+    The paper does not describe such a mode for ref. [32]; it is a design choice of this
+    project that makes field-of-view loss structurally hard, kept under its own name
+    (``last_seen_fov`` in :data:`experiments.policies.REGISTRY`) so the comparison can show
+    both. Same keyword overrides as :class:`LastSeenPolicy`.
+    """
+
+    def __init__(
+        self, env: PolicyEnv, *, dt: float | None = None, **overrides: float | bool
+    ) -> None:
+        overrides.setdefault("fov_slowdown", True)
+        super().__init__(env, dt=dt, **overrides)

@@ -2,32 +2,44 @@
 
 Usage::
 
-    python -m baselines.paper_figures [--out docs/figures] [--seeds 5] [--study study_c ...]
+    python -m baselines.paper_figures [--out docs/figures] [--seeds 20] [--workers 2]
+                                      [--study study_c ...]
 
 For each study: the platoon's snapshots with fields of view (Fig. 5, 12), the distance and
 angle errors inside their performance functions with the safety limits (Fig. 6, 13, 14), and
 the velocity commands (Fig. 7, 10, 11), from the seed-0 episode at the env's default settings.
-Then every study is run for ``--seeds`` seeds and a markdown table of violations, funnel exits
-and errors is written to ``OUT/ppc_record.md`` (and printed).
+Then every study is run for ``--seeds`` seeds through the shared grid runner
+(:func:`experiments.grid.run_grid`, episodes stored in ``--store`` so a re-run resumes), and a
+markdown table of violations, funnel exits and errors, under the run's metadata stamp, is
+written to ``OUT/ppc_record.md`` (and printed).
 """
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from tqdm import tqdm
 
 import platoon_env
 from baselines.ppc import PPCPolicy
+from experiments.grid import Cell, run_grid
+from experiments.policies import PolicySpec
+from experiments.report import provenance_markdown, seed_ranges, wilson
+from experiments.stamp import metadata_stamp, png_metadata
+from experiments.store import Store
 from platoon_env.plots import new_figure, plot_commands, plot_errors, plot_snapshots, save_figure
-from platoon_env.rollout import Episode, episode_metrics, run_episode
+from platoon_env.rollout import run_episode
 
 STUDIES = ("study_a", "study_b", "study_c")
+PPC = PolicySpec.of("ppc", "PPC")
+_TOOL = "python -m baselines.paper_figures"
 
 
-def figures(study: str, out: Path) -> list[Path]:
-    """Draw the three figures of ``study`` from its seed-0 PPC episode; return their paths."""
+def figures(study: str, out: Path, metadata: dict[str, str] | None = None) -> list[Path]:
+    """Draw the three figures of ``study`` from its seed-0 PPC episode; return their paths
+    (``metadata``: the PNG text fields, e.g. the run's stamp)."""
     env = platoon_env.make(study)
     ep = run_episode(env, PPCPolicy(env), seed=0)
     sc = env.scenario
@@ -35,30 +47,46 @@ def figures(study: str, out: Path) -> list[Path]:
     aspect = (ymax - ymin) / (xmax - xmin)
     fig = new_figure(9, max(3.0, 9 * aspect + 0.6))
     plot_snapshots(fig.add_subplot(), sc, ep, n_snapshots=8)
-    paths = [save_figure(fig, out / f"{study}_snapshots.png")]
+    paths = [save_figure(fig, out / f"{study}_snapshots.png", metadata)]
     n = sc.config.followers
     fig = new_figure(9, 1.0 + 1.3 * n)
     plot_errors(fig, sc, [ep], labels=["PPC"])
     fig.suptitle(f"{study}: errors (blue), performance functions (red), safety limits (dashed)")
-    paths.append(save_figure(fig, out / f"{study}_errors.png"))
+    paths.append(save_figure(fig, out / f"{study}_errors.png", metadata))
     fig = new_figure(9, 1.0 + 1.1 * n)
     plot_commands(fig, sc, [ep])
     fig.suptitle(f"{study}: PPC velocity commands")
-    paths.append(save_figure(fig, out / f"{study}_commands.png"))
+    paths.append(save_figure(fig, out / f"{study}_commands.png", metadata))
     return paths
 
 
-def record(studies: list[str], seeds: int) -> str:
-    """Run PPC on every study for ``seeds`` seeds; return a markdown table of the outcome."""
-    rows = []
-    jobs = [(s, k) for s in studies for k in range(seeds)]
-    per_study: dict[str, list[dict[str, object]]] = {s: [] for s in studies}
-    for study, seed in tqdm(jobs, desc="PPC episodes", unit="ep"):
-        env = platoon_env.make(study)
-        ep: Episode = run_episode(env, PPCPolicy(env), seed=seed, record_signals=False)
-        per_study[study].append(episode_metrics(ep))
+def record(
+    studies: list[str], seeds: int, store: Store | Path, workers: int = 1, argv: Any = None
+) -> str:
+    """Run PPC on every study for ``seeds`` seeds (into ``store``); return a markdown table
+    of the outcome under the run's stamp."""
+    cells = [Cell.of(PPC, s, k) for s in studies for k in range(seeds)]
+    stamp = metadata_stamp(_TOOL, {"seeds": seeds, "studies": studies}, argv)
+    db = store if isinstance(store, Store) else Store(store)
+    try:
+        result = run_grid(db, cells, tool=_TOOL, stamp=stamp, workers=workers)
+        if result.interrupted:
+            raise SystemExit(130)
+        provenance = provenance_markdown(db, result.records.values(), result.run_id)
+    finally:
+        if not isinstance(store, Store):
+            db.close()
+    per_study: dict[str, list[dict[str, Any]]] = {s: [] for s in studies}
+    for rc, rec in result.finished():
+        per_study[rc.cell.scenario].append(rec.metrics)
+    rows = [
+        "# PPC on the paper's studies\n",
+        f"{len(result.finished())} episodes ({result.ran} run now, {result.reused} from the "
+        f"store); {len(result.failed)} failed.\n",
+        provenance,
+    ]
     header = (
-        "| study | control period [s] | seeds | successes | violations | funnel exits | "
+        "| study | control period [s] | seeds | successes [95% CI] | violations | funnel exits | "
         "max rms e_d [m] | max rms e_beta [rad] | min clearance [m] | peak u [m/s] | "
         "peak omega [rad/s] |"
     )
@@ -66,32 +94,51 @@ def record(studies: list[str], seeds: int) -> str:
     rows.append("|" + "---|" * (header.count("|") - 1))
     for study in studies:
         ms = per_study[study]
+        if not ms:
+            continue
         period = platoon_env.make(study).control_period
+        ok = sum(bool(m["success"]) for m in ms)
+        lo, hi = wilson(ok, len(ms))
         rows.append(
-            f"| {study} | {period:g} | {len(ms)} | {sum(bool(m['success']) for m in ms)} | "
-            f"{sum(1 for m in ms if m['violation'])} | {sum(int(m['funnel_exits']) for m in ms)} | "  # type: ignore[call-overload]
-            f"{max(float(m['rms_e_d']) for m in ms):.3f} | "  # type: ignore[arg-type]
-            f"{max(float(m['rms_e_beta']) for m in ms):.3f} | "  # type: ignore[arg-type]
-            f"{min(float(m['min_obstacle_clearance']) for m in ms):.3f} | "  # type: ignore[arg-type]
-            f"{max(float(m['peak_u']) for m in ms):.2f} | "  # type: ignore[arg-type]
-            f"{max(float(m['peak_omega']) for m in ms):.2f} |"  # type: ignore[arg-type]
+            f"| {study} | {period:g} | {seed_ranges(range(seeds))} | "
+            f"{ok}/{len(ms)} [{lo:.2f}, {hi:.2f}] | "
+            f"{sum(1 for m in ms if m['violation'])} | {sum(int(m['funnel_exits']) for m in ms)} | "
+            f"{max(float(m['rms_e_d']) for m in ms):.3f} | "
+            f"{max(float(m['rms_e_beta']) for m in ms):.3f} | "
+            f"{min(float(m['min_obstacle_clearance']) for m in ms):.3f} | "
+            f"{max(float(m['peak_u']) for m in ms):.2f} | "
+            f"{max(float(m['peak_omega']) for m in ms):.2f} |"
         )
+    if result.failed:
+        rows.append(f"\n{len(result.failed)} episode(s) failed; re-run to retry them.")
     return "\n".join(rows)
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog=_TOOL, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--out", type=Path, default=Path("docs/figures"), help="output folder")
-    parser.add_argument("--seeds", type=int, default=5, help="seeds per study for the record")
+    parser.add_argument("--seeds", type=int, default=20, help="seeds per study for the record")
+    parser.add_argument("--workers", type=int, default=2, help="parallel worker processes")
     parser.add_argument("--study", action="append", choices=STUDIES, help="default: all three")
+    parser.add_argument(
+        "--store",
+        type=Path,
+        default=Path("results/paper_figures/results.sqlite"),
+        help="the evaluation store the record's episodes go to (and resume from)",
+    )
     args = parser.parse_args(argv)
+    if args.seeds < 1:
+        parser.error("--seeds must be >= 1")
+    if args.workers < 1:
+        parser.error("--workers must be >= 1")
     studies = args.study or list(STUDIES)
+    stamp = png_metadata(metadata_stamp(_TOOL, {"seeds": 0, "studies": studies}, argv))
     for study in tqdm(studies, desc="figures", unit="study"):
-        for path in figures(study, args.out):
+        for path in figures(study, args.out, stamp):
             tqdm.write(f"wrote {path}")
-    table = record(studies, args.seeds)
+    table = record(studies, args.seeds, args.store, args.workers, argv)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "ppc_record.md").write_text(table + "\n")
     print(table)

@@ -183,11 +183,12 @@ def plot_commands(
         axes[0, 0].legend(loc="upper right", fontsize=7)
 
 
-def save_figure(fig: Figure, path: str | Path) -> Path:
-    """Write ``fig`` as PNG (parents created) and return the path."""
+def save_figure(fig: Figure, path: str | Path, metadata: dict[str, str] | None = None) -> Path:
+    """Write ``fig`` as PNG (parents created) and return the path; ``metadata`` are PNG text
+    fields (e.g. :func:`experiments.stamp.png_metadata`: the code and command that made it)."""
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out)
+    fig.savefig(out, metadata=metadata)
     return out
 
 

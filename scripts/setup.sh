@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Create ./.venv (Python 3.11) and install platoon_env with all extras.
-# torch==2.13.0 is installed first: any other torch request pulls a multi-GB CUDA build.
+# torch==2.13.0 is named with them: any other torch request pulls a multi-GB CUDA build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY="${PYTHON:-}"
@@ -11,5 +11,5 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ".[train,plot,dev]"
+# torch is named in the same command as the packages that depend on it (see README).
+.venv/bin/python -m pip install -q "torch==2.13.0" -e ".[train,plot,stats,dev]"

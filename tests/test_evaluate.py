@@ -70,7 +70,7 @@ def test_evaluate_ppc_and_model(tiny_model: Path, tmp_path: Path) -> None:
     ppc = next(r for r in rows if r["policy"] == "ppc")
     assert ppc["success"] == "True" and ppc["violation"] == ""
     summary = (out / "summary.md").read_text()
-    assert "| study_c | ppc | 1 | 1/1" in summary and "| study_c | tiny | 1 |" in summary
+    assert "| study_c | ppc | 1 | 0 | 1/1" in summary and "| study_c | tiny | 1 | 0 |" in summary
     for name in (
         "study_c_trajectories.png",
         "study_c_errors.png",
@@ -107,7 +107,7 @@ def test_wilson_interval() -> None:
 
 
 def test_summary_counts_causes() -> None:
-    base = {c: "0" for c in CSV_COLUMNS}
+    base = {c: "0" for c in CSV_COLUMNS} | {"status": "done"}
     rows = [
         {
             **base,
@@ -127,7 +127,9 @@ def test_summary_counts_causes() -> None:
         },
     ]
     text = summarise(rows)
-    assert "| s | p | 2 | 1/2" in text and "occluded 1" in text and text.rstrip().endswith("2 |")
+    assert (
+        "| s | p | 2 | 0 | 1/2" in text and "occluded 1" in text and text.rstrip().endswith("2 |")
+    )
 
 
 def test_realism_flag_parsing() -> None:
@@ -172,7 +174,9 @@ def test_realism_flag_parsing() -> None:
         "profile aruco; camera.noise.position=0.01; camera.latency=0.02; "
         "proximity.noise=0.02; robot.accel_max=1"
     )
-    resolved = json.loads(args.resolved["study_a"])
+    ((key, text),) = args.resolved.items()
+    assert key == ("study_a", args.realism.label)
+    resolved = json.loads(text)
     assert resolved["camera"]["noise"] == {
         "position": 0.01,
         "position_per_m": 0.01,
@@ -216,35 +220,142 @@ def test_rows_carry_the_realism(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert row["realism_label"] == "camera.latency=0.1" and row["sensor_profile"] == ""
     assert json.loads(row["realism"])["camera"]["latency"] == 0.1
     assert row["success"] == "False" and row["violation"] == "out_of_fov"
-    # Other realism, same folder: a new row, not a resumed one; the summary shows this run's.
+    first_fp = row["scenario_fingerprint"]
+    # Other realism, same folder: a new episode, not a resumed one; the exports are this grid's.
+    capsys.readouterr()
     assert main([*base, "--camera", "latency=0.05", "--camera", "frame_rate=15"]) == 0
-    rows = _rows(out / "results.csv")
-    assert len(rows) == 2 and len({r["realism"] for r in rows}) == 2
+    assert "1 episode(s) run, 0 already in the store" in capsys.readouterr().out
+    (row,) = _rows(out / "results.csv")
+    assert row["scenario_fingerprint"] != first_fp
     summary = (out / "summary.md").read_text()
     assert "realism flags: camera.latency=0.05; camera.frame_rate=15" in summary
     assert summary.count("| study_c | ppc | 1 |") == 1
     # The same realism again resumes: nothing to run.
-    capsys.readouterr()
     assert main([*base, "--camera", "latency=0.1"]) == 0
-    assert "1 of 1 episodes done (2 rows in the file), 0 to run" in capsys.readouterr().out
-    assert len(_rows(out / "results.csv")) == 2
+    assert "0 episode(s) run, 1 already in the store" in capsys.readouterr().out
     # Mixed rows are summarised per realism, never together.
+    rows = [{**row, "realism_label": label, "scenario": "s"} for label in ("a", "b")]
     text = summarise(rows)
-    assert text.count("### realism:") == 2 and text.count("| study_c | ppc | 1 |") == 2
+    assert text.count("### realism:") == 2 and text.count("| s | ppc | 1 |") == 2
 
 
-def test_old_results_get_the_realism_columns(tmp_path: Path) -> None:
-    from platoon_env.rollout import METRIC_NAMES
-
+def test_old_csv_folder_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A folder of the CSV-era platoon-evaluate: its rows cannot be matched to fingerprints, so
+    they are neither resumed nor overwritten."""
     out = tmp_path / "old"
     out.mkdir()
-    old_columns = ["policy", "scenario", "seed", *METRIC_NAMES]
-    with (out / "results.csv").open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=old_columns)
-        writer.writeheader()
-        writer.writerow({c: "0" for c in old_columns} | {"policy": "ppc", "scenario": "study_a"})
+    (out / "results.csv").write_text("policy,scenario,seed\nppc,study_a,0\n")
     args = ["--policy", "ppc", "--scenario", "study_a", "--episodes", "1", "--no-plots"]
-    assert main([*args, "--out", str(out)]) == 0  # the old row is the ideal run: resumed
-    (row,) = _rows(out / "results.csv")
-    assert list(row) == list(CSV_COLUMNS) and row["realism_label"] == "none"
-    assert json.loads(row["realism"])["camera"]["latency"] == 0.0
+    assert main([*args, "--out", str(out)]) == 2
+    assert "written by an older platoon-evaluate" in capsys.readouterr().err
+    assert (out / "results.csv").read_text() == "policy,scenario,seed\nppc,study_a,0\n"
+    assert not (out / "results.sqlite").exists()
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--scenario", "no_such_scenario"], "no_such_scenario"),
+        (["--workers", "0"], "argument --workers: must be >= 1, got 0"),
+        (["--seed", "-1"], "argument --seed: must be >= 0, got -1"),
+        (["--episodes", "0"], "argument --episodes: must be >= 1, got 0"),
+        (["--episodes", "x"], "argument --episodes: 'x' is not an integer"),
+        (["--policy", "=ppc"], "empty NAME"),
+        (["--policy", "nope"], "not a policy kind"),
+        (["--set", "max_episode_steps=-3"], "max_episode_steps"),
+        (["--set", "nonsense=1"], "unknown option 'nonsense'"),
+        (["--set", "render_mode=human"], "not an option of an evaluation episode"),
+        (["--set", "camera.latency=0.1"], "use the realism flag (--camera)"),
+    ],
+)
+def test_cli_errors_are_usage_errors(
+    flags: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "never"
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "ppc", "--scenario", "study_c", *flags, "--out", str(out)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "usage: platoon-evaluate" in err and message in err and "Traceback" not in err
+    assert not out.exists()  # nothing written
+
+
+def test_file_as_out_is_a_usage_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "a_file"
+    path.write_text("x")
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "ppc", "--scenario", "study_c", "--out", str(path)])
+    assert exc.value.code == 2 and "exists and is not a folder" in capsys.readouterr().err
+    assert path.read_text() == "x"
+
+
+def test_duplicate_scenarios_run_once_and_headers_count_rows(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--scenario study_c`` twice, or a name and a path to the same content, is one scenario;
+    plots of a scenario given by an absolute path go to OUT/plots, never beside the YAML."""
+    import yaml
+
+    from platoon_env.scenarios.loader import load_config
+    from platoon_env.scenarios.schema import config_to_mapping
+
+    yaml_dir = tmp_path / "yaml"
+    yaml_dir.mkdir()
+    copy = yaml_dir / "my_c.yaml"
+    copy.write_text(yaml.safe_dump(config_to_mapping(load_config("study_c"))))
+    out = tmp_path / "eval"
+    args = ["--policy", "ppc", "--scenario", str(copy), "--scenario", "study_c"]
+    args += ["--scenario", str(copy), "--episodes", "2", "--workers", "1", "--out", str(out)]
+    assert main([*args, "--set", "max_episode_steps=200"]) == 0
+    assert "has the content of another one given: run once" in capsys.readouterr().out
+    rows = _rows(out / "results.csv")
+    assert sorted((r["scenario"], r["seed"]) for r in rows) == [(str(copy), "0"), (str(copy), "1")]
+    summary = (out / "summary.md").read_text()
+    assert "2 episodes summarised (seeds 0..1)" in summary
+    assert "| " + str(copy) + " | ppc | 2 | 0..1 |" in summary
+    assert sorted(p.name for p in yaml_dir.iterdir()) == ["my_c.yaml"]
+    assert (out / "plots" / "my_c_trajectories.png").is_file()
+
+
+def test_suites() -> None:
+    from experiments.suites import SUITES, suite
+
+    paper = suite("paper")
+    assert paper.scenarios == ("study_a", "study_b", "study_c") and paper.seeds >= 20
+    assert [c.label for c in paper.conditions] == ["ideal", "aruco"]
+    heldout = suite("heldout")
+    assert heldout.scenarios == ("procedural_test",) and heldout.seeds >= 200
+    robust = suite("robustness")
+    labels = [c.label for c in robust.conditions]
+    assert labels[0] == "ideal" and "latency=50" in labels and "profile=aruco" in labels
+    assert len(labels) == len(set(labels)) and all(c.overrides for c in robust.conditions[1:])
+    assert set(SUITES) == {"paper", "heldout", "robustness"}
+    with pytest.raises(KeyError, match="no suite"):
+        suite("nope")
+
+
+def test_suite_run_labels_rows_by_condition(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "eval"
+    args = ["--suite", "paper", "--policy", "ppc", "--episodes", "1", "--no-plots"]
+    args += ["--workers", "1", "--set", "max_episode_steps=30", "--out", str(out)]
+    assert main(args) == 0
+    rows = _rows(out / "results.csv")
+    assert sorted((r["scenario"], r["realism_label"], r["sensor_profile"]) for r in rows) == [
+        (s, label, "aruco" if label == "aruco" else "")
+        for s in ("study_a", "study_b", "study_c")
+        for label in ("aruco", "ideal")
+    ]
+    summary = (out / "summary.md").read_text()
+    assert "### realism: aruco" in summary and "### realism: ideal" in summary
+    assert "suite paper: conditions ideal, aruco" in summary
+    for flags in (
+        ["--scenario", "study_a"],
+        ["--sensor-profile", "aruco"],
+        ["--camera", "latency=0.1"],
+    ):
+        with pytest.raises(SystemExit) as exc:
+            main([*args, *flags])
+        assert exc.value.code == 2
+        assert "--suite paper sets the scenarios and conditions" in capsys.readouterr().err

@@ -3,26 +3,21 @@
 from __future__ import annotations
 
 import csv
-import json
 import math
 from pathlib import Path
 
 import pytest
 
-from baselines import frontiers as fr
 from baselines.frontiers import (
     AXES,
     CONTROLLERS,
     CSV_COLUMNS,
-    Job,
-    RowWriter,
     build_grid,
     level_key,
     main,
-    read_rows,
-    run_job,
     wilson_interval,
 )
+from experiments.grid import resolve_cells, run_cell
 
 
 def test_wilson_interval_hand_case() -> None:
@@ -81,54 +76,30 @@ def test_grid_levels() -> None:
     assert {"ppc", "last_seen"} <= set(CONTROLLERS)
 
 
-def test_build_grid_shares_the_ideal_point_and_skips_done() -> None:
+def test_build_grid_shares_the_ideal_point() -> None:
     axes = ["camera_noise", "latency", "accel_max"]
-    keys, jobs, notes = build_grid(["study_b"], ["ppc"], axes, 2)
+    grid, notes = build_grid(["study_b"], ["ppc"], axes, 2)
     assert notes == []
-    assert len(keys) == 2 * (6 + 5 + 4)
-    # The three ideal levels are one configuration: one episode per seed fills their rows.
-    assert len(jobs) == 2 * (1 + 5 + 4 + 3)
-    ideal = [j for j in jobs if json.loads(j.overrides) == {}]
-    assert len(ideal) == 2 and all(len(j.points) == 3 for j in ideal)
-    covered = {(j.seed, p) for j in jobs for p in j.points}  # every row, once
-    assert sum(len(j.points) for j in jobs) == len(keys)
-    assert covered == {(int(k[4]), (k[2], k[3])) for k in keys}
-    done = {("ppc", "study_b", "latency", "0", "0"), ("ppc", "study_b", "latency", "50", "1")}
-    _, jobs2, _ = build_grid(["study_b"], ["ppc"], axes, 2, done=done)
-    covered2 = {(j.seed, p) for j in jobs2 for p in j.points}
-    assert covered2 == covered - {(0, ("latency", "0")), (1, ("latency", "50"))}
-
-
-def test_resume_drops_a_torn_line(tmp_path: Path) -> None:
-    path = tmp_path / "frontiers.csv"
-    writer = RowWriter(path)
-    row = {c: "" for c in CSV_COLUMNS}
-    row.update(controller="ppc", study="study_a", axis="latency", level="0", seed=0)
-    row.update(success=True, steps=5)
-    writer.write(row)
-    writer.close()
-    with path.open("a") as f:
-        f.write("ppc,study_a,latency,10,0,Tr")  # a run killed mid-row
-    rows = read_rows(path)
-    assert len(rows) == 1 and rows[0]["success"] == "True"
-    assert path.read_bytes().endswith(b"\n") and "Tr\n" not in path.read_text()
-    done = {fr._key(r) for r in rows}
-    _, jobs, _ = build_grid(["study_a"], ["ppc"], ["latency"], 1, done=done)
-    assert {p for j in jobs for p in j.points} == {
-        ("latency", lv) for lv in ("10", "30", "50", "100")
-    }
-    # Appending after the cut starts on a fresh line.
-    writer = RowWriter(path)
-    writer.write({**row, "level": "10"})
-    writer.close()
-    assert [r["level"] for r in read_rows(path)] == ["0", "10"]
+    assert len(grid) == 2 * (6 + 5 + 4)
+    keys = [k for k, _ in grid]
+    assert len(set(keys)) == len(keys)
+    # The three ideal levels are one configuration: one episode (one store key) per seed.
+    resolved = resolve_cells([cell for _, cell in grid], unique=False)
+    assert len({rc.key for rc in resolved}) == 2 * (1 + 5 + 4 + 3)
+    ideal = {rc.key for (k, _), rc in zip(grid, resolved, strict=True) if k[3] in ("0", "none")}
+    assert len(ideal) == 2
+    assert len(resolve_cells(cell for _, cell in grid)) == 2 * (1 + 5 + 4 + 3)
 
 
 def test_ppc_failure_diagnostics() -> None:
     # 100 ms of camera latency on study C: the bearing loop oscillates out of the field of
     # view within seconds.
-    job = Job("ppc", "study_c", 0, json.dumps({"camera": {"latency": 0.1}}), (("latency", "100"),))
-    (row,) = run_job(job)
+    ((_, cell),) = [
+        (k, c) for k, c in build_grid(["study_c"], ["ppc"], ["latency"], 1)[0] if k[3] == "100"
+    ]
+    result = run_cell(resolve_cells([cell])[0])
+    assert result.status == "done", result.error
+    row = result.metrics
     assert row["success"] is False and row["violation"] == "out_of_fov"
     assert row["first_saturation"] in ("beta_lo", "beta_hi")
     assert row["first_saturation_time"] <= row["violation_time"]
@@ -160,13 +131,19 @@ def test_quick_run_writes_csv_md_png(tmp_path: Path, capsys: pytest.CaptureFixtu
     md = (out / "frontiers.md").read_text()
     assert "## study_a" in md and "| latency | 50 | 1/1 [0.21, 1.00] |" in md
     assert (out / "frontier_study_a.png").stat().st_size > 5000
-    # A re-run has nothing left to do; other settings in the same folder are refused.
+    assert "- rows: " in md and "- code: " in md  # the provenance of the rows
+    # A re-run has nothing left to do (the three ideal levels were one episode each).
     capsys.readouterr()
     assert main(args) == 0
-    assert "0 to run" in capsys.readouterr().out
-    assert len(_csv(out / "frontiers.csv")) == len(rows)
-    with pytest.raises(SystemExit, match="another --out"):
-        main(["--quick", "--study", "study_a", "--max-episode-steps", "16", "--out", str(out)])
+    assert "0 episode(s) run, " + str(len(CONTROLLERS) * 3) + " already in the store" in (
+        capsys.readouterr().out
+    )
+    assert _csv(out / "frontiers.csv") == rows
+    # Other settings in the same folder are other episodes, never mixed with these.
+    other = [a if a != "15" else "16" for a in args]
+    assert main(other) == 0
+    rows16 = _csv(out / "frontiers.csv")
+    assert len(rows16) == len(rows) and all(r["steps"] == "16" for r in rows16)
 
 
 @pytest.mark.slow

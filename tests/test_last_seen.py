@@ -12,7 +12,7 @@ import pytest
 import platoon_env
 from baselines import LastSeenPolicy
 from baselines.comparison import run, visibility_breaks
-from baselines.last_seen import MODE_LOST, MODE_TRACKING, ego_motion
+from baselines.last_seen import MODE_LOST, MODE_TRACKING, LastSeenFOVPolicy, ego_motion
 from platoon_env.dynamics.unicycle import integrate
 from platoon_env.geometry.sensing import SENSE_VISIBLE
 from platoon_env.observation import OBS_SIZE
@@ -124,17 +124,30 @@ def test_stops_at_last_seen_point_and_when_never_seen() -> None:
 
 
 def test_saturation_and_field_of_view_slowdown() -> None:
+    """The law as the paper describes it has no slow-down at the edge of the view; the named
+    variant LastSeenFOVPolicy has."""
     policy = LastSeenPolicy(fake_env())
     p = policy.params
     cfg = platoon_env.load_scenario("study_c").config
-    assert p.u_max == pytest.approx(2 * cfg.leader.speed)
+    assert p.u_max == pytest.approx(2 * cfg.leader.speed) and not p.fov_slowdown
     far = policy.act({"follower_1": obs(1.49, 0.0)})["follower_1"]
     assert far[0] == pytest.approx(p.u_max)  # saturated, not unbounded
-    policy.reset()
     b = 0.99 * p.beta_con
-    edge = policy.act({"follower_1": obs(1.49 * math.cos(b), 1.49 * math.sin(b))})["follower_1"]
-    assert 0.0 <= edge[0] < 0.05 * p.u_max  # nearly stops at the edge of the view
+    at_edge = obs(1.49 * math.cos(b), 1.49 * math.sin(b))
+    policy.reset()
+    edge = policy.act({"follower_1": at_edge})["follower_1"]
+    # no slow-down: the distance law alone, k_d (d - d_des) cos(beta), saturated at u_max
+    expected_u = min(p.k_d * (1.49 - p.d_des) * math.cos(b), p.u_max)
+    assert edge[0] == pytest.approx(expected_u, rel=1e-5)
     assert edge[1] == pytest.approx(min(p.k_beta * b, p.omega_max), rel=1e-5)  # proportional
+    fov = LastSeenFOVPolicy(fake_env())
+    assert fov.params.fov_slowdown
+    slowed = fov.act({"follower_1": at_edge})["follower_1"]
+    assert 0.0 <= slowed[0] < 0.05 * p.u_max  # nearly stops at the edge of the view
+    assert slowed[1] == pytest.approx(edge[1])
+    assert not LastSeenFOVPolicy(fake_env(), fov_slowdown=False).params.fov_slowdown
+    with pytest.raises(ValueError, match="fov_slowdown must be a bool"):
+        LastSeenPolicy(fake_env(), fov_slowdown=1.0)
 
 
 def test_no_nan_for_any_input() -> None:

@@ -1,29 +1,41 @@
 """``platoon-evaluate``: PPC against learned policies on the same workspaces and seeds.
 
-Every policy × scenario × episode is one row of ``OUT/results.csv`` (written as episodes
-finish, so an interrupted run keeps them, and a re-run with the same ``--out`` resumes where it
-stopped). Then ``OUT/summary.md`` aggregates them with 95 % confidence intervals, and
-``OUT/plots/`` holds per-scenario comparisons (trajectories, errors against the constraints,
-velocity commands) and a GIF of one episode per policy and scenario.
+Every policy × scenario × seed is one episode of the evaluation store ``OUT/results.sqlite``
+(:mod:`experiments.store`; ``docs/results.md``), written as each episode finishes. A re-run
+with the same ``--out`` runs only what the store does not hold yet, matched by content, not
+by name: the policy's fingerprint (a model's file hash and ``model.json``; an analytic law's
+parameters), the resolved scenario's (after the YAML, the sensor profile and every override),
+the overrides' and the seed. So an edited YAML or a retrained model under the same name runs
+again, ``./x.yaml`` and ``x.yaml`` are one scenario, and two evaluators into one ``--out``
+share the work (each episode once). A killed run loses only the episodes in flight.
+
+At the end, from the store's rows of this run's grid: ``OUT/results.csv`` (one row per episode,
+with the fingerprints), ``OUT/summary.md`` (per scenario × policy, 95 % confidence intervals;
+its header counts the rows it summarises and says which code made them) and ``OUT/plots/``
+(trajectories, errors against the constraints, velocity commands, a GIF per policy, from the
+first seed's episodes).
 
 With no arguments it runs the default benchmark: PPC against every shipped model
 (``models/*/model.zip``) on the paper's three studies and the held-out procedural test set.
 
-Policies (``--policy``, repeatable): ``ppc`` (the paper's law, :class:`baselines.PPCPolicy`),
-``last_seen`` (ref. [32]'s last-seen baseline, :class:`baselines.LastSeenPolicy`),
-``NAME=PATH`` (a model saved by ``platoon-train``; PATH is ``DIR`` or ``DIR/model.zip``).
-Each policy runs at its own control period: PPC at the env's default, a learned model at the
-period it was trained with (recorded in its ``model.json``); metrics are in seconds and metres,
-so they compare across periods.
+Policies (``--policy``, repeatable): ``ppc`` (the paper's law), ``filtered_ppc`` (PPC behind a
+Kalman filter, for noisy sensing), ``last_seen`` (ref. [32]'s baseline), ``NAME=KIND`` (one of
+those under another name) or ``NAME=PATH`` (a model saved by ``platoon-train``; PATH is ``DIR``
+or ``DIR/model.zip``). Each policy runs at its own control period: the analytic laws at the
+env's default, a learned model at the period it was trained with (its ``model.json``);
+metrics are in seconds and metres, so they compare across periods.
 
 Realism (``docs/sensing.md``): ``--sensor-profile NAME`` (a shipped profile such as ``aruco``,
 or a profile YAML) and per-field overrides of the ``camera``, ``proximity`` and ``robot``
 blocks, ``--camera noise.position=0.01 --camera latency=0.05 --robot accel_max=1
 --proximity noise=0.01`` (``KEY[.SUB...]=VALUE``, the value read as a YAML scalar, repeatable,
-applied after the profile), are passed to every env. Every row records the profile, the flags
-(``realism_label``) and the resolved camera, proximity and robot blocks (``realism``, JSON);
-the realism is part of the key a re-run resumes by, and ``summary.md`` has a table per realism,
-so runs with different realism never mix.
+applied after the profile); ``--set KEY=VALUE`` overrides any other option of
+``platoon_env.make`` (``--set max_episode_steps=500 --set formation.d_des=1.5``). Every row
+records the profile, the flags (``realism_label``) and the resolved camera, proximity and
+robot blocks (``realism``, JSON).
+
+Exit status: 0, 1 if an episode failed (the others are kept; a re-run retries the failed
+ones), 2 on a usage error (nothing written), 130 when interrupted.
 
 .. warning::
     Loading a model unpickles code: evaluate only model files you trust.
@@ -32,45 +44,76 @@ so runs with different realism never mix.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
-import math
-import os
 import re
-import time
+import sys
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 from tqdm import tqdm
 
 import platoon_env
-from platoon_env.rollout import METRIC_NAMES, Episode, PolicyLike, episode_metrics, run_episode
-from platoon_env.scenarios.options import apply_overrides
+from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
+from experiments.policies import PolicySpec, build_policy, shipped_models
+from experiments.report import (
+    mean_ci,
+    provenance_markdown,
+    seed_ranges,
+    wilson,
+    write_csv,
+)
+from experiments.stamp import metadata_stamp, png_metadata
+from experiments.store import Store, StoreError
+from experiments.suites import SUITES, Condition, suite
+from platoon_env.rollout import METRIC_NAMES, Episode, PolicyLike
 from platoon_env.scenarios.schema import ScenarioError, config_to_mapping
+
+__all__ = [
+    "CSV_COLUMNS",
+    "DEFAULT_SCENARIOS",
+    "PolicySpec",
+    "Realism",
+    "build",
+    "default_policies",
+    "main",
+    "mean_ci",
+    "nest_assignments",
+    "parse_args",
+    "parse_assignment",
+    "plot_scenario",
+    "resolved_realism",
+    "summarise",
+    "wilson",
+]
 
 #: The shipped models live here (a source checkout; see models/README.md).
 MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
 DEFAULT_SCENARIOS = ("study_a", "study_b", "study_c", "procedural_test")
 #: The scenario blocks the realism flags override, and record (resolved) with every row.
 REALISM_BLOCKS: tuple[str, ...] = ("camera", "proximity", "robot")
+#: Columns of the ``results.csv`` export.
 CSV_COLUMNS: tuple[str, ...] = (
     "policy",
     "scenario",
     "seed",
+    "status",
     "sensor_profile",
     "realism_label",
     *METRIC_NAMES,
     "realism",
+    "policy_fingerprint",
+    "scenario_fingerprint",
+    "overrides_fingerprint",
+    "run_id",
+    "wall_time",
+    "error",
 )
-#: Columns a re-run resumes by: a row with the same values is not run again.
-KEY_COLUMNS: tuple[str, ...] = ("policy", "scenario", "seed", "realism")
 _KEY_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
+_TOOL = "platoon-evaluate"
 
 
 def parse_assignment(text: str) -> tuple[tuple[str, ...], Any]:
@@ -153,189 +196,61 @@ class Realism:
 
 
 def resolved_realism(env_or_config: Any) -> str:
-    """The resolved camera, proximity and robot blocks of an env (or a scenario config), as the
-    canonical JSON recorded in the ``realism`` column."""
-    cfg = getattr(getattr(env_or_config, "scenario", None), "config", env_or_config)
-    mapping = config_to_mapping(cfg)
+    """The resolved camera, proximity and robot blocks of an env, a scenario config or a
+    config mapping, as the canonical JSON recorded in the ``realism`` column."""
+    if isinstance(env_or_config, dict):
+        mapping = env_or_config
+    else:
+        source = getattr(env_or_config, "source", None)
+        mapping = config_to_mapping(getattr(source, "config", env_or_config))
     blocks = {name: mapping.get(name, {}) for name in REALISM_BLOCKS}
     return json.dumps(blocks, sort_keys=True, separators=(",", ":"))
-
-
-@dataclass(frozen=True)
-class PolicySpec:
-    """A policy to evaluate: its display name and how to build it (``ppc`` or a model path)."""
-
-    name: str
-    kind: str  # "ppc" | "model"
-    path: Path | None = None
-
-    @classmethod
-    def parse(cls, text: str) -> PolicySpec:
-        """``ppc`` or ``NAME=PATH`` (or a bare PATH, named after its folder)."""
-        if text == "ppc":
-            return cls("ppc", "ppc")
-        if text == "last_seen":
-            return cls("last_seen", "last_seen")
-        name, sep, path = text.partition("=")
-        if not sep:
-            path, name = (
-                text,
-                Path(text).resolve().parent.name if text.endswith(".zip") else Path(text).name,
-            )
-        p = Path(path)
-        model = p if p.suffix == ".zip" else p / "model.zip"
-        if not model.is_file():
-            raise argparse.ArgumentTypeError(f"--policy {text!r}: no model file at {model}")
-        return cls(name, "model", model)
 
 
 def build(
     spec: PolicySpec, scenario: str, realism: Realism = Realism()
 ) -> tuple[platoon_env.PlatoonParallelEnv, PolicyLike]:
     """The env (at the policy's control period, with the realism flags) and the policy for one
-    scenario."""
-    overrides = realism.overrides()
-    if spec.kind == "ppc":
-        from baselines.ppc import PPCPolicy
-
-        env = platoon_env.make(scenario, **overrides)
-        return env, PPCPolicy(env)
-    if spec.kind == "last_seen":
-        from baselines.last_seen import LastSeenPolicy
-
-        env = platoon_env.make(scenario, **overrides)
-        return env, LastSeenPolicy(env)
-    from training.policies import LearnedPolicy
-
-    assert spec.path is not None
-    learned = LearnedPolicy.load(spec.path)
-    env = platoon_env.make(scenario, control_period=learned.control_period, **overrides)
-    return env, learned
+    scenario, as an evaluation episode runs them."""
+    env = platoon_env.make(scenario, **spec.env_overrides(), **realism.overrides())
+    policy: PolicyLike = build_policy(spec, env)
+    return env, policy
 
 
-def run_job(
-    spec: PolicySpec, scenario: str, seed: int, keep: bool, realism: Realism = Realism()
-) -> tuple[dict[str, Any], Episode | None]:
-    """One episode; returns its CSV row and (if ``keep``) the recorded episode for plots.
-
-    The row carries the realism: the profile, the flags and the env's resolved blocks.
-    """
-    import torch
-
-    torch.set_num_threads(1)
-    env, policy = build(spec, scenario, realism)
-    ep = run_episode(env, policy, seed=seed, record_signals=keep)
-    row = {
-        "policy": spec.name,
-        "scenario": scenario,
-        "seed": seed,
-        "sensor_profile": realism.profile or "",
-        "realism_label": realism.label,
-        **episode_metrics(ep),
-        "realism": resolved_realism(env),
-    }
-    return row, ep if keep else None
+def default_policies() -> list[PolicySpec]:
+    """PPC and every shipped model."""
+    return [PolicySpec.of("ppc"), *shipped_models(MODELS_DIR)]
 
 
-def _key(row: dict[str, Any]) -> tuple[str, ...]:
-    return tuple(str(row[c]) for c in KEY_COLUMNS)
-
-
-def _read_rows(path: Path) -> list[dict[str, str]]:
-    """The rows of ``results.csv`` ([] if absent). A torn last line (a run killed while
-    writing it) is cut off the file; a file of an older version, without the realism columns,
-    is rewritten with them (its rows ran without realism flags: the scenario's own blocks)."""
-    if not path.is_file():
-        return []
-    data = path.read_bytes()
-    if data and not data.endswith(b"\n"):
-        with path.open("r+b") as f:
-            f.truncate(data.rfind(b"\n") + 1)
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        rows = [r for r in reader if None not in r.values()]
-        columns = tuple(reader.fieldnames or ())
-    if columns and "realism" not in columns:
-        rows = _upgrade(path, rows)
-    return rows
-
-
-def _upgrade(path: Path, rows: list[dict[str, str]]) -> list[dict[str, str]]:
-    """Add the realism columns to the rows of an older ``results.csv`` and rewrite it."""
-    cache: dict[str, str] = {}
-    for r in rows:
-        scenario = r["scenario"]
-        if scenario not in cache:
-            try:
-                cache[scenario] = resolved_realism(platoon_env.scenarios.load_config(scenario))
-            except (ScenarioError, OSError, TypeError):
-                cache[scenario] = "unknown"
-        r.update(sensor_profile="", realism_label=Realism().label, realism=cache[scenario])
-    tmp = path.with_suffix(".csv.tmp")
-    with tmp.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction="ignore", restval="")
-        writer.writeheader()
-        writer.writerows(rows)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    print(f"{path}: added the realism columns to {len(rows)} rows of an older version")
-    return rows
-
-
-def _format(value: Any) -> str:
-    if isinstance(value, float):
-        return "inf" if math.isinf(value) else f"{value:.6g}"
-    return str(value)
-
-
-def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """Wilson score interval of a proportion (95 % by default)."""
-    if n == 0:
-        return (math.nan, math.nan)
-    p = successes / n
-    denom = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return (max(0.0, centre - half), min(1.0, centre + half))
-
-
-def mean_ci(values: Sequence[float], z: float = 1.96) -> str:
-    """``mean ± half-width`` of a normal-approximation 95 % interval (finite values only)."""
-    vals = np.array([v for v in values if math.isfinite(v)], dtype=float)
-    if vals.size == 0:
-        return "–"
-    if vals.size == 1:
-        return f"{vals[0]:.3f}"
-    half = z * float(np.std(vals, ddof=1)) / math.sqrt(vals.size)
-    return f"{np.mean(vals):.3f} ± {half:.3f}"
+# ----------------------------------------------------------------------------------------------
+# Exports
+# ----------------------------------------------------------------------------------------------
 
 
 def summarise(rows: Iterable[dict[str, str]]) -> str:
-    """The markdown of ``summary.md``: per realism (the ``realism`` column; a heading when
-    there are several), a table with one line per scenario × policy."""
+    """The markdown tables of ``summary.md``: one line per scenario × policy; rows of several
+    realism settings (the ``realism_label`` column) get a table each, never mixed."""
     by_realism: dict[str, list[dict[str, str]]] = defaultdict(list)
     for r in rows:
-        by_realism[r.get("realism", "")].append(r)
+        by_realism[r.get("realism_label", "") or "none"].append(r)
     if len(by_realism) <= 1:
         return _summary_table(next(iter(by_realism.values()), []))
-    parts = []
-    for realism, rs in sorted(by_realism.items()):
-        label = rs[0].get("realism_label", "") or "none"
-        parts.append(f"### realism: {label}\n\nresolved: `{realism}`\n\n{_summary_table(rs)}")
-    return "\n\n".join(parts)
+    return "\n\n".join(
+        f"### realism: {label}\n\n{_summary_table(rs)}" for label, rs in sorted(by_realism.items())
+    )
 
 
 def _summary_table(rows: Iterable[dict[str, str]]) -> str:
-    """One line per scenario × policy."""
+    """One line per scenario × policy over the rows with a result."""
     groups: dict[tuple[str, str], list[dict[str, str]]] = defaultdict(list)
     for r in rows:
-        groups[(r["scenario"], r["policy"])].append(r)
+        if r.get("status", "done") == "done":
+            groups[(r["scenario"], r["policy"])].append(r)
     lines = [
-        "| scenario | policy | episodes | success [95% CI] | violations by cause | "
+        "| scenario | policy | episodes | seeds | success [95% CI] | violations by cause | "
         "rms e_d [m] | rms e_beta [rad] | min clearance [m] | min robot distance [m] | "
         "peak u [m/s] | peak omega [rad/s] | funnel exits |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for (scenario, policy), rs in sorted(groups.items()):
         n = len(rs)
@@ -350,8 +265,9 @@ def _summary_table(rows: Iterable[dict[str, str]]) -> str:
         def f(key: str, rs: list[dict[str, str]] = rs) -> list[float]:
             return [float(r[key]) for r in rs]
 
+        seeds = seed_ranges(int(r["seed"]) for r in rs)
         lines.append(
-            f"| {scenario} | {policy} | {n} | {ok}/{n} [{lo:.2f}, {hi:.2f}] | {viol} | "
+            f"| {scenario} | {policy} | {n} | {seeds} | {ok}/{n} [{lo:.2f}, {hi:.2f}] | {viol} | "
             f"{mean_ci(f('rms_e_d'))} | {mean_ci(f('rms_e_beta'))} | "
             f"{min(f('min_obstacle_clearance')):.3f} | {min(f('min_inter_robot_distance')):.3f} | "
             f"{max(f('peak_u')):.2f} | {max(f('peak_omega')):.2f} | "
@@ -360,8 +276,57 @@ def _summary_table(rows: Iterable[dict[str, str]]) -> str:
     return "\n".join(lines)
 
 
-def plot_scenario(scenario: str, episodes: dict[str, Episode], out: Path) -> list[Path]:
-    """Comparison plots of one scenario (one episode per policy) and a GIF per policy."""
+def export_rows(result: GridResult, conditions: Mapping[str, Condition]) -> list[dict[str, Any]]:
+    """The ``results.csv`` rows of a grid: every cell with a row in the store; ``conditions``
+    names each cell's condition by its overrides (JSON)."""
+    rows = []
+    for rc in result.cells:
+        rec = result.records.get(rc.key)
+        if rec is None or rec.status == "running":
+            continue
+        rows.append(
+            {
+                "policy": rc.cell.policy.name,
+                "scenario": rc.cell.scenario,
+                "seed": rc.cell.seed,
+                "status": rec.status,
+                "sensor_profile": conditions[rc.cell.overrides].overrides.get("sensor_profile", ""),
+                "realism_label": conditions[rc.cell.overrides].label,
+                **{k: rec.metrics.get(k) for k in METRIC_NAMES},
+                "realism": resolved_realism(rc.config),
+                "policy_fingerprint": rc.key.policy,
+                "scenario_fingerprint": rc.key.scenario,
+                "overrides_fingerprint": rc.key.overrides,
+                "run_id": rec.run_id,
+                "wall_time": rec.wall_time,
+                "error": rec.error.strip().splitlines()[-1] if rec.error.strip() else "",
+            }
+        )
+    return rows
+
+
+def _csv_strings(rows: Iterable[dict[str, Any]]) -> list[dict[str, str]]:
+    from experiments.report import format_value
+
+    return [{k: format_value(v) for k, v in r.items()} for r in rows]
+
+
+def _slug(scenario: str) -> str:
+    """A file-name stem for a scenario given by name or path (never a path itself)."""
+    stem = Path(scenario).stem if scenario.endswith((".yaml", ".yml")) else scenario
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", stem) or "scenario"
+
+
+def plot_scenario(
+    scenario: str,
+    episodes: dict[str, Episode],
+    out: Path,
+    slug: str | None = None,
+    metadata: dict[str, str] | None = None,
+) -> list[Path]:
+    """Comparison plots of one scenario (one episode per policy) and a GIF per policy, into
+    ``out`` under the file-name stem ``slug`` (default: the scenario's name); ``metadata``
+    are the PNG text fields (the run's stamp)."""
     from platoon_env.plots import (
         new_figure,
         plot_commands,
@@ -371,6 +336,7 @@ def plot_scenario(scenario: str, episodes: dict[str, Episode], out: Path) -> lis
         save_gif,
     )
 
+    slug = slug or _slug(scenario)
     names = sorted(episodes)
     eps = [episodes[k] for k in names]
     # The workspace the plotted episodes ran on: reset with their seed draws it as they did
@@ -390,33 +356,46 @@ def plot_scenario(scenario: str, episodes: dict[str, Episode], out: Path) -> lis
             n_snapshots=5,
             title=f"{scenario}, seed {ep.seed}: {name}",
         )
-    paths = [save_figure(fig, out / f"{scenario}_trajectories.png")]
+    paths = [save_figure(fig, out / f"{slug}_trajectories.png", metadata)]
     n = sc.config.followers
     followers = [1, n] if n > 2 else None
     fig = new_figure(9, 1.2 + 1.4 * (len(followers) if followers else n))
     plot_errors(fig, sc, eps, labels=names, followers=followers)
     fig.suptitle(f"{scenario}, seed {eps[0].seed}: errors and safety limits (dashed)")
-    paths.append(save_figure(fig, out / f"{scenario}_errors.png"))
+    paths.append(save_figure(fig, out / f"{slug}_errors.png", metadata))
     fig = new_figure(9, 1.2 + 1.2 * (len(followers) if followers else n))
     plot_commands(fig, sc, eps, labels=names, followers=followers)
     fig.suptitle(f"{scenario}, seed {eps[0].seed}: velocity commands")
-    paths.append(save_figure(fig, out / f"{scenario}_commands.png"))
+    paths.append(save_figure(fig, out / f"{slug}_commands.png", metadata))
     for name, ep in zip(names, eps, strict=True):
-        paths.append(save_gif(sc, ep, out / f"{scenario}_{name}.gif", frame_every=1.0, size_px=360))
+        paths.append(save_gif(sc, ep, out / f"{slug}_{name}.gif", frame_every=1.0, size_px=360))
     return paths
 
 
-def default_policies() -> list[PolicySpec]:
-    """PPC and every shipped model."""
-    specs = [PolicySpec("ppc", "ppc")]
-    for model in sorted(MODELS_DIR.glob("*/model.zip")):
-        specs.append(PolicySpec(model.parent.name, "model", model))
-    return specs
+# ----------------------------------------------------------------------------------------------
+# Command line
+# ----------------------------------------------------------------------------------------------
+
+
+def _positive(name: str, minimum: int) -> Any:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+
+    parse.__name__ = name
+    return parse
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """Parse and validate the command line; every error is an argparse usage error (exit 2)
+    raised before anything is written."""
     parser = argparse.ArgumentParser(
-        prog="platoon-evaluate",
+        prog=_TOOL,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -425,7 +404,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         action="append",
         type=PolicySpec.parse,
         default=None,
-        help="ppc or NAME=PATH (repeatable); default: ppc and every shipped model",
+        help="ppc, filtered_ppc, last_seen, NAME=KIND or NAME=PATH (repeatable); "
+        "default: ppc and every shipped model",
     )
     parser.add_argument(
         "--scenario",
@@ -433,15 +413,43 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         default=None,
         help=f"name or YAML path (repeatable); default: {', '.join(DEFAULT_SCENARIOS)}",
     )
-    parser.add_argument("--episodes", type=int, default=5, help="episodes per policy and scenario")
     parser.add_argument(
-        "--seed", type=int, default=0, help="first seed; episodes use seed..seed+K-1"
+        "--suite",
+        choices=SUITES,
+        default=None,
+        help="a named benchmark suite (experiments/suites.py): its scenarios, conditions "
+        "(ideal, aruco, realism levels) and seeds; replaces --scenario and the realism flags",
+    )
+    parser.add_argument(
+        "--episodes",
+        type=_positive("count", 1),
+        default=None,
+        help="episodes (seeds) per policy, scenario and condition (default 5, or the suite's)",
+    )
+    parser.add_argument(
+        "--seed",
+        type=_positive("seed", 0),
+        default=0,
+        help="first seed (>= 0); episodes use seed..seed+K-1",
     )
     parser.add_argument("--out", type=Path, default=Path("results/benchmark"), help="output folder")
     parser.add_argument(
-        "--workers", type=int, default=min(2, os.cpu_count() or 1), help="parallel worker processes"
+        "--workers",
+        type=_positive("count", 1),
+        default=2,
+        help="parallel worker processes (1: run in this process)",
     )
     parser.add_argument("--no-plots", action="store_true", help="skip plots and GIFs")
+    parser.add_argument(
+        "--set",
+        action="append",
+        type=parse_assignment,
+        default=[],
+        metavar="KEY=VALUE",
+        dest="set_options",
+        help="override any make() option for every env, e.g. max_episode_steps=500 or "
+        "formation.d_des=1.5 (YAML value; repeatable)",
+    )
     realism = parser.add_argument_group(
         "realism", "sensing and actuation realism, passed to every env (docs/sensing.md)"
     )
@@ -465,10 +473,18 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             help=f"override a {block} field, e.g. {example} (YAML value; repeatable)",
         )
     args = parser.parse_args(argv)
-    if args.episodes < 1:
-        parser.error("--episodes must be >= 1")
+    the_suite = suite(args.suite) if args.suite else None
+    if the_suite is not None:
+        given = [f for f in ("scenario", *REALISM_BLOCKS) if getattr(args, f)]
+        given += ["sensor_profile"] if args.sensor_profile else []
+        if given:
+            flags = ", ".join("--" + g.replace("_", "-") for g in given)
+            parser.error(f"--suite {args.suite} sets the scenarios and conditions; drop {flags}")
+    if args.episodes is None:
+        args.episodes = the_suite.seeds if the_suite is not None else 5
+    if args.out.exists() and not args.out.is_dir():
+        parser.error(f"--out {args.out}: exists and is not a folder")
     args.policy = args.policy or default_policies()
-    args.scenario = args.scenario or list(DEFAULT_SCENARIOS)
     names = [p.name for p in args.policy]
     if len(set(names)) != len(names):
         parser.error(f"policy names must be unique, got {names}")
@@ -481,129 +497,225 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         if nested:
             blocks[block] = nested
     args.realism = Realism(args.sensor_profile, json.dumps(blocks))
-    args.resolved = {}
-    for s in args.scenario:
-        try:
-            cfg = platoon_env.scenarios.load_config(s)  # fail fast on a bad scenario ...
-            # ... or on realism it does not take, at the period of every policy
-            for period in {_control_period(spec) for spec in args.policy}:
-                period_kw = {} if period is None else {"control_period": period}
-                resolved = apply_overrides(
-                    cfg, {**args.realism.overrides(), **period_kw}, where="realism flags"
-                )
-        except (ScenarioError, TypeError, OSError) as exc:
-            parser.error(f"scenario {s!r}: {exc}")
-        args.resolved[s] = resolved_realism(resolved)
+    try:
+        extra = nest_assignments(args.set_options, "--set")
+    except ValueError as exc:
+        parser.error(str(exc))
+    for key in sorted(set(extra) & {*REALISM_BLOCKS, "sensor_profile"}):
+        flag = key.replace("_", "-")
+        parser.error(f"--set {key}: use the realism flag (--{flag}) instead")
+    args.overrides = {**args.realism.overrides(), **extra}
+    for key in ("render_mode", "diagnostics"):
+        if key in args.overrides:
+            parser.error(f"--set {key}: not an option of an evaluation episode")
+    if the_suite is not None:
+        conditions = [Condition(c.label, {**c.overrides, **extra}) for c in the_suite.conditions]
+    else:
+        conditions = [Condition(args.realism.label, args.overrides)]
+    args.conditions = conditions
+    # Resolve every cell now: a bad scenario, profile or override is a usage error here, and
+    # the same scenario given twice (a name, a path to the same content) runs once.
+    default = the_suite.scenarios if the_suite is not None else DEFAULT_SCENARIOS
+    scenarios = list(dict.fromkeys(args.scenario or default))
+    seeds = range(args.seed, args.seed + args.episodes)
+    cells = [
+        Cell.of(spec, s, seed, cond.overrides)
+        for cond in conditions
+        for s in scenarios
+        for spec in args.policy
+        for seed in seeds
+    ]
+    args.condition_of = {
+        Cell.of(args.policy[0], "", 0, c.overrides).overrides: c for c in conditions
+    }
+    try:
+        args.cells = resolve_cells(cells)
+    except (ScenarioError, TypeError, OSError, ValueError) as exc:
+        detail = str(exc) if isinstance(exc, ScenarioError | TypeError) else f"{exc}"
+        parser.error(f"{detail}")
+    args.scenario = _distinct_scenarios(args.cells, scenarios)
+    args.resolved = {
+        (rc.cell.scenario, args.condition_of[rc.cell.overrides].label): resolved_realism(rc.config)
+        for rc in args.cells
+    }
     return args
 
 
-def _control_period(spec: PolicySpec) -> float | None:
-    """The period a policy runs at: None (the scenario's) for ppc and last_seen, a learned
-    model's from its ``model.json`` (None if unreadable: the model load will tell)."""
-    if spec.kind != "model" or spec.path is None:
-        return None
-    try:
-        meta = json.loads((spec.path.parent / "model.json").read_text())
-        return float(meta["control_period"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
+def _distinct_scenarios(cells: Sequence[ResolvedCell], given: Sequence[str]) -> list[str]:
+    """The given scenarios with a distinct content, in order; says which were duplicates."""
+    kept = {rc.cell.scenario for rc in cells}
+    for s in given:
+        if s not in kept:
+            print(f"note: --scenario {s} has the content of another one given: run once")
+    return [s for s in given if s in kept]
+
+
+def _model_notes(args: argparse.Namespace) -> list[str]:
+    """What each learned model's ``check_env`` says of each scenario it is evaluated on: the
+    legitimate differences from its training (another scenario family, more followers, ...).
+    A refusal is not raised here: the episodes record it (status ``refused``)."""
+    from training.policies import LearnedPolicy
+
+    notes = []
+    for spec in args.policy:
+        if spec.kind != "model":
+            continue
+        try:
+            policy = LearnedPolicy.load(spec.path)
+        except (OSError, ValueError) as exc:
+            notes.append(f"{spec.name}: cannot be loaded ({exc})")
+            continue
+        for s in args.scenario:
+            env = platoon_env.make(s, **spec.env_overrides(), **args.overrides)
+            try:
+                for note in policy.check_env(env):
+                    notes.append(f"{spec.name} on {s}: {note}")
+            except ValueError as exc:
+                notes.append(f"{spec.name} on {s}: refused ({exc})")
+    return notes
+
+
+def _legacy_csv(out: Path) -> str | None:
+    """Why ``out`` cannot be used: a results.csv of the CSV-era platoon-evaluate, no store."""
+    if (out / "results.csv").is_file() and not store_path(out).is_file():
+        return (
+            f"{out / 'results.csv'} was written by an older platoon-evaluate (without the "
+            f"evaluation store {store_path(out).name}); its rows cannot be matched to the "
+            "policies and scenarios they ran, so they are not resumed: move it away or use "
+            "another --out"
+        )
+    return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the evaluation; returns the process exit code (130 when interrupted)."""
+    """Run the evaluation; returns the process exit code (see the module docstring)."""
     args = parse_args(argv)
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = out / "results.csv"
-    realism: Realism = args.realism
-    done = {_key(r) for r in _read_rows(csv_path)}
-    seeds = range(args.seed, args.seed + args.episodes)
-    jobs = [
-        (spec, scenario, seed)
-        for scenario in args.scenario
-        for spec in args.policy
-        for seed in seeds
-        if (spec.name, scenario, str(seed), args.resolved[scenario]) not in done
-    ]
-    if done:
-        planned = len(args.scenario) * len(args.policy) * len(seeds)
-        print(
-            f"resuming {csv_path}: {planned - len(jobs)} of {planned} episodes done "
-            f"({len(done)} rows in the file), {len(jobs)} to run"
+    legacy = _legacy_csv(out)
+    if legacy:
+        print(f"{_TOOL}: error: {legacy}", file=sys.stderr)
+        return 2
+    stamp = metadata_stamp(
+        _TOOL,
+        {
+            "policies": {p.name: p.description() for p in args.policy},
+            "scenarios": list(args.scenario),
+            "seeds": [args.seed, args.seed + args.episodes - 1],
+            "suite": args.suite,
+            "conditions": {c.label: dict(c.overrides) for c in args.conditions},
+        },
+        argv,
+    )
+    args.model_notes = _model_notes(args)
+    for note in args.model_notes:
+        print(f"note: {note}")
+    first_seed = args.seed
+
+    def keep(cell: Cell) -> bool:
+        return not args.no_plots and cell.seed == first_seed
+
+    try:
+        store = Store(store_path(out))
+    except StoreError as exc:
+        print(f"{_TOOL}: error: {exc}", file=sys.stderr)
+        return 2
+    with store:
+        result = run_grid(
+            store, args.cells, tool=_TOOL, stamp=stamp, workers=args.workers, keep=keep
         )
-    kept: dict[str, dict[str, Episode]] = defaultdict(dict)
-    start = time.perf_counter()
-    new_file = not csv_path.is_file() or csv_path.stat().st_size == 0
-    interrupted = False
-    with csv_path.open("a", newline="") as f, ProcessPoolExecutor(max_workers=args.workers) as pool:
-        writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS)
-        if new_file:
-            writer.writeheader()
-        futures = {
-            pool.submit(
-                run_job,
-                spec,
-                scenario,
-                seed,
-                keep=seed == args.seed and not args.no_plots,
-                realism=realism,
-            ): (spec.name, scenario)
-            for spec, scenario, seed in jobs
-        }
-        try:
-            for fut in tqdm(as_completed(futures), total=len(futures), desc="episodes", unit="ep"):
-                row, ep = fut.result()
-                writer.writerow({k: _format(row[k]) for k in CSV_COLUMNS})
-                f.flush()
-                os.fsync(f.fileno())
-                if ep is not None:
-                    kept[row["scenario"]][row["policy"]] = ep
-        except KeyboardInterrupt:
-            interrupted = True
-            for fut in futures:
-                fut.cancel()
-            print(f"\ninterrupted: finished episodes are in {csv_path}; re-run to resume")
-    if interrupted:
-        return 130
-    rows = _read_rows(csv_path)
-    summary = summarise(
-        r
-        for r in rows
-        if r["policy"] in {p.name for p in args.policy}
-        and r["scenario"] in set(args.scenario)
-        and r["realism"] == args.resolved[r["scenario"]]
-    )
-    elapsed = time.perf_counter() - start
-    resolved = "".join(f"- {s}: `{args.resolved[s]}`\n" for s in args.scenario)
-    header = (
-        f"# platoon-evaluate\n\npolicies: {', '.join(p.name for p in args.policy)}; "
-        f"scenarios: {', '.join(args.scenario)}; episodes: {args.episodes} (seeds {args.seed}.."
-        f"{args.seed + args.episodes - 1}); wall time of this run: {elapsed:.0f} s; "
-        f"platoon_env {platoon_env.__version__}\n\n"
-        f"realism flags: {realism.label}; resolved camera, proximity and robot blocks:\n\n"
-        f"{resolved}\n"
-    )
-    (out / "summary.md").write_text(header + summary + "\n")
+        print(
+            f"{store.path}: {result.ran} episode(s) run, {result.reused} already in the store "
+            f"(of {len(result.cells)} in this grid)"
+        )
+        if result.interrupted:
+            print(f"\ninterrupted: finished episodes are in {store.path}; re-run to resume")
+            return 130
+        rows = export_rows(result, args.condition_of)
+        write_csv(out / "results.csv", CSV_COLUMNS, rows)
+        summary = summarise(_csv_strings(rows))
+        header = _summary_header(args, result, store, rows)
+    (out / "summary.md").write_text(header + summary + "\n" + _failures(result))
     print(summary)
     if not args.no_plots:
-        missing = [
-            (spec, scenario)
-            for scenario in args.scenario
-            for spec in args.policy
-            if spec.name not in kept[scenario]
-        ]
-        for spec, scenario in tqdm(
-            missing, desc="episodes for plots", unit="ep", disable=not missing
-        ):
-            kept[scenario][spec.name] = run_job(  # type: ignore[assignment]
-                spec, scenario, args.seed, keep=True, realism=realism
-            )[1]
-        for scenario in tqdm(args.scenario, desc="plots", unit="scenario"):
-            plot_scenario(scenario, kept[scenario], out / "plots")
+        _plots(args, result, out / "plots", png_metadata(stamp))
     print(
-        f"wrote {csv_path}, {out / 'summary.md'}" + ("" if args.no_plots else f", {out / 'plots'}/")
+        f"wrote {out / 'results.csv'}, {out / 'summary.md'}"
+        + ("" if args.no_plots else f", {out / 'plots'}/")
     )
+    if result.failed:
+        print(f"{len(result.failed)} episode(s) failed (see summary.md); re-run to retry them")
+        return 1
     return 0
+
+
+def _summary_header(
+    args: argparse.Namespace, result: GridResult, store: Store, rows: list[dict[str, Any]]
+) -> str:
+    done = [r for r in rows if r["status"] == "done"]
+    policies = ", ".join(f"{p.name} (`{p.fingerprint()[:12]}`)" for p in args.policy)
+    scenario_lines = "".join(
+        f"- {s} ({label}): resolved camera, proximity and robot blocks `{blocks}`\n"
+        for (s, label), blocks in args.resolved.items()
+    )
+    records = [result.records[rc.key] for rc in result.cells if rc.key in result.records]
+    realism_keys = {*REALISM_BLOCKS, "sensor_profile"}
+    other = {k: v for k, v in args.overrides.items() if k not in realism_keys}
+    if args.suite:
+        conditions = ", ".join(c.label for c in args.conditions)
+        realism = f"suite {args.suite}: conditions {conditions}"
+    else:
+        realism = f"realism flags: {args.realism.label}"
+    return (
+        f"# {_TOOL}\n\n"
+        f"{len(done)} episodes summarised (seeds {seed_ranges(int(r['seed']) for r in done)}); "
+        f"grid: {len(args.policy)} policies × {len(args.scenario)} scenarios × "
+        f"{len(args.conditions)} condition(s) × seeds "
+        f"{seed_ranges(range(args.seed, args.seed + args.episodes))} = {len(result.cells)} "
+        f"episodes, {result.ran} run now and {result.reused} resumed from the store; "
+        f"{len(result.failed)} failed; wall time of this run {result.wall_time:.0f} s.\n\n"
+        f"policies (fingerprint): {policies}\n\n"
+        f"{realism}; other overrides: {json.dumps(other)}\n\n"
+        f"{scenario_lines}\n"
+        + "".join(f"- note: {_short(n)}\n" for n in args.model_notes)
+        + f"\n{provenance_markdown(store, records, result.run_id)}\n"
+    )
+
+
+def _short(text: str, limit: int = 300) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _failures(result: GridResult) -> str:
+    if not result.failed:
+        return ""
+    lines = ["", "## failed episodes (retried by the next run)", ""]
+    for rec in result.failed:
+        last = rec.error.strip().splitlines()[-1] if rec.error.strip() else "?"
+        lines.append(f"- {rec.policy_name} on {rec.scenario_name}, seed {rec.key.seed}: {last}")
+    return "\n".join(lines) + "\n"
+
+
+def _plots(
+    args: argparse.Namespace, result: GridResult, out: Path, metadata: dict[str, str]
+) -> None:
+    """A set of plots per scenario and condition (the condition in the file name when there
+    are several)."""
+    groups: dict[tuple[str, str], dict[str, Episode]] = defaultdict(dict)
+    for rc in result.cells:
+        ep = result.episodes.get(rc.key)
+        if ep is not None:
+            label = args.condition_of[rc.cell.overrides].label
+            groups[(rc.cell.scenario, label)][rc.cell.policy.name] = ep
+    slugs: dict[tuple[str, str], str] = {}
+    for s in args.scenario:
+        for c in args.conditions:
+            slug = _slug(s) + (f"_{_slug(c.label)}" if len(args.conditions) > 1 else "")
+            while slug in slugs.values():
+                slug += "_"
+            slugs[(s, c.label)] = slug
+    for key in tqdm(list(slugs), desc="plots", unit="plot set"):
+        if groups[key]:
+            plot_scenario(key[0], groups[key], out, slugs[key], metadata)
 
 
 if __name__ == "__main__":

@@ -98,7 +98,8 @@ __all__ = [
 ]
 
 #: The SB3 algorithms a learned policy can be, by the name stored in ``model.json``.
-ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC}
+#: The SB3 class that loads a model.zip of each ``algo`` (PPO-Lagrangian is SB3's PPO).
+ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "ppo_lagrangian": PPO}
 METADATA_FORMAT = "platoon_env.learned_policy"
 #: 2: ``zip_sha256``, the resolved scenario, the observation/action layout and the training
 #: segments are recorded. 1: none of them (still read; see the module doc).

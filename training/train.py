@@ -128,6 +128,7 @@ from platoon_env.scenarios.schema import (
     ScenarioError,
 )
 from training.batched_vec_env import BatchedPlatoonVecEnv
+from training.lagrangian import LagrangeMultiplier, LagrangianCallback, LagrangianVecEnv
 from training.policies import (
     ACTION_LAYOUT,
     ALGORITHMS,
@@ -179,7 +180,12 @@ class TrainConfig:
     engine: str = _opt(
         "sb3", "training engine: Stable-Baselines3, or Ray RLlib (PPO)", choices=("sb3", "rllib")
     )
-    algo: str = _opt("ppo", "learning algorithm", choices=("ppo", "sac"))
+    algo: str = _opt(
+        "ppo",
+        "learning algorithm (ppo_lagrangian: PPO with a Lagrange multiplier on info['cost'], "
+        "see training/lagrangian.py)",
+        choices=("ppo", "sac", "ppo_lagrangian"),
+    )
     scenario: str = _opt("study_c", "shipped scenario name or YAML path to train on")
     timesteps: int = _opt(1_000_000, "total follower transitions (SB3 timesteps) to train for")
     seed: int = _opt(0, "seed of python/numpy/torch, the policy and the envs (env j: seed + j)")
@@ -241,6 +247,13 @@ class TrainConfig:
     ent_coef: float = _opt(0.0, "PPO: entropy bonus coefficient")
     vf_coef: float = _opt(0.5, "PPO: value loss coefficient")
     max_grad_norm: float = _opt(0.5, "PPO: gradient clipping norm")
+    # --- PPO-Lagrangian ---
+    cost_budget: float = _opt(
+        0.05,
+        "ppo_lagrangian: allowed expected cost per follower episode (the probability of a "
+        "violation, with every cause terminating)",
+    )
+    lagrangian_lr: float = _opt(0.05, "ppo_lagrangian: step size of the multiplier's update")
     # --- SAC ---
     buffer_size: int = _opt(300_000, "SAC: replay buffer size (transitions)")
     learning_starts: int = _opt(10_000, "SAC: transitions collected before learning starts")
@@ -378,6 +391,8 @@ BOUNDS: dict[str, Bound] = {
     "ent_coef": Bound(0),
     "vf_coef": Bound(0),
     "max_grad_norm": Bound(0, low_open=True),
+    "cost_budget": Bound(0),
+    "lagrangian_lr": Bound(0, low_open=True),
     "buffer_size": Bound(1, 10**9),
     "learning_starts": Bound(0),
     "tau": Bound(0, 1, low_open=True),
@@ -452,7 +467,7 @@ def check_config(cfg: TrainConfig) -> list[str]:
             bad("u_high", f"must be > --u-low = {cfg.u_low:g}, got {cfg.u_high:g}")
         if cfg.seed + cfg.n_envs - 1 > MAX_SEED:
             bad("seed", "seed + n_envs - 1 must be <= 2**32 - 1 (env j is seeded with seed + j)")
-        if cfg.algo == "ppo" and cfg.batch_size < 2:
+        if cfg.algo in PPO_ALGOS and cfg.batch_size < 2:
             bad(
                 "batch_size",
                 f"PPO needs at least 2 (advantage normalisation), got {cfg.batch_size}",
@@ -501,7 +516,7 @@ def check_scenario(cfg: TrainConfig, env: Any) -> list[str]:
             f"argument --omega-high: {cfg.omega_high:g} rad/s exceeds the scenario's "
             f"robot.omega_max = {omega_max:g}"
         )
-    if cfg.engine == "sb3" and cfg.algo == "ppo":
+    if cfg.engine == "sb3" and cfg.algo in PPO_ALGOS:
         rollout = cfg.n_steps * cfg.n_envs * followers
         if cfg.batch_size > rollout:
             errors.append(
@@ -579,13 +594,25 @@ def build_vec_env(cfg: TrainConfig) -> PlatoonVecEnv | BatchedPlatoonVecEnv:
     )
 
 
+def lagrangian_env(cfg: TrainConfig, venv: Any, multiplier: float | None = None) -> Any:
+    """``venv`` with the rewards penalised by the Lagrange multiplier (``ppo_lagrangian``;
+    ``multiplier``: its value to resume from), else ``venv`` itself."""
+    if cfg.algo != "ppo_lagrangian":
+        return venv
+    lam = LagrangeMultiplier(budget=cfg.cost_budget, lr=cfg.lagrangian_lr)
+    if multiplier is not None:
+        lam.value = float(multiplier)
+    return LagrangianVecEnv(venv, lam)
+
+
 def build_model(cfg: TrainConfig, venv: Any, tensorboard_log: str | None = None) -> BaseAlgorithm:
-    """The SB3 model for ``cfg.algo`` on ``venv``, seeded with ``cfg.seed``."""
-    if cfg.algo == "ppo":
+    """The SB3 model for ``cfg.algo`` on ``venv``, seeded with ``cfg.seed`` (``ppo_lagrangian``
+    is SB3's PPO on :func:`lagrangian_env`'s penalised rewards)."""
+    if cfg.algo in PPO_ALGOS:
         arch = cfg.net_arch or [64, 64]
         return PPO(
             "MlpPolicy",
-            venv,
+            lagrangian_env(cfg, venv),
             learning_rate=cfg.learning_rate,
             n_steps=cfg.n_steps,
             batch_size=cfg.batch_size,
@@ -621,7 +648,7 @@ def build_model(cfg: TrainConfig, venv: Any, tensorboard_log: str | None = None)
             device=cfg.device,
             verbose=cfg.verbose,
         )
-    raise ValueError(f"unknown algo {cfg.algo!r}; expected 'ppo' or 'sac'")
+    raise ValueError(f"unknown algo {cfg.algo!r}; expected 'ppo', 'sac' or 'ppo_lagrangian'")
 
 
 def git_commit() -> dict[str, Any]:
@@ -671,7 +698,11 @@ def run_metadata(
     model: BaseAlgorithm,
     **extra: Any,
 ) -> dict[str, Any]:
-    """The ``model.json`` content for ``model`` trained by ``cfg`` on ``venv``."""
+    """The ``model.json`` content for ``model`` trained by ``cfg`` on ``venv`` (with
+    ``ppo_lagrangian``: the multiplier's value, to resume from)."""
+    penalised = model.get_env()
+    if isinstance(penalised, LagrangianVecEnv):
+        extra = {"lagrange_multiplier": penalised.multiplier.value, **extra}
     return {
         "algo": cfg.algo,
         **env_metadata(cfg, venv.envs[0]),
@@ -769,6 +800,9 @@ class RunError(ValueError):
     """A refused ``--out``/``--resume``/``--force`` (``platoon-train`` exits 2 with it)."""
 
 
+#: The algorithms trained by SB3's PPO (with their rollout-size rules).
+PPO_ALGOS = ("ppo", "ppo_lagrangian")
+
 #: The options that define a run, for every algorithm and engine (:func:`run_fields`).
 RUN_FIELDS_COMMON = (
     "engine",
@@ -797,6 +831,7 @@ RUN_FIELDS_ALGO: dict[str, tuple[str, ...]] = {
     ),
     "sac": ("buffer_size", "learning_starts", "tau", "train_freq", "gradient_steps"),
 }
+RUN_FIELDS_ALGO["ppo_lagrangian"] = (*RUN_FIELDS_ALGO["ppo"], "cost_budget", "lagrangian_lr")
 #: The options that define a run of one engine.
 RUN_FIELDS_ENGINE: dict[str, tuple[str, ...]] = {
     "sb3": (),
@@ -1123,8 +1158,12 @@ def train(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bool]:
     start_run(cfg, plan)
     start_from = plan.source if plan.mode == "resume" else None
     if start_from is not None:
+        stored = _stored_multiplier(start_from)
         model = ALGORITHMS[cfg.algo].load(
-            start_from, env=VecMonitor(venv), device=cfg.device, tensorboard_log=str(out / "tb")
+            start_from,
+            env=lagrangian_env(cfg, VecMonitor(venv), stored),
+            device=cfg.device,
+            tensorboard_log=str(out / "tb"),
         )
         print(plan.message, file=sys.stderr)
     else:
@@ -1157,6 +1196,9 @@ def train(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bool]:
         CheckpointCallback(out / "checkpoint.zip", cfg.checkpoint_every, metadata),
         EpisodeEndCallback(),
     ]
+    penalised = model.get_env()
+    if isinstance(penalised, LagrangianVecEnv):
+        callback_list.append(LagrangianCallback(penalised))
     sb3_bar = cfg.progress_bar and _sb3_progress_bar_available()
     if cfg.progress_bar and not sb3_bar:
         callback_list.append(TqdmProgressBar(cfg.timesteps))
@@ -1178,6 +1220,16 @@ def train(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bool]:
     path = save_model(model, out / "model.zip", metadata(interrupted=interrupted))
     venv.close()
     return path, interrupted
+
+
+def _stored_multiplier(model_path: Path) -> float | None:
+    """The Lagrange multiplier recorded beside a model or checkpoint (None if absent)."""
+    try:
+        meta = json.loads(model_path.with_suffix(".json").read_text())
+    except (OSError, ValueError):
+        return None
+    value = meta.get("lagrange_multiplier")
+    return None if value is None else float(value)
 
 
 def _fail(parser: argparse.ArgumentParser, message: str) -> typing.NoReturn:

@@ -1,0 +1,445 @@
+"""The grid runner: policies × scenarios × seeds × overrides, on the evaluation store.
+
+Every experiment of the project (``platoon-evaluate``, ``python -m baselines.comparison``,
+``python -m baselines.paper_figures``, ``python -m baselines.frontiers``) describes what it
+wants as a list of :class:`Cell` and hands it to :func:`run_grid`, which
+
+1. resolves each cell in this process: the scenario's config with the policy's and the cell's
+   overrides, and the fingerprints that key it in the :class:`~experiments.store.Store`
+   (identical cells — the same key — run once);
+2. claims the unfinished cells (others may be running in another evaluator), runs them in
+   ``workers`` spawned processes, and writes each outcome in its own transaction as it
+   arrives (a failing cell is recorded as ``failed`` with its traceback, and the rest go on);
+3. waits for the cells another live run holds, and takes over those of a run that died;
+4. returns every cell's record, and the episodes it was asked to keep (for figures).
+
+Workers exit when their parent does, however it ends (``SIGKILL`` included): on Linux through
+``PR_SET_PDEATHSIG``, elsewhere through a thread that watches the parent's pid. Ctrl-C or
+``SIGTERM`` of the parent cancels the pending cells, terminates the workers and releases the
+claims; finished cells stay in the store, and the next run resumes.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib
+import json
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from experiments.policies import PolicySpec, build_policy
+from experiments.store import FINISHED, EpisodeKey, EpisodeRecord, Store
+from platoon_env.scenarios.fingerprint import (
+    canonical_json,
+    config_fingerprint,
+    config_mapping,
+    text_sha256,
+)
+
+__all__ = [
+    "DEFAULT_MEASURE",
+    "Cell",
+    "CellResult",
+    "GridResult",
+    "ResolvedCell",
+    "resolve_cells",
+    "run_cell",
+    "run_grid",
+]
+
+#: The measure of a cell unless it names another: ``platoon_env.rollout.episode_metrics``.
+DEFAULT_MEASURE = "platoon_env.rollout:episode_metrics"
+#: Options of ``make()`` that do not change an episode (left out of the fingerprints).
+_PRESENTATION_OPTIONS = frozenset({"render_mode", "diagnostics"})
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One episode to run: ``policy`` on ``scenario`` (a shipped name or a YAML path) with
+    ``overrides`` (JSON of ``platoon_env.make`` keyword arguments), from ``reset(seed)``,
+    turned into metrics by ``measure`` (``"module:function"``, called with the
+    :class:`~platoon_env.rollout.Episode`); ``record_signals`` keeps the policy's internal
+    signals for the measure."""
+
+    policy: PolicySpec
+    scenario: str
+    seed: int
+    overrides: str = "{}"
+    measure: str = DEFAULT_MEASURE
+    record_signals: bool = False
+
+    @classmethod
+    def of(
+        cls,
+        policy: PolicySpec,
+        scenario: str,
+        seed: int,
+        overrides: Mapping[str, Any] | None = None,
+        **options: Any,
+    ) -> Cell:
+        """A cell with ``overrides`` given as a mapping."""
+        return cls(policy, scenario, int(seed), canonical_json(dict(overrides or {})), **options)
+
+    def make_kwargs(self) -> dict[str, Any]:
+        """The keyword arguments of ``platoon_env.make`` for this cell."""
+        return {**self.policy.env_overrides(), **json.loads(self.overrides)}
+
+
+@dataclass(frozen=True)
+class ResolvedCell:
+    """A cell with its key in the store and the resolved config behind the key."""
+
+    cell: Cell
+    key: EpisodeKey
+    config: dict[str, Any] = field(repr=False)
+
+    @property
+    def names(self) -> tuple[str, str]:
+        return (self.cell.policy.name, self.cell.scenario)
+
+
+def _effective_overrides(cell: Cell) -> dict[str, Any]:
+    return {k: v for k, v in json.loads(cell.overrides).items() if k not in _PRESENTATION_OPTIONS}
+
+
+def resolve_cells(cells: Iterable[Cell], *, unique: bool = True) -> list[ResolvedCell]:
+    """Resolve the cells (configs and fingerprints). With ``unique``, a cell whose key an
+    earlier cell has is dropped (it would run the same episode); else there is one resolved
+    cell per cell, in order. Bad scenarios and overrides raise the schema's errors
+    (``ScenarioError``, ``TypeError``, ``OSError``) here, before anything runs."""
+    from platoon_env.scenarios.loader import load_config
+    from platoon_env.scenarios.options import apply_overrides
+
+    configs: dict[tuple[str, str], tuple[str, dict[str, Any]]] = {}
+    out: list[ResolvedCell] = []
+    seen: set[EpisodeKey] = set()
+    for cell in cells:
+        kwargs = {k: v for k, v in cell.make_kwargs().items() if k not in _PRESENTATION_OPTIONS}
+        cache_key = (cell.scenario, canonical_json(kwargs))
+        if cache_key not in configs:
+            cfg = apply_overrides(load_config(cell.scenario), kwargs, where="make()")
+            configs[cache_key] = (config_fingerprint(cfg), config_mapping(cfg))
+        scenario_fp, mapping = configs[cache_key]
+        key = EpisodeKey(
+            cell.policy.fingerprint(),
+            scenario_fp,
+            text_sha256(canonical_json(_effective_overrides(cell))),
+            cell.seed,
+            cell.measure,
+        )
+        if unique and key in seen:
+            continue
+        seen.add(key)
+        out.append(ResolvedCell(cell, key, mapping))
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# One cell, in a worker
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class CellResult:
+    """What a worker returns: the status (``done``, ``failed``, ``refused``), the metrics, the
+    error text, the wall time [s] and, if asked, the recorded episode."""
+
+    status: str
+    metrics: dict[str, Any]
+    error: str
+    wall_time: float
+    episode: Any = None
+
+
+def _resolve(dotted: str) -> Callable[..., Any]:
+    module, _, attr = dotted.partition(":")
+    fn: Callable[..., Any] = getattr(importlib.import_module(module), attr)
+    return fn
+
+
+def _plain(value: Any) -> Any:
+    """JSON-able Python values of a metrics dict (numpy scalars and arrays converted)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    item = getattr(value, "tolist", None)
+    return item() if callable(item) else value
+
+
+def run_cell(resolved: ResolvedCell, keep: bool = False) -> CellResult:
+    """Run one cell (in any process); never raises for the cell's own errors.
+
+    A policy whose constructor raises ``ValueError`` has *refused* the configuration (a
+    result); any other exception is a *failure* (retried by the next run).
+    """
+    import platoon_env
+    from platoon_env.rollout import run_episode
+
+    cell = resolved.cell
+    start = time.perf_counter()
+    try:
+        if cell.policy.kind == "model":
+            import torch
+
+            torch.set_num_threads(1)
+        env = platoon_env.make(cell.scenario, **cell.make_kwargs())
+        actual = config_fingerprint(env.source.config)
+        if actual != resolved.key.scenario:
+            raise RuntimeError(
+                f"the env's resolved scenario ({actual[:12]}) is not the planned one "
+                f"({resolved.key.scenario[:12]}): did {cell.scenario!r} change on disk?"
+            )
+        try:
+            policy = build_policy(cell.policy, env)
+        except ValueError as exc:
+            return CellResult(
+                "refused", {}, f"{type(exc).__name__}: {exc}", time.perf_counter() - start
+            )
+        ep = run_episode(env, policy, seed=cell.seed, record_signals=cell.record_signals or keep)
+        metrics = _plain(dict(_resolve(cell.measure)(ep)))
+        canonical_json(metrics)  # JSON-able, or a failure here rather than in the store
+    except Exception:
+        return CellResult("failed", {}, traceback.format_exc(limit=20), time.perf_counter() - start)
+    return CellResult("done", metrics, "", time.perf_counter() - start, ep if keep else None)
+
+
+# ----------------------------------------------------------------------------------------------
+# Workers that die with their parent
+# ----------------------------------------------------------------------------------------------
+
+_PR_SET_PDEATHSIG = 1
+
+
+def _watch_parent(parent: int) -> None:
+    while True:
+        time.sleep(0.5)
+        if os.getppid() != parent:  # re-parented: the parent is gone
+            os._exit(1)
+
+
+def _init_worker(parent: int) -> None:
+    """In each worker: leave Ctrl-C to the parent, and exit as soon as the parent is gone."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent:  # the parent died before the signal was armed
+        os._exit(1)
+    threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+# ----------------------------------------------------------------------------------------------
+# The grid
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class GridResult:
+    """The outcome of :func:`run_grid`: a record per resolved cell (in the cells' order),
+    the kept episodes by key, how many cells this run ran and found finished, and whether it
+    was interrupted."""
+
+    cells: list[ResolvedCell]
+    records: dict[EpisodeKey, EpisodeRecord]
+    episodes: dict[EpisodeKey, Any]
+    ran: int
+    reused: int
+    run_id: int
+    wall_time: float
+    interrupted: bool = False
+
+    @property
+    def failed(self) -> list[EpisodeRecord]:
+        """The cells whose episode raised (their tracebacks are in ``error``)."""
+        return [r for r in self.records.values() if r.status == "failed"]
+
+    def finished(self) -> list[tuple[ResolvedCell, EpisodeRecord]]:
+        """(cell, record) of every cell with a result (``done`` or ``refused``)."""
+        out = []
+        for rc in self.cells:
+            rec = self.records.get(rc.key)
+            if rec is not None and rec.status in FINISHED:
+                out.append((rc, rec))
+        return out
+
+
+def run_grid(
+    store: Store | str | Path,
+    cells: Sequence[Cell] | Sequence[ResolvedCell],
+    *,
+    tool: str,
+    stamp: Mapping[str, Any],
+    workers: int = 1,
+    keep: Callable[[Cell], bool] | None = None,
+    progress: bool = True,
+    poll: float = 1.0,
+) -> GridResult:
+    """Run every unfinished cell of ``cells`` into ``store``; see the module docstring.
+
+    ``keep(cell)`` says which episodes to return (they are run again if the store already
+    has them, since episodes are not stored). ``stamp`` (:func:`experiments.stamp.metadata_stamp`)
+    is recorded with the run. ``workers <= 1`` runs in this process.
+    """
+    own = not isinstance(store, Store)
+    db = Store(store) if not isinstance(store, Store) else store
+    resolved: list[ResolvedCell] = [c for c in cells if isinstance(c, ResolvedCell)]
+    if len(resolved) != len(cells):
+        resolved = resolve_cells(c for c in cells if isinstance(c, Cell))
+    resolved = list({rc.key: rc for rc in resolved}.values())  # a key runs once
+    keep = keep or (lambda cell: False)
+    start = time.perf_counter()
+    run_id = db.begin_run(tool, stamp)
+    by_key = {rc.key: rc for rc in resolved}
+    names = {rc.key: rc.names for rc in resolved}
+    db.register(
+        {rc.key.policy: (rc.cell.policy.kind, rc.cell.policy.description()) for rc in resolved},
+        {rc.key.scenario: rc.config for rc in resolved},
+        {rc.key.overrides: _effective_overrides(rc.cell) for rc in resolved},
+    )
+    kept: dict[EpisodeKey, Any] = {}
+    ran = 0
+    reused = 0
+    interrupted = False
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    bar = tqdm(
+        total=len(resolved),
+        desc="episodes",
+        unit="ep",
+        disable=not progress,
+        mininterval=0.5 if sys.stderr.isatty() else 30.0,
+    )
+    pool: ProcessPoolExecutor | None = None
+    pending: dict[Future[CellResult], ResolvedCell] = {}
+    try:
+        queue = [rc.key for rc in resolved]
+        busy: list[EpisodeKey] = []
+        # Claim a few cells at a time, so that evaluators sharing the store share the work.
+        capacity = max(1, workers)
+        while queue or pending or busy:
+            while queue and len(pending) < capacity:
+                chunk, queue = queue[: capacity - len(pending)], queue[capacity - len(pending) :]
+                claim = db.claim(chunk, run_id, names)
+                reused += len(claim.finished)
+                bar.update(len(claim.finished))
+                busy.extend(claim.busy)
+                for key in claim.mine:
+                    rc = by_key[key]
+                    if workers <= 1:
+                        _store_result(db, run_id, rc, run_cell(rc, keep(rc.cell)), kept)
+                        ran += 1
+                        bar.update()
+                        continue
+                    if pool is None:
+                        pool = ProcessPoolExecutor(
+                            max_workers=workers,
+                            mp_context=multiprocessing.get_context("spawn"),
+                            initializer=_init_worker,
+                            initargs=(os.getpid(),),
+                        )
+                    pending[pool.submit(run_cell, rc, keep(rc.cell))] = rc
+            if pending:
+                done, _ = wait(pending, timeout=poll, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    rc = pending.pop(fut)
+                    try:
+                        result = fut.result()
+                    except Exception as exc:  # the worker died (a broken pool)
+                        result = CellResult(
+                            "failed", {}, f"worker died: {type(exc).__name__}: {exc}", 0.0
+                        )
+                    _store_result(db, run_id, rc, result, kept)
+                    ran += 1
+                    bar.update()
+            elif busy and not queue:
+                bar.set_postfix_str(f"waiting for {len(busy)} held by another run")
+                time.sleep(poll)
+                queue, busy = busy, []
+        status = "finished"
+    except KeyboardInterrupt:
+        interrupted = True
+        status = "interrupted"
+    except BaseException:
+        status = "failed"
+        raise
+    finally:
+        bar.close()
+        if pool is not None:
+            _stop_pool(pool, wait_for_workers=not interrupted and status == "finished")
+        signal.signal(signal.SIGTERM, previous)
+        db.finish_run(run_id, status)
+        records = db.episodes([rc.key for rc in resolved])
+        if own:
+            db.close()
+    # Kept episodes of cells that were already finished: run them again (episodes are not
+    # stored); an episode is a pure function of its cell.
+    if not interrupted:
+        missing = [rc for rc in resolved if keep(rc.cell) and rc.key not in kept]
+        for rc in tqdm(missing, desc="episodes for figures", unit="ep", disable=not missing):
+            result = run_cell(rc, keep=True)
+            if result.episode is not None:
+                kept[rc.key] = result.episode
+    return GridResult(
+        resolved, records, kept, ran, reused, run_id, time.perf_counter() - start, interrupted
+    )
+
+
+def _store_result(
+    db: Store, run_id: int, rc: ResolvedCell, result: CellResult, kept: dict[EpisodeKey, Any]
+) -> None:
+    db.record(
+        rc.key,
+        run_id,
+        result.status,
+        metrics=result.metrics,
+        error=result.error,
+        wall_time=result.wall_time,
+        names=rc.names,
+    )
+    if result.status == "failed":
+        first = result.error.strip().splitlines()[-1] if result.error.strip() else "?"
+        tqdm.write(
+            f"episode failed: {rc.cell.policy.name} on {rc.cell.scenario} seed {rc.cell.seed}: "
+            f"{first}"
+        )
+    if result.episode is not None:
+        kept[rc.key] = result.episode
+
+
+def _stop_pool(pool: ProcessPoolExecutor, wait_for_workers: bool) -> None:
+    """Shut the pool down; when not waiting, terminate its workers (by pid: ``shutdown``
+    forgets them)."""
+    if wait_for_workers:
+        pool.shutdown(wait=True)
+        return
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:
+        if proc.is_alive():
+            proc.terminate()
+    for proc in procs:
+        proc.join(timeout=5)
+
+
+def store_path(out: str | Path) -> Path:
+    """The store of an output folder: ``OUT/results.sqlite``."""
+    return Path(out) / "results.sqlite"

@@ -1,0 +1,220 @@
+"""The policy registry: every policy an experiment can run, by name, and its fingerprint.
+
+A :class:`PolicySpec` says which policy a grid cell runs: a display ``name``, a registered
+``kind`` (:data:`REGISTRY`: the analytic laws) or ``"model"`` (a model saved by
+``platoon-train``), and the keyword arguments of its constructor (``params``). Specs are plain
+data, so they pickle to worker processes; :func:`build_policy` builds the policy there, for
+the env of the cell.
+
+The **fingerprint** (:meth:`PolicySpec.fingerprint`) is what identifies the policy in the
+evaluation store: for an analytic law its factory and parameters (the scenario's own PPC gains
+are part of the scenario's fingerprint), for a model the SHA-256 of ``model.zip`` together with
+the content of its ``model.json``. A different model saved under the same name is another
+policy; the same model under another name is the same one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from platoon_env.scenarios.fingerprint import canonical_json, file_sha256, text_sha256
+
+__all__ = [
+    "MODEL",
+    "REGISTRY",
+    "PolicyKind",
+    "PolicySpec",
+    "build_policy",
+    "register_policy",
+    "shipped_models",
+]
+
+#: The kind of a model saved by ``platoon-train`` (``DIR/model.zip`` + ``DIR/model.json``).
+MODEL = "model"
+
+
+@dataclass(frozen=True)
+class PolicyKind:
+    """A registered policy: ``factory`` is ``"module:callable"``, called as
+    ``factory(env, **params)`` in the worker (a dotted path, so that it reaches spawned
+    processes); ``signals`` says whether the policy records internal signals worth keeping
+    (PPC's performance functions)."""
+
+    factory: str
+    description: str
+    signals: bool = False
+
+
+#: Policy kinds by name. ``model`` (a trained model) is not in it: it needs a path.
+REGISTRY: dict[str, PolicyKind] = {
+    "ppc": PolicyKind(
+        "baselines.ppc:PPCPolicy", "the paper's Prescribed Performance Control law", True
+    ),
+    "filtered_ppc": PolicyKind(
+        "baselines.filtered_ppc:FilteredPPCPolicy",
+        "PPC behind a constant-velocity Kalman filter with noise-tightened funnels",
+        True,
+    ),
+    "last_seen": PolicyKind(
+        "baselines.last_seen:LastSeenPolicy",
+        "ref. [32] as the paper describes it: saturated tracking, drive to where the "
+        "predecessor was last seen",
+    ),
+    "last_seen_fov": PolicyKind(
+        "baselines.last_seen:LastSeenFOVPolicy",
+        "the last-seen baseline with this project's field-of-view slow-down (not in the paper)",
+    ),
+}
+
+
+def register_policy(name: str, kind: PolicyKind) -> None:
+    """Add a policy kind (e.g. a new baseline) under ``name``; an existing name is an error."""
+    if name in REGISTRY or name == MODEL:
+        raise ValueError(f"policy kind {name!r} is already registered")
+    if ":" not in kind.factory:
+        raise ValueError(f"factory must be 'module:callable', got {kind.factory!r}")
+    REGISTRY[name] = kind
+
+
+def _resolve(factory: str) -> Any:
+    module, _, attr = factory.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """One policy of a grid: ``name`` (display), ``kind`` (a :data:`REGISTRY` name or
+    :data:`MODEL`), ``path`` (a model's ``model.zip``) and ``params`` (canonical JSON of the
+    constructor's keyword arguments)."""
+
+    name: str
+    kind: str
+    path: Path | None = None
+    params: str = "{}"
+    _fingerprint: list[str] = field(default_factory=list, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.kind != MODEL and self.kind not in REGISTRY:
+            raise ValueError(
+                f"unknown policy kind {self.kind!r}; known: {', '.join(sorted(REGISTRY))}, {MODEL}"
+            )
+        if (self.kind == MODEL) != (self.path is not None):
+            raise ValueError("a model policy needs a path, and only a model policy takes one")
+        if not isinstance(json.loads(self.params), dict):
+            raise ValueError(f"params must be a JSON object, got {self.params!r}")
+
+    @classmethod
+    def of(cls, kind: str, name: str | None = None, **params: Any) -> PolicySpec:
+        """A registered policy with constructor ``params``, named ``name`` (default: kind)."""
+        return cls(name or kind, kind, params=canonical_json(params))
+
+    @classmethod
+    def model(cls, path: str | Path, name: str | None = None) -> PolicySpec:
+        """A saved model (``DIR`` or ``DIR/model.zip``), named ``name`` (default: ``DIR``'s
+        name). A missing file is a ``ValueError``."""
+        p = Path(path)
+        zip_path = p if p.suffix == ".zip" else p / "model.zip"
+        if not zip_path.is_file():
+            raise ValueError(f"no model file at {zip_path}")
+        zip_path = zip_path.resolve()
+        return cls(name or zip_path.parent.name, MODEL, zip_path)
+
+    @classmethod
+    def parse(cls, text: str) -> PolicySpec:
+        """The command-line form: a registered kind (``ppc``), ``NAME=KIND``, ``NAME=PATH`` or
+        a bare model PATH. Errors are ``argparse.ArgumentTypeError`` (a usage error)."""
+        name, sep, rest = text.partition("=")
+        if not sep:
+            name, rest = "", text
+        if not name and not rest:
+            raise argparse.ArgumentTypeError("--policy needs a value")
+        if sep and not name:
+            raise argparse.ArgumentTypeError(f"--policy {text!r}: empty NAME before '='")
+        if rest in REGISTRY:
+            return cls.of(rest, name or None)
+        try:
+            return cls.model(rest, name or None)
+        except ValueError as exc:
+            known = ", ".join(sorted(REGISTRY))
+            raise argparse.ArgumentTypeError(
+                f"--policy {text!r}: not a policy kind ({known}) and {exc}"
+            ) from None
+
+    @property
+    def kwargs(self) -> dict[str, Any]:
+        """The constructor's keyword arguments."""
+        out: dict[str, Any] = json.loads(self.params)
+        return out
+
+    def model_metadata(self) -> dict[str, Any]:
+        """A model's metadata: ``X.json`` beside ``X.zip`` (``model.json``, ``checkpoint.json``;
+        {} if absent or not a model)."""
+        if self.path is None:
+            return {}
+        meta_path = self.path.with_suffix(".json")
+        if not meta_path.is_file():
+            return {}
+        try:
+            out: dict[str, Any] = json.loads(meta_path.read_text())
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{meta_path}: not readable JSON ({exc})") from None
+        return out
+
+    def env_overrides(self) -> dict[str, Any]:
+        """What the policy asks of its env: a model runs at the control period it was trained
+        at (its ``model.json``); the analytic laws at the scenario's."""
+        if self.kind != MODEL:
+            return {}
+        period = self.model_metadata().get("control_period")
+        return {} if period is None else {"control_period": float(period)}
+
+    def description(self) -> dict[str, Any]:
+        """What the fingerprint hashes, as data (kept in the store beside it)."""
+        if self.kind == MODEL:
+            assert self.path is not None
+            meta_path = self.path.with_suffix(".json")
+            meta = meta_path.read_text() if meta_path.is_file() else ""
+            return {
+                "kind": MODEL,
+                "zip_sha256": file_sha256(self.path),
+                "model_json_sha256": text_sha256(meta),
+                "path": str(self.path),
+            }
+        return {"kind": self.kind, "factory": REGISTRY[self.kind].factory, "params": self.kwargs}
+
+    def fingerprint(self) -> str:
+        """The hex SHA-256 identifying the policy (computed once per spec object)."""
+        if not self._fingerprint:
+            desc = self.description()
+            desc.pop("path", None)  # the same files elsewhere are the same model
+            self._fingerprint.append(text_sha256(canonical_json(desc)))
+        return self._fingerprint[0]
+
+    @property
+    def signals(self) -> bool:
+        """Whether the policy's internal signals are worth recording."""
+        return self.kind != MODEL and REGISTRY[self.kind].signals
+
+
+def build_policy(spec: PolicySpec, env: Any) -> Any:
+    """The policy of ``spec`` for ``env`` (in the process that runs the episode)."""
+    if spec.kind == MODEL:
+        from training.policies import LearnedPolicy
+
+        assert spec.path is not None
+        policy = LearnedPolicy.load(spec.path)
+        check = getattr(policy, "check_env", None)
+        if check is not None:
+            check(env)
+        return policy
+    return _resolve(REGISTRY[spec.kind].factory)(env, **spec.kwargs)
+
+
+def shipped_models(models_dir: Path) -> list[PolicySpec]:
+    """A spec per ``models_dir/*/model.zip`` (sorted by folder name)."""
+    return [PolicySpec.model(p) for p in sorted(models_dir.glob("*/model.zip"))]

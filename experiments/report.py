@@ -1,0 +1,140 @@
+"""Exports of the store: statistics, CSV files, and the provenance lines of a table's header.
+
+The CSV files and markdown summaries the drivers write are *exports*: made from the store's
+rows at the end of a run (atomically: a reader never sees half a file), with headers counted
+from those rows, never from what the command line asked for.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments.stamp import stamp_markdown
+from experiments.store import EpisodeRecord, Store
+
+__all__ = [
+    "format_value",
+    "mean_ci",
+    "provenance_markdown",
+    "seed_ranges",
+    "wilson",
+    "write_csv",
+]
+
+
+def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """The Wilson score interval of a proportion ``successes / n`` (95 % for ``z = 1.96``);
+    ``(nan, nan)`` for ``n = 0``."""
+    if n == 0:
+        return (math.nan, math.nan)
+    if not 0 <= successes <= n:
+        raise ValueError(f"successes must lie in [0, {n}], got {successes}")
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def mean_ci(values: Sequence[float], z: float = 1.96) -> str:
+    """``mean ± half-width`` of a normal-approximation 95 % interval of the finite values
+    (``–`` if there are none; the value alone for one)."""
+    vals = np.array([v for v in values if math.isfinite(v)], dtype=float)
+    if vals.size == 0:
+        return "–"
+    if vals.size == 1:
+        return f"{vals[0]:.3f}"
+    half = z * float(np.std(vals, ddof=1)) / math.sqrt(vals.size)
+    return f"{np.mean(vals):.3f} ± {half:.3f}"
+
+
+def seed_ranges(seeds: Iterable[int]) -> str:
+    """``0..4, 7, 9..10`` for the seeds ``{0, 1, 2, 3, 4, 7, 9, 10}`` ("none" if empty)."""
+    values = sorted(set(seeds))
+    if not values:
+        return "none"
+    parts = []
+    lo = prev = values[0]
+    for s in [*values[1:], None]:
+        if s is not None and s == prev + 1:
+            prev = s
+            continue
+        parts.append(str(lo) if lo == prev else f"{lo}..{prev}")
+        if s is not None:
+            lo = prev = s
+    return ", ".join(parts)
+
+
+def format_value(value: Any) -> str:
+    """A CSV cell: floats in 6 significant digits (``inf``, ``-inf``, ``nan`` spelled out)."""
+    if isinstance(value, bool) or value is None:
+        return "" if value is None else str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return f"{value:.6g}"
+    return str(value)
+
+
+def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Mapping[str, Any]]) -> int:
+    """Write ``rows`` to ``path`` atomically (a temporary file, fsync, rename); returns the
+    number of rows. Missing values are empty cells."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    n = 0
+    with tmp.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(columns), extrasaction="ignore")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: format_value(row.get(k)) for k in columns})
+            n += 1
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    return n
+
+
+def provenance_markdown(store: Store, records: Iterable[EpisodeRecord], this_run: int) -> str:
+    """Markdown lines saying which runs (code, versions, command) made ``records``: the
+    stamp of this run, then one line per earlier run whose rows are in the table."""
+    runs = {r["run_id"]: r for r in store.runs()}
+    used: dict[int, int] = {}
+    for rec in records:
+        used[rec.run_id] = used.get(rec.run_id, 0) + 1
+    lines = []
+    if this_run in runs:
+        lines.append(stamp_markdown(runs[this_run]["stamp"]))
+    earlier = sorted(k for k in used if k != this_run)
+    commits = {
+        str(runs[k]["stamp"].get("commit", "?"))[:12]
+        + ("+" if runs[k]["stamp"].get("modified") else "")
+        for k in (*earlier, this_run)
+        if k in runs
+    }
+    lines.append(
+        f"- rows: {used.get(this_run, 0)} from this run (run {this_run}), "
+        f"{sum(used[k] for k in earlier)} from {len(earlier)} earlier run(s) of this store"
+    )
+    for k in earlier:
+        if k in runs:
+            st = runs[k]["stamp"]
+            dirty = " + uncommitted changes" if st.get("modified") else ""
+            lines.append(
+                f"  - run {k} ({runs[k]['status']}, {st.get('time', '?')}, code "
+                f"{str(st.get('commit', '?'))[:12]}{dirty}): {used[k]} rows"
+            )
+    if len(commits) > 1:
+        lines.append(
+            f"- **warning**: the rows come from {len(commits)} code versions "
+            f"({', '.join(sorted(commits))}); results may not be comparable"
+        )
+    return "\n".join(line.rstrip("\n") for line in lines) + "\n"

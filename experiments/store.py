@@ -1,0 +1,436 @@
+"""The evaluation store: one SQLite database of episodes, safe under crashes and concurrency.
+
+Every episode an experiment runs is one row of the ``episodes`` table, keyed by
+
+* the **policy** fingerprint (:meth:`experiments.policies.PolicySpec.fingerprint`),
+* the **scenario** fingerprint: the resolved config, after the YAML, the sensor profile and
+  every override (:func:`platoon_env.scenarios.fingerprint.config_fingerprint`),
+* the **overrides** fingerprint: the ``make()`` keyword arguments as given,
+* the **seed** of ``reset``,
+* the **measure**: the function that turned the episode into its metrics.
+
+The content behind each fingerprint is kept in the ``policies``, ``scenarios`` and
+``overrides`` tables, so a row can always be traced back to what it ran.
+
+Safety rules:
+
+* WAL journal, ``synchronous=FULL`` and one transaction per episode: a killed evaluator loses
+  at most the episodes in flight, and a reader never sees half a row.
+* Before running a cell, a run **claims** it (status ``running``, with its ``run_id``). Another
+  run skips cells claimed by a live run and waits for them; the claims of a run whose process
+  is gone (killed, crashed) are taken over. A finished row is never overwritten: two
+  evaluators into one store give one row per episode.
+* ``failed`` rows (the episode raised) are retried by the next run; ``refused`` rows (the
+  policy declined the configuration, e.g. the filtered PPC without a feasible funnel) are a
+  result, like ``done``.
+
+Schema version :data:`SCHEMA_VERSION` is in the ``meta`` table; a store of another version
+is refused with the reason. ``docs/results.md`` describes the tables.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sqlite3
+import time
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+__all__ = [
+    "FINISHED",
+    "SCHEMA_VERSION",
+    "STATUSES",
+    "Claim",
+    "EpisodeKey",
+    "EpisodeRecord",
+    "Store",
+    "StoreError",
+]
+
+#: Version of the tables below; bump it (and migrate) when they change.
+SCHEMA_VERSION = 1
+#: Episode statuses. ``done`` and ``refused`` are results; ``failed`` is retried.
+STATUSES: tuple[str, ...] = ("running", "done", "failed", "refused")
+#: The statuses a run does not run again.
+FINISHED: frozenset[str] = frozenset({"done", "refused"})
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (
+    key TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS runs (
+    run_id INTEGER PRIMARY KEY AUTOINCREMENT,
+    tool TEXT NOT NULL,
+    started REAL NOT NULL,
+    finished REAL,
+    status TEXT NOT NULL,
+    pid INTEGER NOT NULL,
+    host TEXT NOT NULL,
+    proc_start TEXT NOT NULL,
+    stamp TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS policies (
+    fingerprint TEXT PRIMARY KEY,
+    kind TEXT NOT NULL,
+    description TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS scenarios (
+    fingerprint TEXT PRIMARY KEY,
+    config TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS overrides (
+    fingerprint TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS episodes (
+    policy TEXT NOT NULL REFERENCES policies (fingerprint),
+    scenario TEXT NOT NULL REFERENCES scenarios (fingerprint),
+    overrides TEXT NOT NULL REFERENCES overrides (fingerprint),
+    seed INTEGER NOT NULL,
+    measure TEXT NOT NULL,
+    status TEXT NOT NULL CHECK (status IN ('running', 'done', 'failed', 'refused')),
+    run_id INTEGER NOT NULL REFERENCES runs (run_id),
+    policy_name TEXT NOT NULL,
+    scenario_name TEXT NOT NULL,
+    updated REAL NOT NULL,
+    wall_time REAL,
+    metrics TEXT,
+    error TEXT,
+    PRIMARY KEY (policy, scenario, overrides, seed, measure)
+);
+"""
+
+
+class StoreError(RuntimeError):
+    """A store that cannot be used: not a database, another schema version, locked too long."""
+
+
+class EpisodeKey(NamedTuple):
+    """What identifies one episode of the store (fingerprints are hex SHA-256)."""
+
+    policy: str
+    scenario: str
+    overrides: str
+    seed: int
+    measure: str
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """One row of ``episodes``: its key, status, the run that wrote it, the names the policy
+    and scenario were given by that run, its metrics (a dict) or its error text."""
+
+    key: EpisodeKey
+    status: str
+    run_id: int
+    policy_name: str
+    scenario_name: str
+    updated: float
+    wall_time: float | None
+    metrics: dict[str, Any]
+    error: str
+
+
+@dataclass(frozen=True)
+class Claim:
+    """The outcome of :meth:`Store.claim`: keys now ours to run, keys already finished, and
+    keys a live run is working on."""
+
+    mine: tuple[EpisodeKey, ...]
+    finished: tuple[EpisodeKey, ...]
+    busy: tuple[EpisodeKey, ...]
+
+
+def _proc_start(pid: int) -> str:
+    """The start time of process ``pid`` (Linux: ``/proc/PID/stat`` field 22), "" where it
+    cannot be read; with the pid it tells a live owner from a reused pid."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return ""
+    return text.rsplit(")", 1)[1].split()[19]
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class Store:
+    """An evaluation store at ``path`` (created if absent); see the module docstring.
+
+    One ``Store`` per process (the connection is not shared with workers: they return their
+    results to the process that owns the store).
+    """
+
+    def __init__(self, path: str | Path, *, timeout: float = 120.0) -> None:
+        self.path = Path(path)
+        if self.path.exists() and not self.path.is_file():
+            raise StoreError(f"{self.path}: not a file")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self._db = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
+            self._db.row_factory = sqlite3.Row
+            mode = self._db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{self.path}: not an evaluation store ({exc})") from None
+        if str(mode).lower() != "wal":
+            raise StoreError(f"{self.path}: SQLite refused the WAL journal (got {mode!r})")
+        self._db.execute("PRAGMA synchronous=FULL")
+        self._db.execute("PRAGMA foreign_keys=ON")
+        self._host = socket.gethostname()
+        with self.transaction():
+            for statement in _SCHEMA.split(";"):
+                if statement.strip():
+                    self._db.execute(statement)
+            row = self._db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
+            if row is None:
+                self._db.execute(
+                    "INSERT INTO meta (key, value) VALUES ('schema_version', ?), ('created', ?)",
+                    (str(SCHEMA_VERSION), time.strftime("%Y-%m-%dT%H:%M:%S%z")),
+                )
+            elif row["value"] != str(SCHEMA_VERSION):
+                raise StoreError(
+                    f"{self.path}: schema version {row['value']}, this code reads version "
+                    f"{SCHEMA_VERSION}; use another output folder or the matching platoon_env"
+                )
+
+    def close(self) -> None:
+        """Close the connection."""
+        self._db.close()
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @contextmanager
+    def transaction(self) -> Iterator[sqlite3.Connection]:
+        """``BEGIN IMMEDIATE`` ... ``COMMIT`` (``ROLLBACK`` on an exception): the write lock is
+        taken at the start, so two writers queue instead of failing half-way."""
+        try:
+            self._db.execute("BEGIN IMMEDIATE")
+        except sqlite3.OperationalError as exc:
+            raise StoreError(f"{self.path}: could not lock the store ({exc})") from None
+        try:
+            yield self._db
+        except BaseException:
+            self._db.execute("ROLLBACK")
+            raise
+        else:
+            self._db.execute("COMMIT")
+
+    # --- runs ---------------------------------------------------------------------------------
+
+    def begin_run(self, tool: str, stamp: Mapping[str, Any]) -> int:
+        """Record a run of this process; returns its ``run_id``."""
+        pid = os.getpid()
+        with self.transaction() as db:
+            cur = db.execute(
+                "INSERT INTO runs (tool, started, status, pid, host, proc_start, stamp) "
+                "VALUES (?, ?, 'running', ?, ?, ?, ?)",
+                (tool, time.time(), pid, self._host, _proc_start(pid), json.dumps(stamp)),
+            )
+        assert cur.lastrowid is not None
+        return int(cur.lastrowid)
+
+    def finish_run(self, run_id: int, status: str) -> None:
+        """End a run (``finished``, ``interrupted``, ``failed``): its unfinished claims are
+        released, so that the next run takes them at once."""
+        with self.transaction() as db:
+            db.execute("DELETE FROM episodes WHERE run_id = ? AND status = 'running'", (run_id,))
+            db.execute(
+                "UPDATE runs SET finished = ?, status = ? WHERE run_id = ?",
+                (time.time(), status, run_id),
+            )
+
+    def runs(self, run_ids: Iterable[int] | None = None) -> list[dict[str, Any]]:
+        """The ``runs`` rows (all, or those of ``run_ids``), their stamps parsed."""
+        rows = self._db.execute("SELECT * FROM runs ORDER BY run_id").fetchall()
+        wanted = None if run_ids is None else set(run_ids)
+        return [
+            {**dict(r), "stamp": json.loads(r["stamp"])}
+            for r in rows
+            if wanted is None or r["run_id"] in wanted
+        ]
+
+    def _run_alive(self, run: sqlite3.Row) -> bool:
+        """Whether the run that holds a claim may still finish it."""
+        if run["status"] != "running":
+            return False
+        if run["host"] != self._host:
+            return True  # cannot look at another machine's processes: trust it
+        pid = int(run["pid"])
+        if not _pid_alive(pid):
+            return False
+        start = _proc_start(pid)
+        return not (start and run["proc_start"] and start != run["proc_start"])
+
+    # --- what the fingerprints stand for ------------------------------------------------------
+
+    def register(
+        self,
+        policies: Mapping[str, tuple[str, Mapping[str, Any]]],
+        scenarios: Mapping[str, Mapping[str, Any]],
+        overrides: Mapping[str, Mapping[str, Any]],
+    ) -> None:
+        """Store what each fingerprint stands for: ``{fp: (kind, description)}`` of the
+        policies, ``{fp: config mapping}`` of the scenarios, ``{fp: overrides}``."""
+        with self.transaction() as db:
+            db.executemany(
+                "INSERT OR IGNORE INTO policies (fingerprint, kind, description) VALUES (?, ?, ?)",
+                [
+                    (fp, kind, json.dumps(desc, sort_keys=True))
+                    for fp, (kind, desc) in policies.items()
+                ],
+            )
+            db.executemany(
+                "INSERT OR IGNORE INTO scenarios (fingerprint, config) VALUES (?, ?)",
+                [(fp, json.dumps(cfg, sort_keys=True)) for fp, cfg in scenarios.items()],
+            )
+            db.executemany(
+                "INSERT OR IGNORE INTO overrides (fingerprint, value) VALUES (?, ?)",
+                [(fp, json.dumps(ov, sort_keys=True)) for fp, ov in overrides.items()],
+            )
+
+    def scenario_config(self, fingerprint: str) -> dict[str, Any]:
+        """The resolved config a scenario fingerprint stands for."""
+        row = self._db.execute(
+            "SELECT config FROM scenarios WHERE fingerprint = ?", (fingerprint,)
+        ).fetchone()
+        if row is None:
+            raise KeyError(fingerprint)
+        out: dict[str, Any] = json.loads(row["config"])
+        return out
+
+    # --- episodes -----------------------------------------------------------------------------
+
+    def claim(
+        self, keys: Sequence[EpisodeKey], run_id: int, names: Mapping[EpisodeKey, tuple[str, str]]
+    ) -> Claim:
+        """Claim the unfinished ``keys`` for ``run_id`` in one transaction.
+
+        A key without a row, with a ``failed`` row, or claimed by a run that is gone becomes
+        ours; a finished key is reported as such; a key claimed by a live run is ``busy``.
+        ``names`` gives each key's (policy name, scenario name) for the row.
+        """
+        mine: list[EpisodeKey] = []
+        finished: list[EpisodeKey] = []
+        busy: list[EpisodeKey] = []
+        now = time.time()
+        with self.transaction() as db:
+            runs = {r["run_id"]: r for r in db.execute("SELECT * FROM runs").fetchall()}
+            alive: dict[int, bool] = {}
+            for key in keys:
+                row = db.execute(
+                    "SELECT status, run_id FROM episodes WHERE policy = ? AND scenario = ? "
+                    "AND overrides = ? AND seed = ? AND measure = ?",
+                    key,
+                ).fetchone()
+                if row is not None and row["status"] in FINISHED:
+                    finished.append(key)
+                    continue
+                if row is not None and row["status"] == "running" and row["run_id"] != run_id:
+                    owner = row["run_id"]
+                    if owner not in alive:
+                        alive[owner] = owner in runs and self._run_alive(runs[owner])
+                    if alive[owner]:
+                        busy.append(key)
+                        continue
+                policy_name, scenario_name = names[key]
+                db.execute(
+                    "INSERT INTO episodes (policy, scenario, overrides, seed, measure, status, "
+                    "run_id, policy_name, scenario_name, updated) "
+                    "VALUES (?, ?, ?, ?, ?, 'running', ?, ?, ?, ?) "
+                    "ON CONFLICT DO UPDATE SET status = 'running', run_id = excluded.run_id, "
+                    "policy_name = excluded.policy_name, scenario_name = excluded.scenario_name, "
+                    "updated = excluded.updated, metrics = NULL, error = NULL, wall_time = NULL",
+                    (*key, run_id, policy_name, scenario_name, now),
+                )
+                mine.append(key)
+        return Claim(tuple(mine), tuple(finished), tuple(busy))
+
+    def record(
+        self,
+        key: EpisodeKey,
+        run_id: int,
+        status: str,
+        *,
+        metrics: Mapping[str, Any] | None = None,
+        error: str = "",
+        wall_time: float | None = None,
+        names: tuple[str, str] = ("", ""),
+    ) -> bool:
+        """Write the outcome of one episode (its own transaction). A row another run has
+        already finished is kept (returns False); else the row is written (True)."""
+        if status not in STATUSES or status == "running":
+            raise ValueError(f"status must be one of done, failed, refused, got {status!r}")
+        text = json.dumps(dict(metrics or {}), sort_keys=True)
+        with self.transaction() as db:
+            cur = db.execute(
+                "INSERT INTO episodes (policy, scenario, overrides, seed, measure, status, run_id, "
+                "policy_name, scenario_name, updated, wall_time, metrics, error) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
+                "ON CONFLICT DO UPDATE SET status = excluded.status, run_id = excluded.run_id, "
+                "updated = excluded.updated, wall_time = excluded.wall_time, "
+                "metrics = excluded.metrics, error = excluded.error "
+                "WHERE episodes.status NOT IN ('done', 'refused')",
+                (*key, status, run_id, *names, time.time(), wall_time, text, error),
+            )
+        return cur.rowcount > 0
+
+    def release(self, keys: Iterable[EpisodeKey], run_id: int) -> None:
+        """Drop this run's claims on ``keys`` (episodes it will not run after all)."""
+        with self.transaction() as db:
+            db.executemany(
+                "DELETE FROM episodes WHERE policy = ? AND scenario = ? AND overrides = ? "
+                "AND seed = ? AND measure = ? AND run_id = ? AND status = 'running'",
+                [(*k, run_id) for k in keys],
+            )
+
+    def episodes(self, keys: Iterable[EpisodeKey] | None = None) -> dict[EpisodeKey, EpisodeRecord]:
+        """The rows of ``keys`` that exist (all rows if None), by key."""
+        if keys is None:
+            rows = self._db.execute("SELECT * FROM episodes").fetchall()
+        else:
+            rows = []
+            for key in keys:
+                row = self._db.execute(
+                    "SELECT * FROM episodes WHERE policy = ? AND scenario = ? AND overrides = ? "
+                    "AND seed = ? AND measure = ?",
+                    key,
+                ).fetchone()
+                if row is not None:
+                    rows.append(row)
+        out = {}
+        for r in rows:
+            key = EpisodeKey(r["policy"], r["scenario"], r["overrides"], r["seed"], r["measure"])
+            out[key] = EpisodeRecord(
+                key=key,
+                status=r["status"],
+                run_id=r["run_id"],
+                policy_name=r["policy_name"],
+                scenario_name=r["scenario_name"],
+                updated=r["updated"],
+                wall_time=r["wall_time"],
+                metrics=json.loads(r["metrics"]) if r["metrics"] else {},
+                error=r["error"] or "",
+            )
+        return out
+
+    def counts(self) -> dict[str, int]:
+        """Episodes per status over the whole store."""
+        rows = self._db.execute("SELECT status, COUNT(*) AS n FROM episodes GROUP BY status")
+        return {r["status"]: r["n"] for r in rows}
