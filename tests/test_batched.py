@@ -267,5 +267,6 @@ def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
         direct = sense(
             culled.poses[0], edges, cfg.camera.range, cfg.camera.half_angle,
             cfg.proximity_range, proximity_half_angle=cfg.proximity_half_angle,
+            inflation=cfg.safety.inflation,
         )  # fmt: skip
         np.testing.assert_allclose(culled.sensed[0], direct, rtol=0, atol=1e-12, err_msg=str(t))

@@ -243,6 +243,7 @@ def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
         direct = sense(
             poses, edges, cfg.camera.range, cfg.camera.half_angle,
             cfg.proximity_range, proximity_half_angle=cfg.proximity_half_angle,
+            inflation=cfg.safety.inflation,
         )  # fmt: skip
         np.testing.assert_allclose(sensed, direct, rtol=0, atol=1e-12, err_msg=str(t))
 

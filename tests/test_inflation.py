@@ -177,7 +177,7 @@ def test_readings_are_to_the_inflated_outline(m: float) -> None:
 def test_zero_inflation_is_the_default_bit_for_bit() -> None:
     """``safety.inflation: 0`` spelled out: the same rollout digest, config mapping and
     fingerprint as leaving it out (the golden digests stay valid)."""
-    for name in ("study_c", "study_b"):
+    for name in ("study_c", "study_a"):  # (study B ships with the paper's 0.1 m)
         default = platoon_env.make(name).source.config
         explicit = platoon_env.make(name, safety={"inflation": 0.0}).source.config
         assert explicit == default
