@@ -545,11 +545,11 @@ def train_rllib(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bo
     """
     from training.train import (
         check_config,
-        check_scenario,
         env_metadata,
+        finished_run,
         git_commit,
-        plan_run,
         segment_metadata,
+        settle_plan,
         start_run,
         timing_metadata,
     )
@@ -560,19 +560,13 @@ def train_rllib(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bo
     out = cfg.out_dir
     probe = PlatoonMultiAgentEnv(env_config(cfg))
     try:
-        errors = check_scenario(cfg, probe.env)
-        if errors:
-            raise ValueError("; ".join(errors))
-        if plan is None:
-            plan = plan_run(cfg, probe.env)
+        plan = settle_plan(cfg, probe.env, plan)
     except BaseException:
         probe.close()
         raise
     if plan.mode == "finished":
         probe.close()
-        print(plan.message, file=sys.stderr)
-        assert plan.source is not None
-        return plan.source, False
+        return finished_run(plan)
     start_run(cfg, plan)
     torch.set_num_threads(cfg.torch_threads)
     init_ray(cfg.address, num_cpus=max(2, cfg.num_env_runners + cfg.num_learners))

@@ -1127,6 +1127,23 @@ def timing_metadata(segments: list[dict[str, Any]], timesteps: int) -> dict[str,
     }
 
 
+def settle_plan(cfg: TrainConfig, env: Any, plan: RunPlan | None) -> RunPlan:
+    """``plan``, or what :func:`plan_run` decides for ``--out``, once ``cfg`` is checked
+    against its resolved training env (:func:`check_scenario`); raises ``ValueError`` or
+    :class:`RunError` before anything is written. Shared by both engines."""
+    errors = check_scenario(cfg, env)
+    if errors:
+        raise ValueError("; ".join(errors))
+    return plan if plan is not None else plan_run(cfg, env)
+
+
+def finished_run(plan: RunPlan) -> tuple[Path, bool]:
+    """What a ``--resume`` of a finished run returns (it says so, and changes nothing)."""
+    print(plan.message, file=sys.stderr)
+    assert plan.source is not None
+    return plan.source, False
+
+
 def train(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bool]:
     """Train as ``cfg`` says; returns ``(path of model.zip, interrupted)``.
 
@@ -1142,19 +1159,13 @@ def train(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bool]:
     set_random_seed(cfg.seed)
     venv = build_vec_env(cfg)
     try:
-        errors = check_scenario(cfg, venv.envs[0])
-        if errors:
-            raise ValueError("; ".join(errors))
-        if plan is None:
-            plan = plan_run(cfg, venv.envs[0])
+        plan = settle_plan(cfg, venv.envs[0], plan)
     except BaseException:
         venv.close()
         raise
     if plan.mode == "finished":
         venv.close()
-        print(plan.message, file=sys.stderr)
-        assert plan.source is not None
-        return plan.source, False
+        return finished_run(plan)
     start_run(cfg, plan)
     start_from = plan.source if plan.mode == "resume" else None
     if start_from is not None:
