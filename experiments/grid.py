@@ -61,6 +61,9 @@ __all__ = [
 
 #: The measure of a cell unless it names another: ``platoon_env.rollout.episode_metrics``.
 DEFAULT_MEASURE = "platoon_env.rollout:episode_metrics"
+#: How often a broken worker pool (a worker killed, out of memory) is replaced before the
+#: remaining cells are recorded as failed.
+MAX_POOL_RESTARTS = 3
 #: Options of ``make()`` that do not change an episode (left out of the fingerprints).
 _PRESENTATION_OPTIONS = frozenset({"render_mode", "diagnostics"})
 
@@ -329,6 +332,7 @@ def run_grid(
         mininterval=0.5 if sys.stderr.isatty() else 30.0,
     )
     pool: ProcessPoolExecutor | None = None
+    restarts = 0
     pending: dict[Future[CellResult], ResolvedCell] = {}
     try:
         queue = [rc.key for rc in resolved]
@@ -349,7 +353,20 @@ def run_grid(
                         ran += 1
                         bar.update()
                         continue
+                    if pool is not None and getattr(pool, "_broken", False):
+                        # a worker died (killed, out of memory): its cells were recorded as
+                        # failed; a fresh pool runs the rest
+                        _stop_pool(pool, wait_for_workers=False)
+                        pool = None
+                        restarts += 1
                     if pool is None:
+                        if restarts > MAX_POOL_RESTARTS:
+                            result = CellResult(
+                                "failed", {}, f"worker pool broke {restarts} times", 0.0
+                            )
+                            _store_result(db, run_id, rc, result, kept)
+                            bar.update()
+                            continue
                         pool = ProcessPoolExecutor(
                             max_workers=workers,
                             mp_context=multiprocessing.get_context("spawn"),

@@ -96,6 +96,10 @@ class PolicySpec:
     kind: str
     path: Path | None = None
     params: str = "{}"
+    #: The kind's ``module:callable``, copied from :data:`REGISTRY` when the spec is made, so
+    #: that a worker process (which has only the shipped registry) builds a policy registered
+    #: at run time too.
+    factory: str = ""
     _fingerprint: list[str] = field(default_factory=list, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -103,6 +107,8 @@ class PolicySpec:
             raise ValueError(
                 f"unknown policy kind {self.kind!r}; known: {', '.join(sorted(REGISTRY))}, {MODEL}"
             )
+        if self.kind != MODEL and not self.factory:
+            object.__setattr__(self, "factory", REGISTRY[self.kind].factory)
         if (self.kind == MODEL) != (self.path is not None):
             raise ValueError("a model policy needs a path, and only a model policy takes one")
         if not isinstance(json.loads(self.params), dict):
@@ -185,7 +191,7 @@ class PolicySpec:
                 "model_json_sha256": text_sha256(meta),
                 "path": str(self.path),
             }
-        return {"kind": self.kind, "factory": REGISTRY[self.kind].factory, "params": self.kwargs}
+        return {"kind": self.kind, "factory": self.factory, "params": self.kwargs}
 
     def fingerprint(self) -> str:
         """The hex SHA-256 identifying the policy (computed once per spec object)."""
@@ -198,7 +204,8 @@ class PolicySpec:
     @property
     def signals(self) -> bool:
         """Whether the policy's internal signals are worth recording."""
-        return self.kind != MODEL and REGISTRY[self.kind].signals
+        kind = REGISTRY.get(self.kind)
+        return kind is not None and kind.signals
 
 
 def build_policy(spec: PolicySpec, env: Any) -> Any:
@@ -212,7 +219,7 @@ def build_policy(spec: PolicySpec, env: Any) -> Any:
         if check is not None:
             check(env)
         return policy
-    return _resolve(REGISTRY[spec.kind].factory)(env, **spec.kwargs)
+    return _resolve(spec.factory)(env, **spec.kwargs)
 
 
 def shipped_models(models_dir: Path) -> list[PolicySpec]:

@@ -212,3 +212,42 @@ def test_report_helpers(tmp_path: Path) -> None:
     assert write_csv(path, ("a", "b"), [{"a": float("inf"), "b": None}, {"a": 0.1234567}]) == 2
     assert path.read_text().splitlines() == ["a,b", "inf,", "0.123457,"]
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+class _DiesOnSeed1:
+    """A policy whose worker process dies (``os._exit``) on seed 1: a segfault, the OOM killer."""
+
+    def __init__(self, env: object) -> None:
+        self._seed: int | None = None
+
+    def reset(self, seed: int | None = None) -> None:
+        import os
+
+        if seed == 1:
+            os._exit(3)
+
+    def act(self, obs: dict) -> dict:  # type: ignore[type-arg]
+        import numpy as np
+
+        return {a: np.zeros(2, dtype=np.float32) for a in obs}
+
+
+@pytest.mark.slow  # two pools of spawned workers, each importing the package (minutes on 2 cores)
+def test_a_dead_worker_is_recorded_and_the_pool_replaced(tmp_path: Path) -> None:
+    """Spawned workers build a policy registered at run time (the spec carries its factory);
+    a worker that dies fails its cell (and any cell in flight with it), a fresh pool runs the
+    rest."""
+    REGISTRY["_test_dies"] = PolicyKind(f"{__name__}:_DiesOnSeed1", "test")
+    try:
+        spec = PolicySpec.of("_test_dies")
+        cells = [Cell.of(spec, "study_c", s, {"max_episode_steps": 20}) for s in range(6)]
+        result = run_grid(tmp_path / "s.sqlite", cells, tool="t", stamp=STAMP, workers=2,
+                          progress=False)  # fmt: skip
+    finally:
+        del REGISTRY["_test_dies"]
+    status = {r.key.seed: r.status for r in result.records.values()}
+    assert len(status) == 6 and status[1] == "failed"
+    assert "worker died" in next(r.error for r in result.records.values() if r.key.seed == 1)
+    # at most the cells in flight with it (2 workers) failed; the later ones ran
+    assert sum(s == "done" for s in status.values()) >= 4 - 1
+    assert status[5] == "done"
