@@ -61,7 +61,13 @@ import numpy as np
 from baselines.ppc import EPS_MAX
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
 from experiments.policies import REGISTRY, PolicySpec
-from experiments.report import format_value, provenance_markdown, wilson, write_csv
+from experiments.report import (
+    format_value,
+    provenance_markdown,
+    wilson,
+    write_csv,
+    write_csv_stamp,
+)
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store
 from platoon_env.geometry.sensing import SENSE_BETA, SENSE_D
@@ -881,8 +887,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"\ninterrupted: finished episodes are in {store.path}; re-run to resume")
             return 130
         provenance = provenance_markdown(store, result.records.values(), result.run_id)
-    rows = [{k: format_value(v) for k, v in r.items()} for r in rows_of(grid, resolved, result)]
-    write_csv(out / "frontiers.csv", CSV_COLUMNS, rows)
+        rows = [{k: format_value(v) for k, v in r.items()} for r in rows_of(grid, resolved, result)]
+        write_csv(out / "frontiers.csv", CSV_COLUMNS, rows)
+        write_csv_stamp(out / "frontiers.csv", store, result.records.values(), result.run_id)
     table = summarise(rows, keys, args.study, args.controller, args.axis, quick=args.quick)
     header = (
         "# Robustness frontiers\n\n"

@@ -26,6 +26,7 @@ __all__ = [
     "seed_ranges",
     "wilson",
     "write_csv",
+    "write_csv_stamp",
 ]
 
 
@@ -101,6 +102,29 @@ def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Mapping[str, An
         os.fsync(f.fileno())
     os.replace(tmp, path)
     return n
+
+
+def write_csv_stamp(
+    csv_path: Path, store: Store, records: Iterable[EpisodeRecord], this_run: int
+) -> Path:
+    """``CSV.meta.json`` beside an exported CSV: the stamp of every run whose rows it holds
+    (code, versions, command, host), by ``run_id`` (the CSV's ``run_id`` column), and the
+    store it was exported from. A CSV cannot carry its provenance in a comment that every
+    reader accepts; this file does."""
+    import json
+
+    used = sorted({rec.run_id for rec in records} | {this_run})
+    runs = {r["run_id"]: r for r in store.runs(used)}
+    meta = {
+        "exported_by_run": this_run,
+        "store": str(store.path),
+        "runs": {str(k): runs[k] for k in used if k in runs},
+    }
+    path = csv_path.with_name(csv_path.name + ".meta.json")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    os.replace(tmp, path)
+    return path
 
 
 def provenance_markdown(store: Store, records: Iterable[EpisodeRecord], this_run: int) -> str:

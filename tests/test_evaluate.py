@@ -312,6 +312,9 @@ def test_duplicate_scenarios_run_once_and_headers_count_rows(
     assert sorted((r["scenario"], r["seed"]) for r in rows) == [(str(copy), "0"), (str(copy), "1")]
     summary = (out / "summary.md").read_text()
     assert "2 episodes summarised (seeds 0..1)" in summary
+    meta = json.loads((out / "results.csv.meta.json").read_text())
+    assert {r["run_id"] for r in rows} == {str(k) for k in meta["runs"]}
+    assert meta["runs"][rows[0]["run_id"]]["stamp"]["tool"] == "platoon-evaluate"
     assert "| " + str(copy) + " | ppc | 2 | 0..1 |" in summary
     assert sorted(p.name for p in yaml_dir.iterdir()) == ["my_c.yaml"]
     assert (out / "plots" / "my_c_trajectories.png").is_file()

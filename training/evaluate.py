@@ -65,6 +65,7 @@ from experiments.report import (
     seed_ranges,
     wilson,
     write_csv,
+    write_csv_stamp,
 )
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store, StoreError
@@ -93,6 +94,9 @@ __all__ = [
 #: The shipped models live here (a source checkout; see models/README.md).
 MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
 DEFAULT_SCENARIOS = ("study_a", "study_b", "study_c", "procedural_test")
+#: Episodes (seeds) per policy and scenario by default: every table on the studies is over at
+#: least 20 seeds (each draws its own leader speed factor and start perturbation).
+DEFAULT_EPISODES = 20
 #: The scenario blocks the realism flags override, and record (resolved) with every row.
 REALISM_BLOCKS: tuple[str, ...] = ("camera", "proximity", "robot")
 #: Columns of the ``results.csv`` export.
@@ -424,7 +428,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--episodes",
         type=_positive("count", 1),
         default=None,
-        help="episodes (seeds) per policy, scenario and condition (default 5, or the suite's)",
+        help="episodes (seeds) per policy, scenario and condition (default 20, or the suite's)",
     )
     parser.add_argument(
         "--seed",
@@ -481,7 +485,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             flags = ", ".join("--" + g.replace("_", "-") for g in given)
             parser.error(f"--suite {args.suite} sets the scenarios and conditions; drop {flags}")
     if args.episodes is None:
-        args.episodes = the_suite.seeds if the_suite is not None else 5
+        args.episodes = the_suite.seeds if the_suite is not None else DEFAULT_EPISODES
     if args.out.exists() and not args.out.is_dir():
         parser.error(f"--out {args.out}: exists and is not a folder")
     args.policy = args.policy or default_policies()
@@ -632,6 +636,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 130
         rows = export_rows(result, args.condition_of)
         write_csv(out / "results.csv", CSV_COLUMNS, rows)
+        records = [result.records[rc.key] for rc in result.cells if rc.key in result.records]
+        write_csv_stamp(out / "results.csv", store, records, result.run_id)
         summary = summarise(_csv_strings(rows))
         header = _summary_header(args, result, store, rows)
     (out / "summary.md").write_text(header + summary + "\n" + _failures(result))
