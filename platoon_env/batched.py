@@ -14,7 +14,7 @@ Arrays, with ``B`` envs of ``N`` followers (follower ``i`` is ``possible_agents[
 name                    shape, dtype    meaning
 ======================  ==============  =======================================================
 actions                 (B, N, 2)       ``[u, omega]`` [m/s, rad/s]; clipped to the action Box
-observations            (B, N, 7) f32   as :mod:`platoon_env.observation`
+observations            (B, N, K) f32   as :mod:`platoon_env.observation` (K = 7; 13 task-aware)
 rewards                 (B, N) f64      summed reward terms (:mod:`platoon_env.reward`)
 terminated, truncated   (B,) bool       as the env's (the same for all followers of an env)
 info["violations"]      (B, N) int64    violation bit masks (bit k: ``VIOLATION_CAUSES[k]``)
@@ -180,7 +180,7 @@ class BatchedPlatoon:
         envs: Sequence[int] | np.ndarray | None = None,
         perturb: bool | None = None,
     ) -> np.ndarray:
-        """Start new episodes; returns the observations ``(B, N, 7)`` of every env (a copy).
+        """Start new episodes; returns the observations ``(B, N, K)`` of every env (a copy).
 
         Args:
             seeds: ``None`` continues each env's own RNG; an int ``s`` seeds env ``b`` (the
@@ -213,7 +213,7 @@ class BatchedPlatoon:
                 ``ValueError`` (naming env and agent) before any state changes.
 
         Returns:
-            ``(observations (B, N, 7), rewards (B, N), terminated (B,), truncated (B,), info)``
+            ``(observations (B, N, K), rewards (B, N), terminated (B,), truncated (B,), info)``
             (fresh arrays), ``info`` as in the module docstring.
 
         Raises:

@@ -8,6 +8,12 @@ PettingZoo env (:class:`platoon_env.env.PlatoonParallelEnv`) is this core at ``B
 dict I/O, infos and rendering; :class:`platoon_env.batched.BatchedPlatoon` is the same core at
 ``B > 1`` with array I/O. Neither restates an episode rule.
 
+Task-aware observations (``observation.task_aware``, :mod:`platoon_env.observation`) are this
+core's too, in NumPy around the compiled step: the compiled kernels write the first
+:data:`~platoon_env.observation.OBS_SIZE` columns of each observation row, the core the task
+features (once per scenario, :meth:`PlatoonCore._install`) and ``t_unseen`` (after every call,
+:meth:`PlatoonCore.observe_task`); without the option nothing of this runs.
+
 Map slots: a fixed scenario's ``B`` envs share slot 0; a procedural source gives every env a
 slot of its own, rewritten when the env draws a new layout. Slots are padded to the largest map
 seen so far (the arrays grow when a bigger layout arrives).
@@ -27,7 +33,17 @@ from platoon_env.geometry.grid import EdgeGrid
 from platoon_env.geometry.primitives import wrap_angle
 from platoon_env.geometry.sensing import SENSE_SIZE
 from platoon_env.initial import InitialSampler
-from platoon_env.observation import ACT_SIZE, OBS_SIZE, action_space
+from platoon_env.observation import (
+    ACT_SIZE,
+    OBS_D_DES,
+    OBS_RADIUS,
+    OBS_T_UNSEEN,
+    OBS_VISIBLE,
+    UNSEEN_HORIZON,
+    action_space,
+    observation_size,
+    task_features,
+)
 from platoon_env.records import (
     FRAME_SIZE,
     MAP_INFO_DTYPE,
@@ -220,8 +236,11 @@ class PlatoonCore:
     Attributes (arrays shared with the compiled core; read them, do not replace them):
         params: ``(B,)`` :data:`~platoon_env.records.PARAMS_DTYPE`; episode: ``(B,)``
         :data:`~platoon_env.records.EPISODE_DTYPE`; poses, actions, violations, sensed, obs,
-        terms, rewards: the per-follower arrays of :class:`~platoon_env.records.Buffers`;
-        rngs: each env's ``numpy.random.Generator``; scenarios: each env's current scenario.
+        terms, rewards: the per-follower arrays of :class:`~platoon_env.records.Buffers`
+        (``obs`` has :func:`~platoon_env.observation.observation_size` columns);
+        rngs: each env's ``numpy.random.Generator``; scenarios: each env's current scenario;
+        task_aware: ``observation.task_aware``; unseen: ``(B, N)`` int64, the control steps
+        since each follower last perceived its predecessor (kept only when task-aware).
     """
 
     def __init__(
@@ -251,7 +270,13 @@ class PlatoonCore:
         self.applied = np.zeros((b, n, ACT_SIZE))
         self.violations = np.zeros((b, n), dtype=np.int64)
         self.sensed = np.zeros((b, n, SENSE_SIZE))
-        self.obs = np.zeros((b, n, OBS_SIZE), dtype=np.float32)
+        self.obs = np.zeros((b, n, observation_size(cfg)), dtype=np.float32)
+        self.task_aware = bool(cfg.observation.task_aware)
+        self.unseen = np.zeros((b, n), dtype=np.int64)
+        # Each env's control period over the horizon, a column: what t_unseen grows by per step.
+        self._unseen_rate = np.zeros((b, 1))
+        self._lost = np.zeros((b, n), dtype=bool)
+        self._task_views()
         self.terms = np.zeros((b, n, len(REWARD_TERMS)))
         self.rewards = np.zeros((b, n))
         # The camera frames in flight: a ring of latency + 1 frames and the one last delivered.
@@ -280,6 +305,7 @@ class PlatoonCore:
                 self._samplers[k] = self._install(k, first)
             else:
                 self.params[k] = self.params[0]
+                self._task_install(k, cfg)
         self.poses[:] = first.initial_poses
         self._all = np.ones(b, dtype=bool)
         self.n_threads = 1
@@ -323,7 +349,49 @@ class PlatoonCore:
         self.episode[b]["map_slot"] = slot
         self.params[b] = params_of(cfg, scenario.max_episode_steps)
         self.scenarios[b] = scenario
+        self._task_install(b, cfg)
         return InitialSampler(scenario, grid.walls, self.params[b : b + 1])
+
+    def _task_install(self, b: int, cfg: ScenarioConfig) -> None:
+        """Env ``b``'s task features (columns ``OBS_D_DES .. OBS_RADIUS`` of every follower's
+        row, which the compiled kernels never write) and control period, when task-aware."""
+        if self.task_aware:
+            self.obs[b, :, OBS_D_DES : OBS_RADIUS + 1] = task_features(cfg)
+            self._unseen_rate[b, 0] = cfg.simulation.control_period / UNSEEN_HORIZON
+
+    def _task_views(self) -> None:
+        """The ``visible`` and ``t_unseen`` columns of :attr:`obs` (views, for
+        :meth:`observe_task`)."""
+        self._visible = self.obs[:, :, OBS_VISIBLE]
+        self._t_unseen = self.obs[:, :, OBS_T_UNSEEN] if self.task_aware else None
+
+    def observe_task(self, active: np.ndarray | None, stepped: bool) -> None:
+        """``t_unseen`` of the ``active`` envs (None: all) after a call of the compiled step:
+        each follower's count of steps since it last perceived its predecessor (the perceived
+        ``visible`` flag of its new observation) is reset to 0 where it did and grows by one
+        where it did not; after a reset (``stepped`` False) it is 0 (the start counts as
+        visible). The column is ``min(1, count * (control_period / UNSEEN_HORIZON))`` in
+        float32 (:mod:`platoon_env.observation`). Only for a task-aware core.
+
+        Few NumPy calls on preallocated arrays and views: this runs after every step.
+        """
+        unseen, t = self.unseen, self._t_unseen
+        assert t is not None, "observe_task() of a core without task-aware observations"
+        if active is None:
+            if stepped:
+                unseen += 1
+                np.less_equal(self._visible, 0.0, out=self._lost)
+                unseen *= self._lost
+            else:
+                unseen.fill(0)
+            np.multiply(unseen, self._unseen_rate, out=t)
+            np.minimum(t, 1.0, out=t)
+            return
+        if stepped:
+            unseen[active] = (unseen[active] + 1) * (self._visible[active] <= 0.0)
+        else:
+            unseen[active] = 0
+        t[active] = np.minimum(unseen[active] * self._unseen_rate[active], 1.0)
 
     # ----------------------------------------------------------------------------------------
     def reset_env(
@@ -418,19 +486,24 @@ class PlatoonCore:
         mask = self._all if active is None else active
         args = (mask, n_substeps, *self.step_args)
         if self.n_threads == 1 or self.batch_size == 1:
-            return int(step_serial(*args))
-        previous = numba.get_num_threads()
-        numba.set_num_threads(self.n_threads)
-        try:
-            return int(step_parallel(*args))
-        finally:
-            numba.set_num_threads(previous)
+            ended = int(step_serial(*args))
+        else:
+            previous = numba.get_num_threads()
+            numba.set_num_threads(self.n_threads)
+            try:
+                ended = int(step_parallel(*args))
+            finally:
+                numba.set_num_threads(previous)
+        if self.task_aware and ended >= 0:
+            self.observe_task(active, n_substeps > 0)
+        return ended
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         # Views unpickle as copies: the byte views must alias the records again.
         self._params_bytes = self.params.view(np.uint8)
         self._episode_bytes = self.episode.view(np.uint8)
+        self._task_views()
 
 
 #: [m, rad] How far a given start's leader row may be from a timed trajectory's first sample.

@@ -76,7 +76,9 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
 
     **Observation space** (per agent): ``Box`` float32 of length 7 — see
     :mod:`platoon_env.observation`: ``[visible, x~, y~, d_W_l, d_W_r, d_l, d_r]``, only from the
-    follower's own camera and proximity sensor.
+    follower's own camera and proximity sensor; with ``observation={"task_aware": True}`` 13:
+    those, then ``d_des``, ``d_col``, ``d_con``, ``beta_con``, ``r`` over fixed scales and the
+    time since the predecessor was last perceived (``t_unseen``), each in ``[0, 1]``.
 
     **Rewards**: the named terms of :mod:`platoon_env.reward`; ``info[agent]["reward_terms"]``
     gives each term.
@@ -134,6 +136,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self.control_period = cfg.simulation.control_period
         self.physics_substeps = cfg.simulation.physics_substeps
         self.terminate_on = frozenset(cfg.safety.terminate_on)
+        self._task_aware = core.task_aware
         # One space object per agent: seeding one agent's space must not seed another's.
         self.observation_spaces = {a: observation_space(cfg) for a in self.possible_agents}
         self.action_spaces = {a: action_space(cfg) for a in self.possible_agents}
@@ -349,6 +352,8 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
             raise ValueError(
                 f"action of {agents[-1 - ended]!r} contains NaN or inf: {act[-1 - ended].tolist()}"
             )
+        if self._task_aware:  # the core's rule, which its run() applies (bypassed here)
+            self._core.observe_task(None, True)
         terminated = truncated = bool(ended)
         if ended:
             terminated = bool(self._episode[0]["terminated"])

@@ -17,9 +17,41 @@ index   name         meaning                                        range
 ======  ===========  =============================================  ==================
 
 Distances in metres. ``beta`` is the angle of view (eq. 3), ``d`` the distance (eq. 2).
+
+**Task-aware observations** (scenario option ``observation: {task_aware: true}``, e.g.
+``make("study_a", observation={"task_aware": True})``; off by default, so the 7-vector above
+stays the contract): the same 7, then what a real follower knows of its task and its sensors,
+so that one policy can serve every formation (13 values, :data:`OBS_NAMES_TASK`):
+
+======  ========  =============================================================  ========
+index   name      meaning                                                        range
+======  ========  =============================================================  ========
+7       d_des     ``min(1, d_des / D)``, the desired distance (Problem 1)        [0, 1]
+8       d_col     ``min(1, d_col / D)``, the collision distance (eq. 4)          [0, 1]
+9       d_con     ``min(1, d_con / D)``, the camera range (eq. 5)                [0, 1]
+10      beta_con  ``beta_con / (pi / 2)``, the camera half-angle (eq. 5)         [0, 1]
+11      r         ``min(1, r / (D / 2))``, the robot radius                      [0, 1]
+12      t_unseen  ``min(1, t_u / T)``, time since the predecessor was perceived  [0, 1]
+======  ========  =============================================================  ========
+
+The reference scales are fixed (:data:`TASK_SCALES`), not the scenario's, so that the same
+number means the same task in every scenario: ``D`` = :data:`TASK_DISTANCE_SCALE` = 5 m,
+``pi / 2`` (the schema's bound ``0 < beta_con < pi / 2``), ``D / 2`` for the radius. Since the
+schema requires ``2 r <= d_col < d_des < d_con``, every scenario with ``d_con <= D`` (all shipped
+ones: at most 4 m) has all five in ``[0, 1)`` unclipped; a larger ``d_con`` saturates at 1 (the
+schema bounds no distance, so a fixed scale must clip somewhere).
+
+``t_u`` [s] is the time since the follower last *perceived* its predecessor: 0 in a step whose
+observation has ``visible = 1`` (the perceived flag, after detection dropouts, the frame rate's
+held frames and the latency of :mod:`platoon_env.perception`), else the previous value plus the
+control period; the reset counts as visible (``t_u = 0``). It is divided by the horizon ``T`` =
+:data:`UNSEEN_HORIZON` = 2 s and capped at 1. The core keeps it
+(:meth:`platoon_env.core.PlatoonCore.observe_task`).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from gymnasium import spaces
@@ -33,21 +65,82 @@ OBS_D_WALL_LEFT = 3
 OBS_D_WALL_RIGHT = 4
 OBS_D_SIGHT_LEFT = 5
 OBS_D_SIGHT_RIGHT = 6
+#: Length of the default observation (the 7-vector; the compiled kernels write these columns).
 OBS_SIZE = 7
 OBS_NAMES: tuple[str, ...] = ("visible", "x_rel", "y_rel", "d_W_l", "d_W_r", "d_l", "d_r")
+
+# Task-aware observations (``observation.task_aware``): the 7 above, then these.
+OBS_D_DES = 7
+OBS_D_COL = 8
+OBS_D_CON = 9
+OBS_BETA_CON = 10
+OBS_RADIUS = 11
+OBS_T_UNSEEN = 12
+OBS_SIZE_TASK = 13
+#: Names of the five task features (columns ``OBS_D_DES .. OBS_RADIUS``).
+OBS_TASK_NAMES: tuple[str, ...] = ("d_des", "d_col", "d_con", "beta_con", "r")
+OBS_NAMES_TASK: tuple[str, ...] = (*OBS_NAMES, *OBS_TASK_NAMES, "t_unseen")
+
+#: [m] ``D``, the reference distance of ``d_des``, ``d_col`` and ``d_con`` (``r``: ``D / 2``).
+TASK_DISTANCE_SCALE = 5.0
+#: The divisors of the five task features, in :data:`OBS_TASK_NAMES` order ([m, m, m, rad, m]).
+TASK_SCALES: tuple[float, ...] = (
+    TASK_DISTANCE_SCALE,
+    TASK_DISTANCE_SCALE,
+    TASK_DISTANCE_SCALE,
+    math.pi / 2,
+    TASK_DISTANCE_SCALE / 2,
+)
+#: [s] ``T``, the horizon of ``t_unseen``: the time since the predecessor was perceived over
+#: it, capped at 1. Far beyond the gaps of a realistic camera's dropouts and latency (the
+#: ``aruco`` profile: 33 ms frames, 50 ms latency, 5 % dropouts), which it resolves; by then,
+#: at the shipped leader speeds (0.25-0.5 m/s), the predecessor has gone half a metre or more.
+UNSEEN_HORIZON = 2.0
 
 ACT_U = 0
 ACT_OMEGA = 1
 ACT_SIZE = 2
 
 
+def observation_names(cfg: ScenarioConfig) -> tuple[str, ...]:
+    """The names of one follower's observation columns: :data:`OBS_NAMES`, or
+    :data:`OBS_NAMES_TASK` with ``observation.task_aware``."""
+    return OBS_NAMES_TASK if cfg.observation.task_aware else OBS_NAMES
+
+
+def observation_size(cfg: ScenarioConfig) -> int:
+    """The length of one follower's observation: :data:`OBS_SIZE` or :data:`OBS_SIZE_TASK`."""
+    return OBS_SIZE_TASK if cfg.observation.task_aware else OBS_SIZE
+
+
+def task_features(cfg: ScenarioConfig) -> np.ndarray:
+    """The five task features ``[d_des, d_col, d_con, beta_con, r]`` of ``cfg``, each over its
+    :data:`TASK_SCALES` entry and clipped to ``[0, 1]`` (float32, the observation's dtype)."""
+    values = (
+        cfg.formation.d_des,
+        cfg.safety.d_col,
+        cfg.camera.range,
+        cfg.camera.half_angle,
+        cfg.robot.radius,
+    )
+    scaled = [min(1.0, max(0.0, v / s)) for v, s in zip(values, TASK_SCALES, strict=True)]
+    return np.array(scaled, dtype=np.float32)
+
+
 def observation_space(cfg: ScenarioConfig) -> spaces.Box:
-    """The bounded float32 Box of one follower's observation."""
+    """The bounded float32 Box of one follower's observation (7 values, or 13 with
+    ``observation.task_aware``: the task features and ``t_unseen`` lie in ``[0, 1]``)."""
     d_con = cfg.camera.range
     prox = cfg.proximity_range
-    low = np.array([0.0, 0.0, -d_con, 0.0, 0.0, 0.0, 0.0], dtype=np.float32)
-    high = np.array([1.0, d_con, d_con, prox, prox, prox, prox], dtype=np.float32)
-    return spaces.Box(low=low, high=high, dtype=np.float32)
+    low = [0.0, 0.0, -d_con, 0.0, 0.0, 0.0, 0.0]
+    high = [1.0, d_con, d_con, prox, prox, prox, prox]
+    if cfg.observation.task_aware:
+        extra = OBS_SIZE_TASK - OBS_SIZE
+        low += [0.0] * extra
+        high += [1.0] * extra
+    return spaces.Box(
+        low=np.array(low, dtype=np.float32), high=np.array(high, dtype=np.float32), dtype=np.float32
+    )
 
 
 def action_space(cfg: ScenarioConfig) -> spaces.Box:

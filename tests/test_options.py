@@ -65,6 +65,7 @@ def test_option_name_tuples() -> None:
         "ppc",
         "workspace",
         "generator",
+        "observation",
     }
     assert OVERRIDE_OPTIONS == (*SCENARIO_OPTIONS, *BLOCK_OPTIONS, PROFILE_OPTION)
 

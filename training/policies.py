@@ -14,6 +14,7 @@ A trained model is saved as two files side by side::
           "scenario_config": {...},            # that resolved config (after the overrides)
           "control_period": 0.05,              # [s] period the policy was trained at
           "observation_layout": ["visible", "x_rel", ...], "action_layout": ["u", "omega"],
+                                               # (13 names with task-aware observations)
           "observation_normalization": {"type": "fixed_scale", "scale": [1, 1.5, ...]},
           "action_range": {"u_low": -0.5, "u_high": 1.5, "omega_high": 2.0},
           "config": {...}, "git_commit": "...", "seed": 0, "timesteps": ..., ...
@@ -39,7 +40,9 @@ the reason):
   the hash was recorded) load with a ``UserWarning``, once per file; a version 2 file without
   the hash is refused. Both shipped models (``models/``) have it (backfilled);
 * ``action_range``, ``observation_normalization`` and ``control_period`` must be present and
-  well-formed; the model must map 7 observations to 2 actions.
+  well-formed; the model must map 7 observations (13 with task-aware observations,
+  ``observation: {task_aware: true}``: :data:`OBSERVATION_LAYOUTS`) to 2 actions, and the
+  recorded ``observation_layout`` and normalisation must have that length.
 
 :meth:`LearnedPolicy.check_env` then compares the model with the env it is about to act in:
 which differences make a result meaningless (refused) and which are experiments (allowed, and
@@ -76,7 +79,7 @@ from numpy.typing import NDArray
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from platoon_env.observation import ACT_SIZE, OBS_NAMES, OBS_SIZE
+from platoon_env.observation import ACT_SIZE, OBS_NAMES, OBS_NAMES_TASK, observation_names
 from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping, file_sha256
 from training.vec_env import ActionRange
 
@@ -86,6 +89,7 @@ __all__ = [
     "ENGINES",
     "METADATA_FORMAT",
     "OBSERVATION_LAYOUT",
+    "OBSERVATION_LAYOUTS",
     "LearnedPolicy",
     "MLPActor",
     "adapter_metadata",
@@ -104,9 +108,15 @@ METADATA_FORMAT = "platoon_env.learned_policy"
 #: 2: ``zip_sha256``, the resolved scenario, the observation/action layout and the training
 #: segments are recorded. 1: none of them (still read; see the module doc).
 METADATA_VERSION = 2
-#: The per-follower observation a policy reads, by name (``model.json``'s
-#: ``observation_layout``; :mod:`platoon_env.observation`).
+#: The default per-follower observation a policy reads, by name (``model.json``'s
+#: ``observation_layout``; :mod:`platoon_env.observation`): the 7-vector.
 OBSERVATION_LAYOUT: tuple[str, ...] = tuple(OBS_NAMES)
+#: Every observation layout a policy can read, by its length: the 7-vector, and the 13 values
+#: of task-aware observations (``observation.task_aware``).
+OBSERVATION_LAYOUTS: dict[int, tuple[str, ...]] = {
+    len(OBS_NAMES): tuple(OBS_NAMES),
+    len(OBS_NAMES_TASK): tuple(OBS_NAMES_TASK),
+}
 #: The per-follower action a policy outputs (``model.json``'s ``action_layout``).
 ACTION_LAYOUT: tuple[str, ...] = ("u", "omega")
 #: The trainers whose models ``LearnedPolicy.load`` reads (``model.json``'s ``engine``).
@@ -194,8 +204,33 @@ def parse_action_range(value: Any, where: str = "model.json") -> ActionRange:
         raise ValueError(f"{where}: action_range: {e}") from None
 
 
-def _parse_normalization(value: Any, where: str) -> NDArray[np.float32] | None:
-    """The observation divisor of ``observation_normalization`` (None: raw observations)."""
+def _sizes_text(size: int | None) -> str:
+    return str(size) if size is not None else " or ".join(map(str, OBSERVATION_LAYOUTS))
+
+
+def _parse_layout(value: Any, where: str) -> tuple[str, ...] | None:
+    """``model.json``'s ``observation_layout`` (None: not recorded, an old model); a list of
+    names of one of the :data:`OBSERVATION_LAYOUTS` lengths. Which names the env has is
+    :meth:`LearnedPolicy.check_env`'s to compare."""
+    if value is None:
+        return None
+    if (
+        not isinstance(value, list)
+        or not all(isinstance(name, str) for name in value)
+        or len(value) not in OBSERVATION_LAYOUTS
+    ):
+        raise ValueError(
+            f"{where}: observation_layout must be a list of {_sizes_text(None)} names, "
+            f"got {value!r}"
+        )
+    return tuple(value)
+
+
+def _parse_normalization(
+    value: Any, where: str, size: int | None = None
+) -> NDArray[np.float32] | None:
+    """The observation divisor of ``observation_normalization`` (None: raw observations):
+    ``size`` numbers (None: the length of one of the :data:`OBSERVATION_LAYOUTS`)."""
     if value is None:
         return None
     if not isinstance(value, Mapping) or value.get("type") != "fixed_scale":
@@ -203,12 +238,12 @@ def _parse_normalization(value: Any, where: str) -> NDArray[np.float32] | None:
     scale = value.get("scale")
     if (
         not isinstance(scale, list)
-        or len(scale) != OBS_SIZE
+        or len(scale) not in ((size,) if size is not None else tuple(OBSERVATION_LAYOUTS))
         or not all(_is_number(x) and math.isfinite(x) and x > 0 for x in scale)
     ):
         raise ValueError(
-            f"{where}: observation_normalization.scale must be {OBS_SIZE} finite positive "
-            f"numbers, got {scale!r}"
+            f"{where}: observation_normalization.scale must be {_sizes_text(size)} finite "
+            f"positive numbers (one per observation), got {scale!r}"
         )
     return np.asarray(scale, dtype=np.float32)
 
@@ -227,7 +262,10 @@ def _check_metadata(metadata: Mapping[str, Any], where: str) -> None:
     if missing:
         raise ValueError(f"{where}: metadata lacks {sorted(missing)}")
     parse_action_range(metadata["action_range"], where)
-    _parse_normalization(metadata["observation_normalization"], where)
+    layout = _parse_layout(metadata.get("observation_layout"), where)
+    _parse_normalization(
+        metadata["observation_normalization"], where, None if layout is None else len(layout)
+    )
     _parse_control_period(metadata["control_period"], where)
 
 
@@ -372,6 +410,46 @@ class MLPActor:
 _WARNED_UNCHECKED: set[Path] = set()
 
 
+def _input_size(model: Any) -> int | None:
+    """The observation length a model reads (SB3: its observation space; an MLPActor: its
+    input), or None when it does not say."""
+    if isinstance(model, MLPActor):
+        return model.input_dim
+    shape = getattr(getattr(model, "observation_space", None), "shape", None)
+    return int(shape[0]) if shape else None
+
+
+def _layout_text(layout: tuple[str, ...] | None) -> str:
+    """``the 7-vector`` / ``task-aware observations (13 values)`` / ``N values``."""
+    if layout == OBS_NAMES_TASK:
+        return f"task-aware observations ({len(layout)} values)"
+    if layout == OBS_NAMES:
+        return f"the {len(layout)}-vector"
+    return "an unknown layout" if layout is None else f"{len(layout)} values"
+
+
+def _observation_mismatch(
+    model: tuple[str, ...], shape: tuple[int, ...], env: tuple[str, ...] | None
+) -> str:
+    """Why a model reading ``model`` cannot read an env's observations of ``shape`` (layout
+    ``env``), with what to do about the task-aware switch."""
+    text = (
+        f"observations: the model reads {_layout_text(model)}, the env gives "
+        f"{_layout_text(env) if env is not None else 'shape ' + str(shape)}"
+    )
+    if model == OBS_NAMES_TASK and env == OBS_NAMES:
+        text += (
+            " (the model was trained with task-aware observations: make the env with "
+            "observation={'task_aware': True})"
+        )
+    elif model == OBS_NAMES and env == OBS_NAMES_TASK:
+        text += (
+            " (the model was trained on the 7-vector: make the env without "
+            "observation={'task_aware': True})"
+        )
+    return text
+
+
 def _dotted(value: Any, prefix: str = "") -> dict[str, Any]:
     """A nested mapping flattened to ``{"a.b.c": leaf}`` (lists are leaves)."""
     if isinstance(value, Mapping):
@@ -437,6 +515,9 @@ class LearnedPolicy:
         obs_scale: the observation divisor used in training, or None (raw observations).
         control_period: [s] the env control period the model was trained at.
         metadata: the rest of ``model.json`` (scenario, config, seed, ...), for reference.
+        observation_layout: the names of the observations the model reads (one of
+            :data:`OBSERVATION_LAYOUTS`); None: ``metadata``'s ``observation_layout``, else the
+            layout of ``obs_scale``'s length, else of the model's input size, else the 7-vector.
     """
 
     def __init__(
@@ -447,14 +528,39 @@ class LearnedPolicy:
         obs_scale: NDArray[Any] | None,
         control_period: float,
         metadata: Mapping[str, Any] | None = None,
+        observation_layout: tuple[str, ...] | list[str] | None = None,
     ) -> None:
         self.model = model
         self.action_range = action_range
         self.obs_scale = None if obs_scale is None else np.asarray(obs_scale, dtype=np.float32)
-        if self.obs_scale is not None and self.obs_scale.shape != (OBS_SIZE,):
-            raise ValueError(f"obs_scale must have shape ({OBS_SIZE},), got {self.obs_scale.shape}")
         self.control_period = float(control_period)
         self.metadata: dict[str, Any] = dict(metadata or {})
+        if observation_layout is None:
+            recorded = self.metadata.get("observation_layout")
+            if isinstance(recorded, list | tuple):
+                observation_layout = tuple(recorded)
+            else:
+                size = _input_size(model) if self.obs_scale is None else self.obs_scale.shape[0]
+                observation_layout = OBSERVATION_LAYOUTS.get(size or len(OBS_NAMES), OBS_NAMES)
+        #: The names of the observations the model reads, in order.
+        self.observation_layout: tuple[str, ...] = tuple(observation_layout)
+        n = len(self.observation_layout)
+        if self.obs_scale is not None and self.obs_scale.shape != (n,):
+            raise ValueError(
+                f"obs_scale must have shape ({n},) (the observation layout), got "
+                f"{self.obs_scale.shape}"
+            )
+
+    @property
+    def observation_size(self) -> int:
+        """The length of the observation the model reads (7, or 13 task-aware)."""
+        return len(self.observation_layout)
+
+    @property
+    def task_aware(self) -> bool:
+        """Whether the model reads task-aware observations: act in envs made with
+        ``observation={"task_aware": True}``."""
+        return self.observation_layout == OBS_NAMES_TASK
 
     @property
     def scenario(self) -> str | None:
@@ -475,7 +581,8 @@ class LearnedPolicy:
 
         Refuses (``ValueError`` with the reason) a zip whose SHA-256 is not the one its JSON
         records, a missing, null or malformed ``action_range``, a malformed normalisation or
-        control period, and a model that does not map 7 observations to 2 actions; a missing
+        control period, and a model that does not map 7 (task-aware: 13) observations to 2
+        actions, or whose recorded layout or normalisation has another length; a missing
         ``model.json`` is a ``FileNotFoundError``. A ``format_version`` 1 file (no zip hash)
         loads with a ``UserWarning`` (once per file). See the module doc.
 
@@ -546,17 +653,24 @@ class LearnedPolicy:
             dims = (obs_shape[0], act_shape[0])
         else:
             raise ValueError(f"{meta_file}: unknown engine {engine!r}, expected one of {ENGINES}")
-        if dims != (OBS_SIZE, ACT_SIZE):
+        if dims[0] not in OBSERVATION_LAYOUTS or dims[1] != ACT_SIZE:
             raise ValueError(
-                f"{meta_file}: the model maps {dims[0]} -> {dims[1]}, expected {OBS_SIZE} -> "
-                f"{ACT_SIZE}"
+                f"{meta_file}: the model maps {dims[0]} -> {dims[1]}, expected "
+                f"{_sizes_text(None)} -> {ACT_SIZE}"
+            )
+        layout = _parse_layout(meta.get("observation_layout"), where)
+        if layout is not None and len(layout) != dims[0]:
+            raise ValueError(
+                f"{meta_file}: observation_layout has {len(layout)} names, the model reads "
+                f"{dims[0]} observations"
             )
         return cls(
             model,
             action_range=parse_action_range(meta["action_range"], where),
-            obs_scale=_parse_normalization(meta["observation_normalization"], where),
+            obs_scale=_parse_normalization(meta["observation_normalization"], where, dims[0]),
             control_period=_parse_control_period(meta["control_period"], where),
             metadata=meta,
+            observation_layout=layout or OBSERVATION_LAYOUTS[dims[0]],
         )
 
     def check_env(self, env: Any, *, allow_control_period: bool = False) -> list[str]:
@@ -569,7 +683,8 @@ class LearnedPolicy:
 
         * an observation or action layout other than the one the model was trained on (the
           model would read the wrong quantities or command the wrong ones: the numbers mean
-          nothing);
+          nothing), in particular a model trained on the 7-vector in an env with task-aware
+          observations (13 values) and vice versa;
         * another control period, unless ``allow_control_period`` (the model would hold each
           action a different time than it learned to; almost always a forgotten
           ``control_period=policy.control_period``, but testing robustness to the period is a
@@ -594,23 +709,25 @@ class LearnedPolicy:
         agents = list(env.possible_agents)
         obs_space = env.observation_space(agents[0])
         act_space = env.action_space(agents[0])
-        if tuple(obs_space.shape) != (OBS_SIZE,):
-            refusals.append(
-                f"env observations have shape {obs_space.shape}, the model reads {OBS_SIZE}"
-            )
+        source = getattr(env, "source", None)
+        cfg = getattr(source, "config", None)
+        shape = tuple(obs_space.shape)
+        env_layout = (
+            observation_names(cfg) if cfg is not None else OBSERVATION_LAYOUTS.get(shape[0])
+        )
+        if shape != (self.observation_size,):
+            refusals.append(_observation_mismatch(self.observation_layout, shape, env_layout))
         if tuple(act_space.shape) != (ACT_SIZE,):
             refusals.append(
                 f"env actions have shape {act_space.shape}, the model outputs {ACT_SIZE}"
             )
         for key, current in (
-            ("observation_layout", OBSERVATION_LAYOUT),
+            ("observation_layout", env_layout if shape == (self.observation_size,) else None),
             ("action_layout", ACTION_LAYOUT),
         ):
             recorded = meta.get(key)
-            if recorded is not None and tuple(recorded) != current:
-                refusals.append(
-                    f"{key}: trained on {list(recorded)}, this code's env has {list(current)}"
-                )
+            if recorded is not None and current is not None and tuple(recorded) != current:
+                refusals.append(f"{key}: trained on {list(recorded)}, the env has {list(current)}")
         period = float(env.control_period)
         if not math.isclose(period, self.control_period, rel_tol=1e-9, abs_tol=0.0):
             text = (
@@ -630,8 +747,6 @@ class LearnedPolicy:
                 f"followers: trained with {trained_n}, the env has {len(agents)} (allowed: one "
                 "shared per-follower policy)"
             )
-        source = getattr(env, "source", None)
-        cfg = getattr(source, "config", None)
         fingerprint = self.scenario_fingerprint
         if cfg is None:
             notes.append("the env exposes no resolved scenario config: scenario not compared")
@@ -665,7 +780,7 @@ class LearnedPolicy:
             bound = np.maximum(np.abs(obs_space.low), np.abs(obs_space.high))
             over = [
                 f"{name} {b:g} > {s:g}"
-                for name, b, s in zip(OBSERVATION_LAYOUT, bound, self.obs_scale, strict=False)
+                for name, b, s in zip(self.observation_layout, bound, self.obs_scale, strict=False)
                 if b > s * (1 + 1e-6)
             ]
             if over:
@@ -696,13 +811,18 @@ class LearnedPolicy:
         """Nothing to restore: the policy is stateless and acts deterministically."""
 
     def act(self, observations: Mapping[str, NDArray[Any]]) -> dict[str, NDArray[np.float32]]:
-        """Map ``{agent: observation (7,)}`` to ``{agent: float32 [u, omega]}`` in one batch."""
+        """Map ``{agent: observation (7,) or, task-aware, (13,)}`` to ``{agent: float32 [u,
+        omega]}`` in one batch."""
         agents = list(observations)
         if not agents:
             return {}
         obs = np.stack([np.asarray(observations[a], dtype=np.float32) for a in agents])
-        if obs.shape != (len(agents), OBS_SIZE):
-            raise ValueError(f"observations must have shape ({OBS_SIZE},), got {obs.shape[1:]}")
+        n = self.observation_size
+        if obs.shape != (len(agents), n):
+            raise ValueError(
+                f"observations must have shape ({n},) "
+                f"({_layout_text(self.observation_layout)}), got {obs.shape[1:]}"
+            )
         if self.obs_scale is not None:
             obs = obs / self.obs_scale
         actions, _ = self.model.predict(obs, deterministic=True)

@@ -55,12 +55,13 @@ Every refusal below is an ``argparse``-style error (exit status 2) with nothing 
   everything that defines the run (:func:`run_fields`: engine, algo, seed, ``--n-envs``, the
   action range and normalisation, every hyper-parameter of the algorithm, the RLlib runners,
   learners and critic) and on the *resolved* scenario (its fingerprint: the scenario content
-  after ``--control-period``, ``--physics-substeps``, ``--max-episode-steps`` and
-  ``--sensor-profile``, so ``./x.yaml`` and ``x.yaml`` are one scenario and an edited
-  ``x.yaml`` is another); else the error names each differing field, stored vs given.
-  ``--timesteps`` may differ: it is the new total. What does not define the run may change
-  too: ``--device``, ``--torch-threads``, ``--batched``/``--env-threads`` (same trajectories),
-  ``--checkpoint-every``, ``--progress-bar``, ``--verbose``, ``--address``.
+  after ``--control-period``, ``--physics-substeps``, ``--max-episode-steps``,
+  ``--sensor-profile`` and ``--task-aware-observations``, so ``./x.yaml`` and ``x.yaml`` are
+  one scenario and an edited ``x.yaml`` is another); else the error names each differing
+  field, stored vs given. ``--timesteps`` may differ: it is the new total. What does not
+  define the run may change too: ``--device``, ``--torch-threads``,
+  ``--batched``/``--env-threads`` (same trajectories), ``--checkpoint-every``,
+  ``--progress-bar``, ``--verbose``, ``--address``.
   It continues from the newer (more timesteps; a tie: ``model.zip``) of ``checkpoint.zip`` and
   ``model.zip`` (the final or Ctrl-C model), each only if its JSON's ``zip_sha256`` matches. If
   that already has ``--timesteps`` (a finished run), nothing is trained and nothing written:
@@ -117,6 +118,7 @@ from stable_baselines3.common.vec_env import VecMonitor
 
 import platoon_env
 from platoon_env.env import PlatoonParallelEnv
+from platoon_env.observation import observation_names
 from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping
 from platoon_env.scenarios.schema import (
     ACTION_BOUND_RANGE,
@@ -132,7 +134,6 @@ from training.lagrangian import LagrangeMultiplier, LagrangianCallback, Lagrangi
 from training.policies import (
     ACTION_LAYOUT,
     ALGORITHMS,
-    OBSERVATION_LAYOUT,
     adapter_metadata,
     save_model,
     scenario_differences,
@@ -223,6 +224,12 @@ class TrainConfig:
     max_episode_steps: int | None = _opt(None, "truncate episodes after this many env steps")
     sensor_profile: str | None = _opt(
         None, "realism profile of the training envs (a shipped name such as aruco, or a YAML)"
+    )
+    task_aware_observations: bool = _opt(
+        False,
+        "train on task-aware observations (the scenario option observation.task_aware: the "
+        "7-vector, then d_des, d_col, d_con, beta_con, r over fixed scales and the time since "
+        "the predecessor was last perceived; 13 values, recorded in model.json)",
     )
     # --- action rescaling / observation normalisation ---
     u_low: float = _opt(-0.5, "[m/s] linear speed at normalised action -1")
@@ -485,6 +492,12 @@ def check_config(cfg: TrainConfig) -> list[str]:
         bad("algo", f"--engine rllib trains PPO only, got {cfg.algo!r}")
     if cfg.engine == "rllib" and cfg.batched:
         bad("batched", "--engine rllib samples with its own env runners, not --batched")
+    if cfg.engine == "rllib" and cfg.task_aware_observations:
+        bad(
+            "task_aware_observations",
+            "--engine rllib builds its actor on the 7-vector (training/rllib.py reads OBS_SIZE "
+            "columns); train task-aware policies with --engine sb3",
+        )
     if cfg.resume and cfg.force:
         bad("force", "--resume continues the run in --out, --force discards it: pass one")
     if cfg.out_dir.exists() and not cfg.out_dir.is_dir():
@@ -554,7 +567,8 @@ def parse_args(argv: Sequence[str] | None = None) -> TrainConfig:
 # ------------------------------------------------------------------------------------------------
 def env_overrides(cfg: TrainConfig) -> dict[str, Any]:
     """The ``platoon_env.make`` overrides of the training envs: the training control period and
-    whatever sub-steps and step limit ``cfg`` sets (default termination)."""
+    whatever sub-steps, step limit, sensor profile and observation ``cfg`` sets (default
+    termination)."""
     overrides: dict[str, Any] = {"control_period": cfg.control_period}
     if cfg.physics_substeps is not None:
         overrides["physics_substeps"] = cfg.physics_substeps
@@ -562,6 +576,8 @@ def env_overrides(cfg: TrainConfig) -> dict[str, Any]:
         overrides["max_episode_steps"] = cfg.max_episode_steps
     if cfg.sensor_profile is not None:
         overrides["sensor_profile"] = cfg.sensor_profile
+    if cfg.task_aware_observations:
+        overrides["observation"] = {"task_aware": True}
     return overrides
 
 
@@ -672,7 +688,8 @@ def git_commit() -> dict[str, Any]:
 def env_metadata(cfg: TrainConfig, env: Any) -> dict[str, Any]:
     """What ``model.json`` records of the training env, for every engine: scenario (as given,
     and the resolved config with its fingerprint), seed, time step, step limit, episode-ending
-    causes, the number of followers and the observation/action layout."""
+    causes, the number of followers and the observation/action layout (the resolved
+    scenario's: the 7-vector, or the 13 task-aware values)."""
     # A procedural source's layouts each derive the limit from their own path: record only a
     # set one.
     procedural = env.source.procedural
@@ -687,7 +704,7 @@ def env_metadata(cfg: TrainConfig, env: Any) -> dict[str, Any]:
         "max_episode_steps": cfg.max_episode_steps if procedural else env.max_episode_steps,
         "terminate_on": sorted(env.terminate_on),
         "n_followers": env.n_followers,
-        "observation_layout": list(OBSERVATION_LAYOUT),
+        "observation_layout": list(observation_names(resolved)),
         "action_layout": list(ACTION_LAYOUT),
     }
 
@@ -844,6 +861,7 @@ ENV_FIELDS = (
     "physics_substeps",
     "max_episode_steps",
     "sensor_profile",
+    "task_aware_observations",
 )
 
 

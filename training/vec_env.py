@@ -10,7 +10,8 @@ them from a handful of numbers (see :mod:`training.policies`):
 
 * **Observation normalisation** (fixed, not running): ``obs / observation_scale`` where
   ``observation_scale`` is the upper bound of the env's observation Box
-  (``[1, d_con, d_con, prox, prox, prox, prox]``), so every component lies in ``[-1, 1]``.
+  (``[1, d_con, d_con, prox, prox, prox, prox]``; with task-aware observations six 1s follow,
+  for values already in ``[0, 1]``), so every component lies in ``[-1, 1]``.
 * **Action rescaling**: the policy acts in ``[-1, 1]^2``, mapped affinely to the physical range
   ``[u_low, u_high] x [-omega_high, omega_high]`` (see :class:`ActionRange`).
 """

@@ -17,7 +17,9 @@ Two kinds of option:
   ``workspace`` a given key replaces the scenario's (a new outline or obstacle list). In
   ``leader`` the two modes replace each other: a given ``trajectory`` drops the scenario's
   ``path`` (and its ``speed``, which a trajectory derives), a given ``path`` drops its
-  ``trajectory``. Keys are the file's keys (``ppc={"lambda": 0.5}``).
+  ``trajectory``. Keys are the file's keys (``ppc={"lambda": 0.5}``). The ``observation``
+  block selects the observation (``observation={"task_aware": True}``: the task-aware 13
+  values of :mod:`platoon_env.observation`).
 * **A sensor profile** (:data:`PROFILE_OPTION`, ``sensor_profile="aruco"``): a shipped name or
   a YAML file of :mod:`platoon_env.scenarios.profiles`, whose camera, proximity and robot
   blocks are merged before the block options (so those override single fields of it).

@@ -282,10 +282,27 @@ class InitialConfig:
     heading_noise: float = 0.05  # [rad] uniform in [-a, a]
 
 
+@dataclass(frozen=True)
+class ObservationConfig:
+    """What each follower's observation holds (:mod:`platoon_env.observation`,
+    ``docs/sensing.md``).
+
+    ``task_aware`` False (default): the 7-vector ``[visible, x~, y~, d_W_l, d_W_r, d_l, d_r]``.
+    True: those 7, then what a real follower knows of its task and sensors, each over a fixed
+    reference scale: ``d_des``, ``d_col``, ``d_con``, ``beta_con``, ``r``, and the time since
+    its predecessor was last perceived visible (13 values).
+    """
+
+    task_aware: bool = False
+
+
 #: Kinds of procedural workspace (see :mod:`platoon_env.scenarios.procedural`).
 GENERATOR_KINDS: tuple[str, ...] = ("corridor", "rooms", "mixed")
 #: Disjoint families of procedural workspaces: train on one, evaluate on the other.
 GENERATOR_SPLITS: tuple[str, ...] = ("train", "test")
+#: Difficulty tiers of procedural workspaces, easiest first (the parameters of each are
+#: :data:`platoon_env.scenarios.procedural.TIERS`).
+GENERATOR_TIERS: tuple[str, ...] = ("easy", "medium", "hard")
 
 
 @dataclass(frozen=True)
@@ -293,11 +310,15 @@ class GeneratorConfig:
     """A procedural scenario: a new workspace and leader path is sampled on every reset.
 
     The ``split`` selects a disjoint range of layout seeds, so evaluation on ``test`` uses
-    workspaces never seen in training on ``train``.
+    workspaces never seen in training on ``train``. The ``tier`` (absent: the untiered family
+    of ``procedural_train``/``procedural_test``) selects a difficulty tier: narrower corridors
+    and doorways, sharper turns and more obstacles from ``easy`` to ``hard``, each tier and
+    split with a seed range of its own (:func:`platoon_env.scenarios.procedural.layout_seed`).
     """
 
     kind: str = "mixed"
     split: str = "train"
+    tier: str | None = None
 
 
 @dataclass(frozen=True)
@@ -318,6 +339,8 @@ class ScenarioConfig:
     simulation: SimulationConfig = SimulationConfig()
     reward: RewardConfig = RewardConfig()
     initial: InitialConfig = InitialConfig()
+    #: Left out of the mapping at its default: every scenario without it keeps its fingerprint.
+    observation: ObservationConfig = field(default=ObservationConfig(), metadata=_OMIT_DEFAULT)
     description: str = ""
 
     @property
@@ -628,6 +651,11 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
             gen.split in GENERATOR_SPLITS,
             f"{path}.generator.split",
             f"expected one of {', '.join(GENERATOR_SPLITS)}, got {gen.split!r}",
+        )
+        _require(
+            gen.tier is None or gen.tier in GENERATOR_TIERS,
+            f"{path}.generator.tier",
+            f"expected one of {', '.join(GENERATOR_TIERS)} (or no tier), got {gen.tier!r}",
         )
     bc, dcon = cfg.camera.half_angle, cfg.camera.range
     _require(
