@@ -5,10 +5,11 @@ Usage::
     python -m baselines.comparison [--out docs/figures] [--seeds 20] [--workers 2]
                                    [--store results/comparison/results.sqlite]
 
-The policies (:class:`baselines.PPCPolicy`, :class:`baselines.LastSeenPolicy` — ref. [32] as the
-paper describes it — and its variant :class:`baselines.LastSeenFOVPolicy` with this project's
-field-of-view slow-down, :data:`POLICIES`) run from the same initial configuration (the same ``reset`` seed) behind the same scripted leader, with
-``terminate_on`` limited to collisions, so that a lost predecessor does not end the episode but
+The policies (:data:`POLICIES`: :class:`baselines.PPCPolicy`, :class:`baselines.LastSeenPolicy`
+— ref. [32] as the paper describes it — and its variant :class:`baselines.LastSeenFOVPolicy`
+with this project's field-of-view slow-down) run from the same initial configuration (the same
+``reset`` seed) behind the same scripted leader, with ``terminate_on`` limited to collisions,
+so that a lost predecessor does not end the episode but
 is counted (:func:`comparison_metrics`): follower-steps without visibility, and the separate
 *intervals* of lost sight (maximal runs of such steps of one follower) with their durations —
 the paper's "violates periodically".

@@ -188,7 +188,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from baselines.policy import PolicyEnv
+from baselines.policy import PolicyEnv, sensor_part
 from baselines.ppc import PPCPolicy
 from platoon_env.observation import (
     ACT_OMEGA,
@@ -916,9 +916,7 @@ class FilteredPPCPolicy:
         env step. Non-finite observation entries are read as 0.
         """
         keys = tuple(observations)
-        obs = np.array(list(observations.values()), dtype=np.float64).reshape(len(keys), -1)
-        if obs.shape[1] != OBS_SIZE:
-            raise ValueError(f"expected observations of shape ({OBS_SIZE},), got {obs.shape[1:]}")
+        obs = sensor_part(np.array(list(observations.values()), dtype=np.float64), len(keys))
         if keys == self.agents:
             idx = self._all
         else:

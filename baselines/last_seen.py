@@ -100,11 +100,10 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from baselines.policy import PolicyEnv
+from baselines.policy import PolicyEnv, sensor_part
 from platoon_env.observation import (
     OBS_D_WALL_LEFT,
     OBS_D_WALL_RIGHT,
-    OBS_SIZE,
     OBS_VISIBLE,
     OBS_X_REL,
     OBS_Y_REL,
@@ -401,9 +400,7 @@ class LastSeenPolicy:
         flag as not visible, a NaN clearance as contact), so commands are always finite.
         """
         keys = tuple(observations)
-        obs = np.array(list(observations.values()), dtype=np.float64).reshape(len(keys), -1)
-        if obs.shape[1] != OBS_SIZE:
-            raise ValueError(f"expected observations of shape ({OBS_SIZE},), got {obs.shape[1:]}")
+        obs = sensor_part(np.array(list(observations.values()), dtype=np.float64), len(keys))
         if keys == self.agents:
             idx: slice | NDArray[np.intp] = slice(None)
         else:

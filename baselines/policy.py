@@ -15,9 +15,10 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from platoon_env.observation import OBS_SIZE, OBS_SIZE_TASK
 from platoon_env.scenarios.schema import ScenarioConfig
 
-__all__ = ["Policy", "PolicyEnv"]
+__all__ = ["Policy", "PolicyEnv", "sensor_part"]
 
 
 class _Scenario(Protocol):
@@ -50,3 +51,15 @@ class Policy(Protocol):
     def act(self, observations: dict[str, NDArray[Any]]) -> dict[str, NDArray[np.float32]]:
         """Map ``{agent: observation}`` to ``{agent: np.array([u, omega], dtype=float32)}``."""
         ...
+
+
+def sensor_part(obs: NDArray[np.float64], n: int) -> NDArray[np.float64]:
+    """The ``(n, 7)`` sensor part of ``n`` stacked observations: the 7-vector itself, or the
+    first 7 columns of a task-aware 13-vector (the analytic laws read their task from the
+    scenario, not from the observation). Any other shape is a ``ValueError``."""
+    if obs.ndim != 2 or obs.shape[0] != n or obs.shape[1] not in (OBS_SIZE, OBS_SIZE_TASK):
+        raise ValueError(
+            f"expected observations of shape ({OBS_SIZE},) or ({OBS_SIZE_TASK},), got "
+            f"{obs.shape[1:]}"
+        )
+    return obs[:, :OBS_SIZE]

@@ -63,13 +63,12 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from baselines.policy import PolicyEnv
+from baselines.policy import PolicyEnv, sensor_part
 from platoon_env.observation import (
     OBS_D_SIGHT_LEFT,
     OBS_D_SIGHT_RIGHT,
     OBS_D_WALL_LEFT,
     OBS_D_WALL_RIGHT,
-    OBS_SIZE,
     OBS_VISIBLE,
     OBS_X_REL,
     OBS_Y_REL,
@@ -791,8 +790,7 @@ class PPCPolicy:
         """
         keys = tuple(observations)
         obs = np.array(list(observations.values()), dtype=np.float64)
-        if obs.shape != (len(keys), OBS_SIZE):
-            raise ValueError(f"expected observations of shape ({OBS_SIZE},), got {obs.shape[1:]}")
+        obs = sensor_part(obs, len(keys))
         self.steps += 1
         if keys == self.agents:
             idx = self._all

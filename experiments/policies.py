@@ -173,11 +173,18 @@ class PolicySpec:
 
     def env_overrides(self) -> dict[str, Any]:
         """What the policy asks of its env: a model runs at the control period it was trained
-        at (its ``model.json``); the analytic laws at the scenario's."""
+        at, and with the observation layout it was trained on (task-aware or not; its
+        ``model.json``); the analytic laws at the scenario's settings."""
         if self.kind != MODEL:
             return {}
-        period = self.model_metadata().get("control_period")
-        return {} if period is None else {"control_period": float(period)}
+        meta = self.model_metadata()
+        out: dict[str, Any] = {}
+        if meta.get("control_period") is not None:
+            out["control_period"] = float(meta["control_period"])
+        observation = (meta.get("scenario_config") or {}).get("observation")
+        if isinstance(observation, dict) and observation:
+            out["observation"] = dict(observation)
+        return out
 
     def description(self) -> dict[str, Any]:
         """What the fingerprint hashes, as data (kept in the store beside it)."""

@@ -78,7 +78,7 @@ def test_two_evaluators_share_one_store(tmp_path: Path) -> None:
     first = _evaluate(out, "--episodes", "8", "--workers", "1")
     second = _evaluate(out, "--episodes", "8", "--workers", "1")
     results = [p.communicate(timeout=600) for p in (first, second)]
-    for proc, (stdout, stderr) in zip((first, second), results, strict=True):
+    for proc, (_, stderr) in zip((first, second), results, strict=True):
         assert proc.returncode == 0, stderr[-3000:]
     ran = [_ran(stdout) for stdout, _ in results]
     # Every episode ran exactly once between them, and each is one row.
