@@ -6,8 +6,10 @@ level of one realism axis) and a default number of seeds. ``platoon-evaluate --s
 runs every policy on every scenario × condition × seed, through the evaluation store.
 
 * ``paper`` — the paper's studies A, B and C, ideal and with the ``aruco`` profile, 20 seeds.
-* ``heldout`` — the held-out procedural layouts (``procedural_test``: layout seeds disjoint from
-  every training split), ideal and ``aruco``, 200 seeds (200 layouts).
+* ``heldout`` — the held-out procedural layouts of every difficulty tier
+  (``procedural_easy_test``, ``procedural_medium_test``, ``procedural_hard_test``: layout seeds
+  disjoint from every training split and from each other), ideal and ``aruco``, 200 seeds per
+  tier (200 layouts each: seed ``s`` of an episode draws its layout number).
 * ``robustness`` — the studies under each level of each realism axis of the robustness
   frontier (:data:`baselines.frontiers.AXES`, one axis at a time), 10 seeds.
 """
@@ -17,6 +19,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
+
+from platoon_env.scenarios.schema import GENERATOR_TIERS
 
 __all__ = ["SUITES", "Condition", "Suite", "suite"]
 
@@ -43,6 +47,8 @@ class Suite:
 IDEAL = Condition("ideal")
 ARUCO = Condition("aruco", {"sensor_profile": "aruco"})
 STUDIES = ("study_a", "study_b", "study_c")
+#: The test split of every procedural difficulty tier, easiest first.
+HELDOUT = tuple(f"procedural_{tier}_test" for tier in GENERATOR_TIERS)
 
 
 def _robustness_conditions() -> tuple[Condition, ...]:
@@ -70,8 +76,9 @@ def suite(name: str) -> Suite:
     if name == "heldout":
         return Suite(
             "heldout",
-            "held-out procedural layouts (procedural_test); ideal and aruco",
-            ("procedural_test",),
+            "held-out procedural layouts of each difficulty tier (easy, medium, hard test "
+            "splits); ideal and aruco",
+            HELDOUT,
             (IDEAL, ARUCO),
             200,
         )

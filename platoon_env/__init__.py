@@ -4,7 +4,8 @@ Research code uses:
 
 * :func:`make` / :func:`parallel_env` — the PettingZoo ``ParallelEnv``; :func:`env` — its AEC form;
 * :func:`list_scenarios`, :func:`load_scenario` — shipped workspaces, YAML files or dicts;
-* Gymnasium ids ``platoon_env/SingleFollower-Study{A,B,C}-v0``, registered on import.
+* Gymnasium ids ``platoon_env/SingleFollower-Study{A,B,C}[-Aruco]-v0`` and the procedural
+  tiers ``...-Procedural{Easy,Medium,Hard}{Train,Test}[-Aruco]-v0``, registered on import.
 """
 
 from __future__ import annotations

@@ -1,9 +1,13 @@
 """Gymnasium single-agent view: one follower behind the scripted leader.
 
-Registered on ``import platoon_env`` as ``platoon_env/SingleFollower-<Study>-v0`` and, with the
-``aruco`` sensor profile, ``platoon_env/SingleFollower-<Study>-Aruco-v0`` (see :data:`GYM_IDS`).
-Observation and action are those of the one follower of the parallel env; the reward is its
-reward; ``terminated`` and ``truncated`` follow the parallel env.
+Registered on ``import platoon_env`` (see :data:`GYM_IDS`) as
+``platoon_env/SingleFollower-<Scenario>-v0`` and, with the ``aruco`` sensor profile,
+``platoon_env/SingleFollower-<Scenario>-Aruco-v0``, where ``<Scenario>`` is the shipped
+scenario's name in CamelCase: the paper's studies (``StudyA``, ``StudyB``, ``StudyC``) and the
+procedural difficulty tiers, each split (``ProceduralEasyTrain``, ``ProceduralEasyTest``, ...,
+``ProceduralHardTest``: a new layout of that tier and split on every reset, built for the one
+follower). Observation and action are those of the one follower of the parallel env; the
+reward is its reward; ``terminated`` and ``truncated`` follow the parallel env.
 """
 
 from __future__ import annotations
@@ -14,17 +18,33 @@ import gymnasium as gym
 import numpy as np
 
 from platoon_env.env import PlatoonParallelEnv
+from platoon_env.scenarios.schema import GENERATOR_SPLITS, GENERATOR_TIERS
 from platoon_env.scenarios.source import SourceLike
 
+#: The shipped scenarios with a Gymnasium id: the paper's studies, then every split of every
+#: procedural difficulty tier (``procedural_<tier>_<split>``).
+GYM_SCENARIOS: tuple[str, ...] = (
+    "study_a",
+    "study_b",
+    "study_c",
+    *(f"procedural_{tier}_{split}" for tier in GENERATOR_TIERS for split in GENERATOR_SPLITS),
+)
+
+
+def _camel(name: str) -> str:
+    """``procedural_easy_train`` -> ``ProceduralEasyTrain``."""
+    return "".join(part.capitalize() for part in name.split("_"))
+
+
 #: Gymnasium id -> keyword arguments of :class:`SingleFollowerEnv`: the shipped scenario the
-#: single follower drives in, with ideal sensors or the ``aruco`` sensor profile
-#: (``docs/realism.md``).
+#: single follower drives in (:data:`GYM_SCENARIOS`), with ideal sensors or the ``aruco``
+#: sensor profile (``docs/realism.md``).
 GYM_IDS: dict[str, dict[str, Any]] = {
-    f"platoon_env/SingleFollower-Study{study}{suffix}-v0": {
-        "scenario": f"study_{study.lower()}",
+    f"platoon_env/SingleFollower-{_camel(scenario)}{suffix}-v0": {
+        "scenario": scenario,
         **({} if profile is None else {"sensor_profile": profile}),
     }
-    for study in ("A", "B", "C")
+    for scenario in GYM_SCENARIOS
     for suffix, profile in (("", None), ("-Aruco", "aruco"))
 }
 

@@ -327,7 +327,12 @@ def test_suites() -> None:
     assert paper.scenarios == ("study_a", "study_b", "study_c") and paper.seeds >= 20
     assert [c.label for c in paper.conditions] == ["ideal", "aruco"]
     heldout = suite("heldout")
-    assert heldout.scenarios == ("procedural_test",) and heldout.seeds >= 200
+    assert heldout.scenarios == (
+        "procedural_easy_test",
+        "procedural_medium_test",
+        "procedural_hard_test",
+    )
+    assert heldout.seeds >= 200
     robust = suite("robustness")
     labels = [c.label for c in robust.conditions]
     assert labels[0] == "ideal" and "latency=50" in labels and "profile=aruco" in labels

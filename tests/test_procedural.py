@@ -190,7 +190,10 @@ def test_fallback_when_sampling_fails(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_other_study_parameters() -> None:
     """Larger platoons and robots (studies A and B) get layouts sized for them."""
     for study in ("study_a", "study_b"):
-        template = dataclasses.replace(load_config(study), generator=GeneratorConfig())
+        cfg = load_config(study)
+        # Study B's leader replays a timed trajectory; a procedural leader follows its path.
+        leader = dataclasses.replace(cfg.leader, trajectory=())
+        template = dataclasses.replace(cfg, leader=leader, generator=GeneratorConfig())
         for index in range(5):
             sc = generate_scenario(template, index)
             cfg = sc.config

@@ -3,7 +3,9 @@
 :mod:`~platoon_env.scenarios.procedural` orchestrates; the kinds
 (:mod:`~platoon_env.scenarios.corridor_layouts`, :mod:`~platoon_env.scenarios.room_layouts`)
 sample. Both sides use what is here: the generator's parameters derived from the template
-(:class:`Params`), the sampled result (:class:`Layout`), the layout box and clearances,
+(:class:`Params`), the difficulty parameters of the layouts (:class:`Difficulty`: the
+untiered :data:`DEFAULT_DIFFICULTY` and the tiers' :data:`TIERS`), the sampled result
+(:class:`Layout`), the layout box and clearances,
 rounding a polyline's corners into the leader path, and the last steps of every sampler
 (:func:`fit_in_bounds`, :func:`path_is_clear`). Nothing here draws from a random stream except
 where an ``rng`` is passed in, and each function draws in a fixed order.
@@ -34,8 +36,139 @@ _ARC_STEP = 0.1  # [rad] angular step of the points sampling a rounded corner
 
 
 @dataclass(frozen=True)
+class Difficulty:
+    """The parameters of a family of layouts that set how hard it is to follow the leader.
+
+    Ranges ``(lo, hi)`` are drawn uniformly; integer ranges are ``rng.integers(lo, hi)``, so
+    ``hi`` is excluded. Angles are in radians, lengths in metres; a *clearance* is a half-width
+    minus the robot radius ``r`` (how far a robot centred on the path is from the wall).
+    :data:`DEFAULT_DIFFICULTY` is the family of the untiered scenarios (no ``generator.tier``),
+    :data:`TIERS` the ``easy``, ``medium`` and ``hard`` tiers.
+    """
+
+    # corridor layouts
+    segments: tuple[int, int]  # number of straight segments (corners = segments - 1)
+    sharp_fraction: float  # probability that a corner is sharp (at least one always is)
+    sharp_turn: tuple[float, float]  # turn magnitude of a sharp corner
+    gentle_turn: tuple[float, float]  # turn magnitude of the other corners
+    radius_factor: tuple[float, float]  # corner radius = min_radius times this
+    bearing_fraction: float  # min_radius keeps a follower on the path within this * beta_con
+    wide_clearance: tuple[float, float]  # clearance of a wide corridor piece
+    narrow_clearance: tuple[float, float]  # clearance of a narrow piece (capped below delta)
+    narrow_fraction: float  # probability that a piece is narrow (at least one always is)
+    pillars: int  # attempts at a pillar in a wide piece (needs a clearance of 1 m)
+    pillar_fraction: float  # probability of each attempt
+    # rooms layouts
+    rooms: tuple[int, int]  # number of rooms
+    door_clearance: tuple[float, float]  # clearance in a doorway (its half-width minus r)
+    obstacles: tuple[int, int]  # free-standing obstacles (at least ``obstacles[0]`` placed)
+    obstacle_size: tuple[float, float]  # size of an obstacle's bounding square
+    obstacle_beside: float  # probability that an obstacle is placed beside the path
+    obstacle_offset: tuple[float, float]  # extra gap of an obstacle beside the path
+
+
+#: The untiered family (no ``generator.tier``): the layouts of ``procedural_train`` and
+#: ``procedural_test``, unchanged since they were first shipped.
+DEFAULT_DIFFICULTY = Difficulty(
+    segments=(4, 9),
+    sharp_fraction=0.5,
+    sharp_turn=(math.radians(30.0), math.radians(100.0)),
+    gentle_turn=(math.radians(8.0), math.radians(30.0)),
+    radius_factor=(1.0, 1.3),
+    bearing_fraction=0.8,
+    wide_clearance=(0.5, 1.2),
+    narrow_clearance=(0.3, 0.45),
+    narrow_fraction=0.35,
+    pillars=1,
+    pillar_fraction=0.5,
+    rooms=(2, 5),
+    door_clearance=(0.3, 0.85),
+    obstacles=(2, 6),
+    obstacle_size=(0.9, 2.2),
+    obstacle_beside=0.7,
+    obstacle_offset=(0.0, 1.2),
+)
+
+#: The difficulty tiers (``generator.tier``, named by
+#: :data:`~platoon_env.scenarios.schema.GENERATOR_TIERS`), each harder than the one before in
+#: every parameter that sets difficulty (``docs/scenarios.md#difficulty-tiers``).
+TIERS: dict[str, Difficulty] = {
+    "easy": Difficulty(
+        segments=(4, 7),
+        sharp_fraction=0.3,
+        sharp_turn=(math.radians(30.0), math.radians(60.0)),
+        gentle_turn=(math.radians(5.0), math.radians(25.0)),
+        radius_factor=(1.2, 1.6),
+        bearing_fraction=0.6,
+        wide_clearance=(0.7, 1.4),
+        narrow_clearance=(0.4, 0.45),
+        narrow_fraction=0.2,
+        pillars=1,
+        pillar_fraction=0.2,
+        rooms=(2, 4),
+        door_clearance=(0.6, 1.0),
+        obstacles=(2, 4),
+        obstacle_size=(0.9, 1.8),
+        obstacle_beside=0.5,
+        obstacle_offset=(0.6, 1.5),
+    ),
+    "medium": Difficulty(
+        segments=(4, 9),
+        sharp_fraction=0.5,
+        sharp_turn=(math.radians(45.0), math.radians(100.0)),
+        gentle_turn=(math.radians(8.0), math.radians(30.0)),
+        radius_factor=(1.0, 1.3),
+        bearing_fraction=0.8,
+        wide_clearance=(0.5, 1.2),
+        narrow_clearance=(0.3, 0.4),
+        narrow_fraction=0.4,
+        pillars=1,
+        pillar_fraction=0.5,
+        rooms=(2, 5),
+        door_clearance=(0.35, 0.7),
+        obstacles=(3, 6),
+        obstacle_size=(0.9, 2.2),
+        obstacle_beside=0.7,
+        obstacle_offset=(0.0, 1.0),
+    ),
+    "hard": Difficulty(
+        segments=(5, 10),
+        sharp_fraction=0.7,
+        sharp_turn=(math.radians(70.0), math.radians(120.0)),
+        gentle_turn=(math.radians(10.0), math.radians(35.0)),
+        radius_factor=(1.0, 1.1),
+        bearing_fraction=0.9,
+        wide_clearance=(0.45, 1.3),
+        narrow_clearance=(0.26, 0.33),
+        narrow_fraction=0.55,
+        pillars=2,
+        pillar_fraction=0.9,
+        rooms=(3, 6),
+        door_clearance=(0.27, 0.45),
+        obstacles=(4, 8),
+        obstacle_size=(1.0, 2.4),
+        obstacle_beside=0.85,
+        obstacle_offset=(0.0, 0.5),
+    ),
+}
+
+
+def difficulty(tier: str | None) -> Difficulty:
+    """The parameters of ``tier`` (:data:`DEFAULT_DIFFICULTY` for None); ``ValueError`` for an
+    unknown tier."""
+    if tier is None:
+        return DEFAULT_DIFFICULTY
+    if tier not in TIERS:
+        raise ValueError(
+            f"generator.tier must be one of {', '.join(TIERS)} (or absent), got {tier!r}"
+        )
+    return TIERS[tier]
+
+
+@dataclass(frozen=True)
 class Params:
-    """What the generator needs from the template (robot size, platoon length, sensors)."""
+    """What the generator needs from the template (robot size, platoon length, sensors) and
+    the difficulty of its family (``generator.tier``)."""
 
     r: float  # robot radius
     d_des: float  # desired inter-robot distance (chord)
@@ -44,27 +177,32 @@ class Params:
     delta: float  # PPC activation distance: "narrow" means clearance - r < delta
     len_min: float  # leader-path length range
     len_max: float
+    difficulty: Difficulty = DEFAULT_DIFFICULTY
 
     @classmethod
     def from_template(cls, template: ScenarioConfig) -> Params:
-        """Derive the generator's parameters from ``template``."""
+        """Derive the generator's parameters from ``template`` (``ValueError`` for an unknown
+        ``generator.tier``)."""
+        gen = template.generator
+        level = difficulty(None if gen is None else gen.tier)
         r = template.robot.radius
         d_des = template.formation.d_des
         beta_con = template.camera.half_angle
         leader = template.leader
         start_len = template.followers * d_des + 1.0
         # A follower on an arc of radius R sees its predecessor (chord d_des ahead) at
-        # |beta| = asin(d_des / 2R): keep that below 0.8 beta_con. The leader must also be able
-        # to turn that tightly (u / omega_max) and pure pursuit should not cut the corner.
+        # |beta| = asin(d_des / 2R): keep that below bearing_fraction * beta_con (0.8 untiered).
+        # The leader must also be able to turn that tightly (u / omega_max) and pure pursuit
+        # should not cut the corner.
         min_radius = max(
-            d_des / (2.0 * math.sin(0.8 * beta_con)),
+            d_des / (2.0 * math.sin(level.bearing_fraction * beta_con)),
             1.2 * leader.speed / leader.max_turn_rate,
             leader.lookahead,
         )
         delta = template.ppc.delta if template.ppc is not None else 0.5
         len_min = max(_PATH_LENGTH[0], start_len + 6.0)
         len_max = max(_PATH_LENGTH[1], start_len + 25.0)
-        return cls(r, d_des, start_len, min_radius, delta, len_min, len_max)
+        return cls(r, d_des, start_len, min_radius, delta, len_min, len_max, level)
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,8 @@ A corridor (the free space's outer polygon, sometimes with a small pillar as a h
 random polyline of 4-8 segments: a straight start stretch that holds the platoon, then turns of
 which at least one is sharp, and pieces of varying width, at least one narrow enough that the
 followers' clearance terms engage on both sides (see :mod:`~platoon_env.scenarios.procedural`
-for the numbers). :func:`sample_corridor` is called by
+for the numbers; the ranges are those of the template's
+:class:`~platoon_env.scenarios._layout.Difficulty`). :func:`sample_corridor` is called by
 :func:`~platoon_env.scenarios.procedural.generate_scenario`; the pillars are the small shapes
 of :mod:`~platoon_env.scenarios.room_layouts`.
 """
@@ -30,24 +31,23 @@ from platoon_env.scenarios._layout import (
 )
 from platoon_env.scenarios.room_layouts import SMALL_SHAPES, place
 
-_SHARP_TURN = (math.radians(30.0), math.radians(100.0))
-_GENTLE_TURN = (math.radians(8.0), math.radians(30.0))
-_WIDE_CLEARANCE = (0.5, 1.2)  # [m] half-width minus r of a wide corridor piece
-_NARROW_CLEARANCE = (0.3, 0.45)  # [m] half-width minus r of a narrow piece (capped below delta)
+# The turn, width and pillar ranges are the Difficulty's (p.difficulty).
 _MIN_CLEARANCE = 0.25  # [m] a corridor is never narrower than 2 (r + this)
 _WALL_GAP = 0.5  # [m] minimum wall thickness between non-adjacent parts of a corridor
 _PILLAR_GAP = 0.3  # [m] a corridor's pillar keeps this gap to the corridor's walls
+_PILLAR_CLEARANCE = 1.0  # [m] a pillar goes only into a piece at least this wide (beyond r)
 
 
 def _corridor_clearances(rng: np.random.Generator, n: int, p: Params) -> np.ndarray:
     """Half-width minus ``r`` of ``n`` consecutive corridor pieces; at least one is narrow."""
-    narrow_hi = max(_MIN_CLEARANCE, min(_NARROW_CLEARANCE[1], p.delta - 0.05))
-    narrow_lo = max(_MIN_CLEARANCE, min(_NARROW_CLEARANCE[0], narrow_hi))
+    level = p.difficulty
+    narrow_hi = max(_MIN_CLEARANCE, min(level.narrow_clearance[1], p.delta - 0.05))
+    narrow_lo = max(_MIN_CLEARANCE, min(level.narrow_clearance[0], narrow_hi))
 
     def draw() -> float:
-        if rng.random() < 0.35:
+        if rng.random() < level.narrow_fraction:
             return float(rng.uniform(narrow_lo, narrow_hi))
-        return float(rng.uniform(*_WIDE_CLEARANCE))
+        return float(rng.uniform(*level.wide_clearance))
 
     out = np.empty(n)
     out[0] = draw()
@@ -60,13 +60,16 @@ def _corridor_clearances(rng: np.random.Generator, n: int, p: Params) -> np.ndar
 
 def sample_corridor(rng: np.random.Generator, p: Params) -> Layout | None:
     """One corridor layout, or None when the draw does not fit (self-contact, too large)."""
-    n_seg = int(rng.integers(4, 9))
+    level = p.difficulty
+    n_seg = int(rng.integers(*level.segments))
     n_corner = n_seg - 1
-    sharp = rng.random(n_corner) < 0.5
+    sharp = rng.random(n_corner) < level.sharp_fraction
     if not sharp.any():
         sharp[int(rng.integers(n_corner))] = True
     magnitude = np.where(
-        sharp, rng.uniform(*_SHARP_TURN, n_corner), rng.uniform(*_GENTLE_TURN, n_corner)
+        sharp,
+        rng.uniform(*level.sharp_turn, n_corner),
+        rng.uniform(*level.gentle_turn, n_corner),
     )
     signs = np.empty(n_corner)
     signs[0] = 1.0 if rng.random() < 0.5 else -1.0
@@ -76,7 +79,7 @@ def sample_corridor(rng: np.random.Generator, p: Params) -> Layout | None:
     # Pieces 0..n_seg; piece k (1 <= k < n_seg) holds corner k; 0 and n_seg are the two ends.
     clear = _corridor_clearances(rng, n_seg + 1, p)
     half = p.r + clear
-    radii = p.min_radius * rng.uniform(1.0, 1.3, n_corner)
+    radii = p.min_radius * rng.uniform(*level.radius_factor, n_corner)
     radii = np.maximum(radii, half[1:n_seg] + 0.3)  # inner wall keeps a positive radius
     tangents = radii * np.tan(np.abs(turns) / 2.0)
     arc_len = float(np.sum(radii * np.abs(turns)))
@@ -138,8 +141,9 @@ def sample_corridor(rng: np.random.Generator, p: Params) -> Layout | None:
     if not isinstance(corridor, Polygon) or len(corridor.interiors) > 0:
         return None
     corridor = corridor.simplify(1e-6, preserve_topology=True)
-    if rng.random() < 0.5:
-        corridor = _add_pillar(rng, corridor, path, p, pieces, clear)
+    for _ in range(level.pillars):
+        if rng.random() < level.pillar_fraction:
+            corridor = _add_pillar(rng, corridor, path, p, pieces, clear)
     fitted = fit_in_bounds(rng, corridor, path)
     if fitted is None:
         return None
@@ -157,8 +161,9 @@ def _add_pillar(
     pieces: list[Polygon],
     clear: np.ndarray,
 ) -> Polygon:
-    """Put a small pillar (a hole) beside the path in a wide piece, if one fits."""
-    wide = [k for k in range(1, len(pieces)) if clear[k] >= 1.0]
+    """Put a small pillar (a hole) beside the path in a wide piece, if one fits (apart from
+    the corridor's walls and its other pillars)."""
+    wide = [k for k in range(1, len(pieces)) if clear[k] >= _PILLAR_CLEARANCE]
     if not wide:
         return corridor
     line = LineString(path)
@@ -175,7 +180,9 @@ def _add_pillar(
         if (
             corridor.contains(pillar)
             and pillar.distance(corridor.exterior) >= _PILLAR_GAP
+            and all(pillar.distance(h) >= _PILLAR_GAP for h in corridor.interiors)
             and pillar.distance(line) >= p.r + OBSTACLE_PATH_CLEARANCE
         ):
-            return Polygon(corridor.exterior.coords, [pillar.exterior.coords])
+            holes = [*(h.coords for h in corridor.interiors), pillar.exterior.coords]
+            return Polygon(corridor.exterior.coords, holes)
     return corridor

@@ -4,14 +4,29 @@ A procedural scenario (one with a ``generator`` block, see
 :class:`~platoon_env.scenarios.schema.GeneratorConfig`) keeps the robots, sensors, safety limits,
 formation and PPC parameters of its file, and draws the workspace and the leader's path from a
 numbered family of layouts. :func:`generate_scenario` builds layout number ``index`` of the
-template's ``split``:
+template's ``split`` (and ``tier``):
 
-* the layout's random stream is ``np.random.default_rng(SPLIT_OFFSETS[split] + index)`` and
-  nothing else (no global state), so the same template and index always give the same
+* the layout's random stream is ``np.random.default_rng(layout_seed(split, index, tier))``
+  and nothing else (no global state), so the same template and index always give the same
   :class:`~platoon_env.scenarios.scenario.Scenario`, bit for bit;
-* ``train`` uses the seeds ``0 .. LAYOUTS_PER_SPLIT - 1`` and ``test`` the next
-  ``LAYOUTS_PER_SPLIT``: the two splits never share a layout seed, so evaluation on ``test``
-  uses workspaces that were never seen in training on ``train``.
+* the seed is ``TIER_OFFSETS[tier] + SPLIT_OFFSETS[split] + index``: untiered ``train`` uses
+  the seeds ``0 .. LAYOUTS_PER_SPLIT - 1`` and untiered ``test`` the next ``LAYOUTS_PER_SPLIT``;
+  each tier (``easy``, ``medium``, ``hard``) shifts both by a multiple of
+  ``2 * LAYOUTS_PER_SPLIT``, so every (tier, split) pair has a block of seeds of its own
+  (:func:`seed_range`): no two splits, and no two tiers, ever share a layout seed, so
+  evaluation on a ``test`` split uses workspaces that were never seen in training on any
+  ``train`` split.
+
+Difficulty tiers (``generator.tier``): :data:`TIERS` maps each tier to its
+:class:`~platoon_env.scenarios._layout.Difficulty`, the ranges the kinds draw from (corridor
+clearances, turn magnitudes and corner radii, pillars, number of rooms, doorway widths,
+obstacle counts, sizes and distances to the path). From ``easy`` to ``hard`` every one of them
+moves towards the harder end; a template without a tier uses :data:`DEFAULT_DIFFICULTY`, the
+ranges described below, and gives the same layouts as before tiers existed. The tiers keep
+the guarantees below (clearance of the path, feasible start, the fallback), so every layout of
+every tier stays solvable in principle: the leader's path keeps ``r + PATH_CLEARANCE`` from
+every wall, and a follower on it sees its predecessor within ``bearing_fraction * beta_con``
+(at most ``0.9 beta_con``, in ``hard``).
 
 :class:`~platoon_env.scenarios.source.ProceduralSource` (what
 :func:`~platoon_env.scenarios.source.scenario_source` returns for such a template) draws one
@@ -30,7 +45,8 @@ Kinds of layout (``generator.kind``), each sampled by its own module:
     ``delta``) that the followers' clearance terms engage on both sides. Outer corners are
     sharp; the leader's path follows the centreline with circular arcs whose radius is at least
     ``d_des / (2 sin(0.8 beta_con))``, so that a follower on the path at chord ``d_des`` keeps
-    its predecessor within ``0.8 beta_con`` of its heading.
+    its predecessor within ``0.8 beta_con`` of its heading. (The numbers are those of the
+    untiered family; a tier has its own, :data:`TIERS`.)
 ``rooms`` (:mod:`~platoon_env.scenarios.room_layouts`)
     A rectangle divided into 2-4 rooms by interior walls with doorways, with 2-5 free-standing
     non-convex obstacles (L-, U-, T-shapes, irregular stars) placed off the path; the leader's
@@ -61,14 +77,18 @@ from shapely.geometry import box
 from platoon_env.scenarios import corridor_layouts, room_layouts
 from platoon_env.scenarios._layout import (
     BOUNDS_MARGIN,
+    DEFAULT_DIFFICULTY,
     LAYOUT_BOUNDS,
     PATH_CLEARANCE,
+    TIERS,
+    Difficulty,
     Layout,
     Params,
 )
 from platoon_env.scenarios.scenario import Scenario, build_scenario
 from platoon_env.scenarios.schema import (
     GENERATOR_KINDS,
+    GENERATOR_TIERS,
     FreeSpaceConfig,
     GeneratorConfig,
     ScenarioConfig,
@@ -76,23 +96,37 @@ from platoon_env.scenarios.schema import (
     WorkspaceConfig,
 )
 
-# LAYOUT_BOUNDS and PATH_CLEARANCE are defined (and documented) in _layout, where the kinds can
-# reach them without importing this module; this is their public home.
+# LAYOUT_BOUNDS, PATH_CLEARANCE, Difficulty, DEFAULT_DIFFICULTY and TIERS are defined (and
+# documented) in _layout, where the kinds can reach them without importing this module; this is
+# their public home.
 __all__ = [
+    "DEFAULT_DIFFICULTY",
     "LAYOUTS_PER_SPLIT",
     "LAYOUT_BOUNDS",
     "MAX_ATTEMPTS",
     "PATH_CLEARANCE",
     "SPLIT_OFFSETS",
+    "TIERS",
+    "TIER_OFFSETS",
+    "Difficulty",
     "generate_scenario",
     "layout_kind",
     "layout_seed",
+    "seed_range",
 ]
 
 #: Number of distinct layouts in each split (valid indices are ``0 .. LAYOUTS_PER_SPLIT - 1``).
 LAYOUTS_PER_SPLIT: int = 1_000_000
-#: Layout seed = ``SPLIT_OFFSETS[split] + index``: the splits use disjoint seed ranges.
+#: Layout seed = ``TIER_OFFSETS[tier] + SPLIT_OFFSETS[split] + index``: the splits of one tier
+#: use disjoint seed ranges.
 SPLIT_OFFSETS: dict[str, int] = {"train": 0, "test": LAYOUTS_PER_SPLIT}
+#: Offset of each tier's seeds (None: untiered). Each tier's two splits fill the block of
+#: ``2 * LAYOUTS_PER_SPLIT`` seeds after the previous tier's, so no seed is in two
+#: (tier, split) pairs; the untiered block is the first, as it was before tiers.
+TIER_OFFSETS: dict[str | None, int] = {
+    None: 0,
+    **{tier: 2 * LAYOUTS_PER_SPLIT * (k + 1) for k, tier in enumerate(GENERATOR_TIERS)},
+}
 #: Attempts at sampling a feasible layout before the straight-corridor fallback.
 MAX_ATTEMPTS = 40
 
@@ -104,20 +138,37 @@ _COORD_DECIMALS = 4  # coordinates are rounded to 0.1 mm in the generated config
 # --------------------------------------------------------------------------------------------
 
 
-def layout_seed(split: str, index: int) -> int:
-    """The seed of layout ``index`` of ``split`` (``SPLIT_OFFSETS[split] + index``).
+def layout_seed(split: str, index: int, tier: str | None = None) -> int:
+    """The seed of layout ``index`` of ``split`` of ``tier`` (None: untiered), that is
+    ``TIER_OFFSETS[tier] + SPLIT_OFFSETS[split] + index``.
 
-    Raises ``ValueError`` for an unknown split or an index outside ``[0, LAYOUTS_PER_SPLIT)``.
+    Raises ``ValueError`` for an unknown split or tier or an index outside
+    ``[0, LAYOUTS_PER_SPLIT)``.
+    """
+    offset = seed_range(split, tier).start
+    if isinstance(index, bool) or not isinstance(index, numbers.Integral):
+        raise ValueError(f"layout index must be an integer, got {index!r}")
+    if not 0 <= int(index) < LAYOUTS_PER_SPLIT:
+        raise ValueError(f"layout index must satisfy 0 <= index < {LAYOUTS_PER_SPLIT}, got {index}")
+    return offset + int(index)
+
+
+def seed_range(split: str, tier: str | None = None) -> range:
+    """Every layout seed of ``split`` of ``tier`` (None: untiered): ``LAYOUTS_PER_SPLIT``
+    consecutive seeds, disjoint from those of every other (tier, split) pair.
+
+    Raises ``ValueError`` for an unknown split or tier.
     """
     if split not in SPLIT_OFFSETS:
         raise ValueError(
             f"generator.split must be one of {', '.join(SPLIT_OFFSETS)}, got {split!r}"
         )
-    if isinstance(index, bool) or not isinstance(index, numbers.Integral):
-        raise ValueError(f"layout index must be an integer, got {index!r}")
-    if not 0 <= int(index) < LAYOUTS_PER_SPLIT:
-        raise ValueError(f"layout index must satisfy 0 <= index < {LAYOUTS_PER_SPLIT}, got {index}")
-    return SPLIT_OFFSETS[split] + int(index)
+    if tier not in TIER_OFFSETS:
+        raise ValueError(
+            f"generator.tier must be one of {', '.join(TIERS)} (or absent), got {tier!r}"
+        )
+    start = TIER_OFFSETS[tier] + SPLIT_OFFSETS[split]
+    return range(start, start + LAYOUTS_PER_SPLIT)
 
 
 def layout_kind(template: ScenarioConfig, index: int) -> str:
@@ -128,26 +179,27 @@ def layout_kind(template: ScenarioConfig, index: int) -> str:
     straight-corridor fallback whatever its kind.)
     """
     gen = _generator(template)
-    rng = np.random.default_rng(layout_seed(gen.split, index))
+    rng = np.random.default_rng(layout_seed(gen.split, index, gen.tier))
     return _draw_kind(rng, gen.kind)
 
 
 def generate_scenario(template: ScenarioConfig, index: int) -> Scenario:
     """Build procedural layout number ``index`` of ``template.generator.split``.
 
-    Deterministic: the layout depends only on the split, the kind and ``index`` (and on the
-    template's robot, formation, camera, PPC and leader parameters, which size it); any workspace
-    or leader path already in ``template`` is ignored. The returned scenario keeps every other
-    field of ``template`` (name, robots, sensors, safety, PPC, simulation, generator block), and
-    its :attr:`~platoon_env.scenarios.scenario.Scenario.layout_index` is ``index``.
+    Deterministic: the layout depends only on the split, the tier, the kind and ``index`` (and
+    on the template's robot, formation, camera, PPC and leader parameters, which size it); any
+    workspace or leader path already in ``template`` is ignored. The returned scenario keeps
+    every other field of ``template`` (name, robots, sensors, safety, PPC, simulation,
+    generator block), and its
+    :attr:`~platoon_env.scenarios.scenario.Scenario.layout_index` is ``index``.
     :class:`~platoon_env.scenarios.source.ProceduralSource` draws ``index`` per episode.
 
-    Raises ``ValueError`` for an index outside ``[0, LAYOUTS_PER_SPLIT)`` or an unknown split or
-    kind, and :class:`ScenarioError` only if even the straight-corridor fallback is infeasible
-    for the template (e.g. a platoon too long to fit in :data:`LAYOUT_BOUNDS`).
+    Raises ``ValueError`` for an index outside ``[0, LAYOUTS_PER_SPLIT)`` or an unknown split,
+    tier or kind, and :class:`ScenarioError` only if even the straight-corridor fallback is
+    infeasible for the template (e.g. a platoon too long to fit in :data:`LAYOUT_BOUNDS`).
     """
     gen = _generator(template)
-    seed = layout_seed(gen.split, index)
+    seed = layout_seed(gen.split, index, gen.tier)
     if gen.kind not in GENERATOR_KINDS:
         raise ValueError(
             f"generator.kind must be one of {', '.join(GENERATOR_KINDS)}, got {gen.kind!r}"

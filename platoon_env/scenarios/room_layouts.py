@@ -2,8 +2,10 @@
 
 A rectangle divided into 2-4 rooms by interior walls with doorways, with 2-5 free-standing
 non-convex obstacles (:data:`_OBSTACLE_SHAPES`: L-, U-, T-shapes, irregular stars) placed off
-the path; the leader's path runs straight through each doorway and joins random waypoints with
-rounded corners. :func:`sample_rooms` is called by
+the path (these counts, the doorways' widths and the obstacles' sizes and places are the
+ranges of the template's :class:`~platoon_env.scenarios._layout.Difficulty`, shown here for
+the untiered family); the leader's path runs straight through each doorway and joins random
+waypoints with rounded corners. :func:`sample_rooms` is called by
 :func:`~platoon_env.scenarios.procedural.generate_scenario`; the corridor kind
 (:mod:`~platoon_env.scenarios.corridor_layouts`) borrows :data:`SMALL_SHAPES` and :func:`place`
 for its pillars.
@@ -105,10 +107,11 @@ def place(shape: np.ndarray, centre: np.ndarray, angle: float) -> Polygon:
 def sample_rooms(rng: np.random.Generator, p: Params) -> Layout | None:
     """One rooms layout, or None when the draw does not fit (tight corner, blocked door)."""
     r = p.r
-    n_rooms = int(rng.integers(2, 5))
+    level = p.difficulty
+    n_rooms = int(rng.integers(*level.rooms))
     height = float(rng.uniform(6.0, 12.0))
     wall = float(rng.uniform(0.15, 0.3))
-    door_half = r + rng.uniform(0.3, 0.85, n_rooms - 1)  # half-widths of the doorways
+    door_half = r + rng.uniform(*level.door_clearance, n_rooms - 1)  # doorways' half-widths
     reach = rng.uniform(0.9, 1.6, n_rooms - 1)  # straight run on each side of a doorway
     start_x = r + float(rng.uniform(0.4, 0.8))
     first = start_x + p.start_len + reach[0] + float(rng.uniform(1.5, 4.0))
@@ -185,16 +188,17 @@ def sample_rooms(rng: np.random.Generator, p: Params) -> Layout | None:
     if not isinstance(free, Polygon) or not path_is_clear(free, path, r):
         return None
     line = LineString(path)
-    n_obstacles = int(rng.integers(2, 6))
+    n_obstacles = int(rng.integers(*level.obstacles))
     placed = 0
     for _ in range(12 * n_obstacles):
         if placed == n_obstacles:
             break
         shape_fn = _OBSTACLE_SHAPES[int(rng.integers(len(_OBSTACLE_SHAPES)))]
-        size = float(rng.uniform(0.9, 2.2))
+        size = float(rng.uniform(*level.obstacle_size))
         shape = shape_fn(rng, size)
-        if rng.random() < 0.7:  # mostly beside the path, where it matters to the platoon
-            offset = r + OBSTACLE_PATH_CLEARANCE + 0.6 * size + float(rng.uniform(0.0, 1.2))
+        if rng.random() < level.obstacle_beside:  # mostly beside the path, where it matters
+            extra = float(rng.uniform(*level.obstacle_offset))
+            offset = r + OBSTACLE_PATH_CLEARANCE + 0.6 * size + extra
             centre = beside(rng, line, offset)
         else:
             centre = rng.uniform([0.5, 0.5], [total_width - 0.5, height - 0.5])
@@ -209,7 +213,7 @@ def sample_rooms(rng: np.random.Generator, p: Params) -> Layout | None:
                 [*(h.coords for h in free.interiors), obstacle.exterior.coords],
             )
             placed += 1
-    if placed < 2:
+    if placed < level.obstacles[0]:
         return None
     # Orientation: a quarter turn times 0..3, possibly mirrored.
     q = int(rng.integers(4))
