@@ -198,9 +198,12 @@ def comparison_table(groups: Mapping[tuple[str, str], Sequence[Mapping[str, Any]
 def plot_distances(
     fig: Any, scenario: Any, episodes: Sequence[Episode], labels: Sequence[str]
 ) -> None:
-    """Fig. 9: ``d_i``, ``beta_i`` and ``d_W,i = min(d_W_l,i, d_W_r,i)`` per follower (rows),
-    one colour per episode, with the constraints dashed: ``d_col``, ``d_con`` (eq. 4-5),
-    ``±beta_con`` and the robot radius ``r`` (collision with an obstacle at ``d_W <= r``).
+    """Fig. 9: ``d_i``, ``beta_i`` and ``d_W,i = min(d_W_l,i + m, d_W_r,i + m)`` per follower
+    (rows), one colour per episode, with the constraints dashed: ``d_col``, ``d_con`` (eq. 4-5),
+    ``±beta_con`` and the robot radius ``r``. With an obstacle inflation ``m``
+    (``safety.inflation``; the paper's study B: 0.1 m) the readings are to the inflated outline,
+    and, as the paper's Fig. 9 does, ``d_W`` adds ``m`` back: the distance to the true
+    obstacles, with the collision limit ``r + m`` dotted beside ``r``.
 
     The values are ground truth (also while the predecessor is not visible); the steps without
     visibility are shaded in the episode's colour.
@@ -209,13 +212,14 @@ def plot_distances(
 
     cfg = scenario.config
     n = cfg.followers
+    inflation = float(cfg.safety.inflation)
     axes = fig.subplots(n, 3, squeeze=False, sharex=True)
     for j, ep in enumerate(episodes):
         colour = POLICY_COLOURS[j % len(POLICY_COLOURS)]
         t = ep.times
         s = ep.sensed
         vis = s[:, :, SENSE_VISIBLE] > 0
-        d_w = np.minimum(s[:, :, SENSE_D_WALL_LEFT], s[:, :, SENSE_D_WALL_RIGHT])
+        d_w = np.minimum(s[:, :, SENSE_D_WALL_LEFT], s[:, :, SENSE_D_WALL_RIGHT]) + inflation
         for i in range(n):
             label = labels[j] if i == 0 and j < len(labels) else None
             axes[i, 0].plot(t, s[:, i, SENSE_D], color=colour, lw=0.9, label=label)
@@ -241,11 +245,13 @@ def plot_distances(
         for lim in (-b, b):
             axes[i, 1].axhline(lim, color="k", ls="--", lw=0.8)
         axes[i, 2].axhline(cfg.robot.radius, color="k", ls="--", lw=0.8)
+        if inflation > 0:
+            axes[i, 2].axhline(cfg.robot.radius + inflation, color="k", ls=":", lw=0.8)
         axes[i, 0].set_ylabel(f"$d_{i + 1}$ [m]")
         axes[i, 1].set_ylabel(f"$\\beta_{i + 1}$ [rad]")
         axes[i, 2].set_ylabel(f"$d_{{W,{i + 1}}}$ [m]")
         axes[i, 1].set_ylim(-1.6 * b, 1.6 * b)
-        axes[i, 2].set_ylim(0.0, cfg.proximity_range * 1.05)
+        axes[i, 2].set_ylim(0.0, (cfg.proximity_range + inflation) * 1.05)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
     axes[0, 0].legend(loc="upper right", fontsize=7)
