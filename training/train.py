@@ -4,7 +4,12 @@ Usage::
 
     platoon-train --algo ppo --scenario study_c --timesteps 1000000 --seed 0 --out runs/ppo_c
     platoon-train --engine rllib --num-env-runners 2 --scenario study_c --out runs/rllib_c
+    platoon-train --algo ppo_lagrangian --cost-budget 0.05 --scenario study_c --out runs/lag_c
     python -m training.train --help        # every option, with its default
+
+``--algo`` is ``ppo``, ``sac`` or ``ppo_lagrangian`` (SB3's PPO on rewards penalised by a
+Lagrange multiplier on ``info["cost"]``, updated by dual ascent against ``--cost-budget``:
+:mod:`training.lagrangian`).
 
 ``--engine sb3`` (the default) trains with Stable-Baselines3 in this process, as described
 below; ``--engine rllib`` trains PPO with Ray RLlib on ``--num-env-runners`` env-runner actors
