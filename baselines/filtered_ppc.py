@@ -188,7 +188,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from baselines.policy import PolicyEnv, sensor_part
+from baselines.policy import PolicyEnv, agent_indices, sensor_part
 from baselines.ppc import PPCPolicy
 from platoon_env.observation import (
     ACT_OMEGA,
@@ -917,15 +917,8 @@ class FilteredPPCPolicy:
         """
         keys = tuple(observations)
         obs = sensor_part(np.array(list(observations.values()), dtype=np.float64), len(keys))
-        if keys == self.agents:
-            idx = self._all
-        else:
-            try:
-                idx = np.array([self._index[a] for a in keys], dtype=np.intp)
-            except KeyError as err:
-                raise KeyError(
-                    f"unknown agent {err.args[0]!r}; expected some of {self.agents}"
-                ) from None
+        found = agent_indices(keys, self.agents, self._index)
+        idx = self._all if found is None else found
         if not np.all(np.isfinite(obs)):
             obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
         p = self.params

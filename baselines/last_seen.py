@@ -100,7 +100,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from baselines.policy import PolicyEnv, sensor_part
+from baselines.policy import PolicyEnv, agent_indices, sensor_part
 from platoon_env.observation import (
     OBS_D_WALL_LEFT,
     OBS_D_WALL_RIGHT,
@@ -401,15 +401,8 @@ class LastSeenPolicy:
         """
         keys = tuple(observations)
         obs = sensor_part(np.array(list(observations.values()), dtype=np.float64), len(keys))
-        if keys == self.agents:
-            idx: slice | NDArray[np.intp] = slice(None)
-        else:
-            try:
-                idx = np.array([self._index[a] for a in keys], dtype=np.intp)
-            except KeyError as err:
-                raise KeyError(
-                    f"unknown agent {err.args[0]!r}; expected some of {self.agents}"
-                ) from None
+        found = agent_indices(keys, self.agents, self._index)
+        idx: slice | NDArray[np.intp] = slice(None) if found is None else found
         self.steps += 1
         cmd = self._step(np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0), idx)
         return dict(zip(keys, cmd.astype(np.float32), strict=True))

@@ -9,7 +9,7 @@ policies (the PPC law keeps its performance functions) restore their initial sta
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from platoon_env.observation import OBS_SIZE, OBS_SIZE_TASK
 from platoon_env.scenarios.schema import ScenarioConfig
 
-__all__ = ["Policy", "PolicyEnv", "sensor_part"]
+__all__ = ["Policy", "PolicyEnv", "agent_indices", "sensor_part"]
 
 
 class _Scenario(Protocol):
@@ -63,3 +63,17 @@ def sensor_part(obs: NDArray[np.float64], n: int) -> NDArray[np.float64]:
             f"{obs.shape[1:]}"
         )
     return obs[:, :OBS_SIZE]
+
+
+def agent_indices(
+    keys: tuple[str, ...], agents: tuple[str, ...], index: Mapping[str, int]
+) -> NDArray[np.intp] | None:
+    """The followers an ``act`` call was given: None when ``keys`` are all of ``agents`` in
+    their order (the common case: the caller uses its own "all" index), else their indices
+    ``index[a]`` (a subset, or another order). An unknown agent is a ``KeyError`` naming it."""
+    if keys == agents:
+        return None
+    try:
+        return np.array([index[a] for a in keys], dtype=np.intp)
+    except KeyError as err:
+        raise KeyError(f"unknown agent {err.args[0]!r}; expected some of {agents}") from None

@@ -63,7 +63,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from baselines.policy import PolicyEnv, sensor_part
+from baselines.policy import PolicyEnv, agent_indices, sensor_part
 from platoon_env.observation import (
     OBS_D_SIGHT_LEFT,
     OBS_D_SIGHT_RIGHT,
@@ -792,15 +792,8 @@ class PPCPolicy:
         obs = np.array(list(observations.values()), dtype=np.float64)
         obs = sensor_part(obs, len(keys))
         self.steps += 1
-        if keys == self.agents:
-            idx = self._all
-        else:  # a subset (or another order) of the followers
-            try:
-                idx = np.array([self._index[a] for a in keys], dtype=np.intp)
-            except KeyError as err:
-                raise KeyError(
-                    f"unknown agent {err.args[0]!r}; expected some of {self.agents}"
-                ) from None
+        found = agent_indices(keys, self.agents, self._index)
+        idx = self._all if found is None else found
         cmd = _ppc_step(
             obs, idx, self._kernel_params, self._kernel_sets, self._rho, self._sig, self._counts
         )

@@ -100,7 +100,10 @@ class PolicySpec:
     #: that a worker process (which has only the shipped registry) builds a policy registered
     #: at run time too.
     factory: str = ""
-    _fingerprint: list[str] = field(default_factory=list, compare=False, repr=False)
+    #: What the spec read of its files, once (a model's ``model.json``, its description and
+    #: fingerprint): every cell of a grid shares one reading, and the fingerprint, description
+    #: and env overrides describe the same snapshot of the files.
+    _memo: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.kind != MODEL and self.kind not in REGISTRY:
@@ -162,13 +165,16 @@ class PolicySpec:
         {} if absent or not a model)."""
         if self.path is None:
             return {}
-        meta_path = self.path.with_suffix(".json")
-        if not meta_path.is_file():
-            return {}
-        try:
-            out: dict[str, Any] = json.loads(meta_path.read_text())
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{meta_path}: not readable JSON ({exc})") from None
+        if "meta" not in self._memo:
+            meta_path = self.path.with_suffix(".json")
+            if not meta_path.is_file():
+                self._memo["meta"] = {}
+            else:
+                try:
+                    self._memo["meta"] = json.loads(meta_path.read_text())
+                except (OSError, ValueError) as exc:
+                    raise ValueError(f"{meta_path}: not readable JSON ({exc})") from None
+        out: dict[str, Any] = self._memo["meta"]
         return out
 
     def env_overrides(self) -> dict[str, Any]:
@@ -187,26 +193,30 @@ class PolicySpec:
         return out
 
     def description(self) -> dict[str, Any]:
-        """What the fingerprint hashes, as data (kept in the store beside it)."""
-        if self.kind == MODEL:
+        """What the fingerprint hashes, as data (kept in the store beside it; a model's files are
+        hashed once per spec)."""
+        if self.kind != MODEL:
+            return {"kind": self.kind, "factory": self.factory, "params": self.kwargs}
+        if "description" not in self._memo:
             assert self.path is not None
             meta_path = self.path.with_suffix(".json")
             meta = meta_path.read_text() if meta_path.is_file() else ""
-            return {
+            self._memo["description"] = {
                 "kind": MODEL,
                 "zip_sha256": file_sha256(self.path),
                 "model_json_sha256": text_sha256(meta),
                 "path": str(self.path),
             }
-        return {"kind": self.kind, "factory": self.factory, "params": self.kwargs}
+        return dict(self._memo["description"])
 
     def fingerprint(self) -> str:
         """The hex SHA-256 identifying the policy (computed once per spec object)."""
-        if not self._fingerprint:
+        if "fingerprint" not in self._memo:
             desc = self.description()
             desc.pop("path", None)  # the same files elsewhere are the same model
-            self._fingerprint.append(text_sha256(canonical_json(desc)))
-        return self._fingerprint[0]
+            self._memo["fingerprint"] = text_sha256(canonical_json(desc))
+        out: str = self._memo["fingerprint"]
+        return out
 
     @property
     def signals(self) -> bool:

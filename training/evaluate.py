@@ -60,6 +60,7 @@ import platoon_env
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
 from experiments.policies import PolicySpec, build_policy, shipped_models
 from experiments.report import (
+    format_value,
     mean_ci,
     provenance_markdown,
     seed_ranges,
@@ -71,6 +72,7 @@ from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store, StoreError
 from experiments.suites import SUITES, Condition, suite
 from platoon_env.rollout import METRIC_NAMES, Episode, PolicyLike
+from platoon_env.scenarios.fingerprint import canonical_json
 from platoon_env.scenarios.schema import ScenarioError, config_to_mapping
 
 __all__ = [
@@ -310,8 +312,6 @@ def export_rows(result: GridResult, conditions: Mapping[str, Condition]) -> list
 
 
 def _csv_strings(rows: Iterable[dict[str, Any]]) -> list[dict[str, str]]:
-    from experiments.report import format_value
-
     return [{k: format_value(v) for k, v in r.items()} for r in rows]
 
 
@@ -529,9 +529,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         for spec in args.policy
         for seed in seeds
     ]
-    args.condition_of = {
-        Cell.of(args.policy[0], "", 0, c.overrides).overrides: c for c in conditions
-    }
+    # each cell's condition by the cell's overrides (the canonical JSON Cell.of writes)
+    args.condition_of = {canonical_json(dict(c.overrides)): c for c in conditions}
     try:
         args.cells = resolve_cells(cells)
     except (ScenarioError, TypeError, OSError, ValueError) as exc:
