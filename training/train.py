@@ -42,6 +42,9 @@ Outputs in ``--out DIR``:
 * ``checkpoint.zip`` + ``checkpoint.json`` — the latest periodic checkpoint, replaced atomically,
   so an interrupted run keeps its last one. On Ctrl-C the model so far is saved as
   ``model.zip`` (``"interrupted": true`` in ``model.json``) before exiting with status 130.
+* ``progress.csv`` — the learning curve, a row every ``--log-every`` timesteps: mean return,
+  success rate and cost of the follower episodes that ended in the window
+  (:mod:`training.curves`).
 * ``tb/`` — TensorBoard logs (``tensorboard --logdir DIR/tb``): SB3's losses, per-follower
   episode return/length (``rollout/``) and how follower episodes end (``platoon/``).
 
@@ -135,6 +138,7 @@ from platoon_env.scenarios.schema import (
     ScenarioError,
 )
 from training.batched_vec_env import BatchedPlatoonVecEnv
+from training.curves import PROGRESS_FILE, LearningCurveCallback
 from training.lagrangian import LagrangeMultiplier, LagrangianCallback, LagrangianVecEnv
 from training.policies import (
     ACTION_LAYOUT,
@@ -170,6 +174,7 @@ RUN_FILES = (
     "checkpoint.json",
     "rllib_checkpoint",
     "tb",
+    "progress.csv",
 )
 
 
@@ -276,6 +281,9 @@ class TrainConfig:
     )
     # --- bookkeeping ---
     checkpoint_every: int = _opt(100_000, "timesteps between checkpoints (0: none)")
+    log_every: int = _opt(
+        10_000, "timesteps between rows of the learning curve DIR/progress.csv (training.curves)"
+    )
     resume: bool = _opt(
         False,
         "continue the run in --out (same config and resolved scenario; --timesteps may be "
@@ -411,6 +419,7 @@ BOUNDS: dict[str, Bound] = {
     "train_freq": Bound(1),
     "gradient_steps": Bound(1),  # or -1 (one per transition collected)
     "checkpoint_every": Bound(0),
+    "log_every": Bound(1),
     "torch_threads": Bound(1, 1024),
 }
 #: Largest layer of --net-arch.
@@ -1233,6 +1242,14 @@ def train(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bool]:
     penalised = model.get_env()
     if isinstance(penalised, LagrangianVecEnv):
         callback_list.append(LagrangianCallback(penalised))
+    callback_list.append(
+        LearningCurveCallback(
+            out / PROGRESS_FILE,
+            cfg.log_every,
+            resume_from=first_timestep if start_from is not None else None,
+            multiplier=_multiplier_reader(penalised),
+        )
+    )
     sb3_bar = cfg.progress_bar and _sb3_progress_bar_available()
     if cfg.progress_bar and not sb3_bar:
         callback_list.append(TqdmProgressBar(cfg.timesteps))
@@ -1254,6 +1271,14 @@ def train(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bool]:
     path = save_model(model, out / "model.zip", metadata(interrupted=interrupted))
     venv.close()
     return path, interrupted
+
+
+def _multiplier_reader(venv: Any) -> Callable[[], float] | None:
+    """A callable reading the Lagrange multiplier of ``venv`` (None if it is not penalised)."""
+    if not isinstance(venv, LagrangianVecEnv):
+        return None
+    lam = venv.multiplier
+    return lambda: lam.value
 
 
 def _stored_multiplier(model_path: Path) -> float | None:

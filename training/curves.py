@@ -1,0 +1,283 @@
+"""Learning curves: what ``platoon-train`` logs per run, and the figure over training seeds.
+
+During training, :class:`LearningCurveCallback` appends one row to ``DIR/progress.csv`` every
+``every`` follower transitions, about the **follower episodes that ended since the last row**
+(every follower of an env copy ends its episode when the copy's episode ends):
+
+``timesteps``
+    follower transitions so far (SB3's ``num_timesteps``).
+``wall_time_s``
+    seconds since this invocation started (a resumed run restarts it).
+``episodes``
+    follower episodes that ended in the window (0: the next three columns are empty).
+``return_mean``
+    their mean undiscounted return of the env's reward (before any Lagrangian penalty).
+``success_rate``
+    the fraction of the **team** episodes (an env copy's episode, all its followers) that
+    ended in the window without a safety violation of any follower (truncated: the leader
+    finished its path or the step limit was reached). A violation ends the episode of every
+    follower of the copy, so a per-follower rate would count the others as successes.
+``cost_mean``
+    the followers' mean episode cost, the sum of ``info["cost"]`` (1 at a step with a
+    violation): the quantity ``ppo_lagrangian`` holds to its budget.
+``lambda``
+    the Lagrange multiplier after the window (``ppo_lagrangian``; else empty).
+
+A resumed run keeps the rows up to the timesteps it resumes from and drops the later ones (the
+checkpoint it continues from predates them).
+
+:func:`read_progress` reads such a file back, :func:`plot_learning_curves` draws return,
+success and cost against timesteps for several configurations, each the mean over its seeds
+with the band between the lowest and the highest seed, on a common grid of timesteps.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from stable_baselines3.common.callbacks import BaseCallback
+
+__all__ = [
+    "PROGRESS_COLUMNS",
+    "PROGRESS_FILE",
+    "LearningCurveCallback",
+    "curve_on_grid",
+    "plot_learning_curves",
+    "read_progress",
+]
+
+#: The learning-curve file of a run directory.
+PROGRESS_FILE = "progress.csv"
+#: Its columns, in order.
+PROGRESS_COLUMNS = (
+    "timesteps",
+    "wall_time_s",
+    "episodes",
+    "return_mean",
+    "success_rate",
+    "cost_mean",
+    "lambda",
+)
+
+
+class LearningCurveCallback(BaseCallback):
+    """Append a :data:`PROGRESS_COLUMNS` row to ``path`` every ``every`` timesteps.
+
+    Args:
+        path: the CSV file (``DIR/progress.csv``).
+        every: follower transitions between rows (> 0).
+        resume_from: the timesteps a resumed run continues from: rows after it are dropped and
+            the others kept; ``None`` (a fresh run) starts the file anew.
+        multiplier: a callable returning the Lagrange multiplier, or ``None``.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        every: int,
+        *,
+        resume_from: int | None = None,
+        multiplier: Any = None,
+    ) -> None:
+        super().__init__()
+        if every <= 0:
+            raise ValueError(f"every must be > 0, got {every}")
+        self.path = Path(path)
+        self.every = int(every)
+        self.resume_from = resume_from
+        self.multiplier = multiplier
+        self._returns: list[float] = []
+        self._costs: list[float] = []
+        self._teams: list[bool] = []
+        self._episode_cost: NDArray[np.float64] = np.zeros(0)
+        self._team_of: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
+        self._last = 0
+        self._t0 = 0.0
+
+    def _on_training_start(self) -> None:
+        kept: list[dict[str, str]] = []
+        if self.resume_from is not None and self.path.exists():
+            kept = [r for r in read_rows(self.path) if int(r["timesteps"]) <= self.resume_from]
+        with self.path.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=PROGRESS_COLUMNS)
+            writer.writeheader()
+            writer.writerows(kept)
+        self._episode_cost = np.zeros(self.training_env.num_envs)
+        self._team_of = _slot_teams(self.training_env)
+        self._last = self.num_timesteps
+        self._t0 = time.perf_counter()
+
+    def _on_step(self) -> bool:
+        dones = np.asarray(self.locals["dones"], dtype=bool)
+        infos = self.locals["infos"]
+        for k, info in enumerate(infos):
+            self._episode_cost[k] += float(info.get("cost", 0.0))
+        for k in np.flatnonzero(dones):
+            episode = infos[k].get("episode")
+            if episode is not None:
+                self._returns.append(float(episode["r"]))
+            self._costs.append(float(self._episode_cost[k]))
+        for team in np.unique(self._team_of[dones]):
+            slots = self._team_of == team
+            self._teams.append(bool(np.all(self._episode_cost[slots] == 0)))
+        self._episode_cost[dones] = 0.0
+        if self.num_timesteps - self._last >= self.every:
+            self._last = self.num_timesteps
+            self._write_row()
+        return True
+
+    def _on_training_end(self) -> None:
+        if self.num_timesteps > self._last:
+            self._write_row()
+
+    def _write_row(self) -> None:
+        n = len(self._costs)
+        costs = np.asarray(self._costs)
+        lam = None if self.multiplier is None else float(self.multiplier())
+        row: dict[str, Any] = {
+            "timesteps": self.num_timesteps,
+            "wall_time_s": f"{time.perf_counter() - self._t0:.1f}",
+            "episodes": n,
+            "return_mean": f"{np.mean(self._returns):.6g}" if self._returns else "",
+            "success_rate": f"{np.mean(self._teams):.6g}" if self._teams else "",
+            "cost_mean": f"{np.mean(costs):.6g}" if n else "",
+            "lambda": "" if lam is None else f"{lam:.6g}",
+        }
+        with self.path.open("a", newline="") as f:
+            csv.DictWriter(f, fieldnames=PROGRESS_COLUMNS).writerow(row)
+        self._returns.clear()
+        self._costs.clear()
+        self._teams.clear()
+
+
+def _slot_teams(venv: Any) -> NDArray[np.int64]:
+    """The env copy owning each slot of ``venv`` (through its wrappers); a vector env without
+    ``env_slots`` counts each slot as a team of one."""
+    base = venv
+    while not hasattr(base, "env_slots") and hasattr(base, "venv"):
+        base = base.venv
+    team = np.arange(venv.num_envs, dtype=np.int64)
+    if hasattr(base, "env_slots") and hasattr(base, "n_envs"):
+        for j in range(base.n_envs):
+            slots = base.env_slots(j)
+            team[slots.start : slots.stop] = j
+    return team
+
+
+def read_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a progress file as strings; refuses a file with other columns."""
+    with Path(path).open(newline="") as f:
+        reader = csv.DictReader(f)
+        if tuple(reader.fieldnames or ()) != PROGRESS_COLUMNS:
+            raise ValueError(
+                f"{path}: columns {reader.fieldnames}, expected {list(PROGRESS_COLUMNS)}"
+            )
+        return list(reader)
+
+
+def read_progress(path: Path) -> dict[str, NDArray[np.float64]]:
+    """A progress file as one float array per column (an empty cell is NaN)."""
+    rows = read_rows(path)
+    if not rows:
+        raise ValueError(f"{path}: no rows (the run logged nothing yet)")
+    return {
+        c: np.array([float(r[c]) if r[c] != "" else math.nan for r in rows])
+        for c in PROGRESS_COLUMNS
+    }
+
+
+def curve_on_grid(
+    runs: Sequence[Mapping[str, NDArray[np.float64]]], column: str, points: int = 100
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``column`` of several runs interpolated onto one grid of timesteps.
+
+    The grid spans the timesteps every run reached (from the largest first row to the smallest
+    last row). Windows without an ended episode (NaN) are skipped before interpolating. Returns
+    ``(grid, values)`` with ``values`` of shape ``(len(runs), points)``.
+    """
+    if not runs:
+        raise ValueError("no runs")
+    lo = max(float(r["timesteps"][0]) for r in runs)
+    hi = min(float(r["timesteps"][-1]) for r in runs)
+    if hi < lo:
+        raise ValueError("the runs' timesteps do not overlap")
+    grid = np.linspace(lo, hi, points)
+    values = np.empty((len(runs), points))
+    for i, r in enumerate(runs):
+        ok = ~np.isnan(r[column])
+        if not ok.any():
+            values[i] = math.nan
+            continue
+        values[i] = np.interp(grid, r["timesteps"][ok], r[column][ok])
+    return grid, values
+
+
+def plot_learning_curves(
+    configs: Mapping[str, Sequence[Path]], out: Path, *, smooth: int = 5
+) -> Path:
+    """Return, success rate and episode cost vs timesteps, one line per configuration.
+
+    Args:
+        configs: configuration name → its runs' ``progress.csv`` files (one per seed).
+        out: the PNG to write.
+        smooth: a moving average over this many logged rows, per run, before averaging.
+
+    Each line is the mean over the configuration's seeds, the band spans the lowest and the
+    highest seed; the legend gives the number of seeds.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    columns = (("return_mean", "episode return"), ("success_rate", "success rate"))
+    columns += (("cost_mean", "episode cost (violations)"),)
+    fig, axes = plt.subplots(1, len(columns), figsize=(4.2 * len(columns), 3.4))
+    for name, files in configs.items():
+        runs = [_smoothed(read_progress(p), smooth) for p in files]
+        for ax, (column, _) in zip(axes, columns, strict=True):
+            grid, values = curve_on_grid(runs, column)
+            mean = np.nanmean(values, axis=0)
+            (line,) = ax.plot(grid, mean, label=f"{name} ({len(runs)} seeds)")
+            ax.fill_between(
+                grid,
+                np.nanmin(values, axis=0),
+                np.nanmax(values, axis=0),
+                alpha=0.2,
+                color=line.get_color(),
+                linewidth=0,
+            )
+    for ax, (_, label) in zip(axes, columns, strict=True):
+        ax.set_xlabel("follower transitions")
+        ax.set_title(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
+def _smoothed(run: dict[str, NDArray[np.float64]], window: int) -> dict[str, NDArray[np.float64]]:
+    """A trailing moving average of the value columns over ``window`` rows (NaNs ignored)."""
+    if window <= 1:
+        return run
+    out = dict(run)
+    for c in ("return_mean", "success_rate", "cost_mean"):
+        v = run[c]
+        sm = np.full_like(v, math.nan)
+        for i in range(len(v)):
+            w = v[max(0, i - window + 1) : i + 1]
+            if (~np.isnan(w)).any():
+                sm[i] = np.nanmean(w)
+        out[c] = sm
+    return out

@@ -1,0 +1,197 @@
+"""Train the shipped learned configurations over several seeds (``platoon-sweep``).
+
+Usage::
+
+    python -m training.sweep                      # every configuration, seeds 0-4, 2 at a time
+    python -m training.sweep --config ppo_ta_aruco --seeds 0 1 --jobs 1
+    python -m training.sweep --list               # the configurations and their options
+    python -m training.sweep --ship               # copy finished runs to models/<config>_s<seed>
+
+A **configuration** (:data:`CONFIGS`) is a named set of ``platoon-train`` options; a run is a
+configuration and a seed, trained into ``RUNS/<config>/s<seed>`` (``--runs``, default
+``runs/sweep``). Each run is one ``platoon-train`` process with ``--resume`` when its directory
+already holds a run, so an interrupted sweep continues where it stopped and a finished run is
+left as it is (``platoon-train``'s own rules: a run whose options changed is refused, naming
+the differences). ``--jobs`` runs train side by side (one core each: ``--torch-threads 1``).
+Each run's output goes to ``RUNS/<config>/s<seed>/train.log``; the sweep prints a line per run
+as it ends, and exits non-zero if one failed (the others are still trained).
+
+``--ship`` copies ``model.zip``, ``model.json`` and ``progress.csv`` of every finished run to
+``models/<config>_s<seed>/`` (the cards are written by :mod:`experiments.leaderboard`, which
+evaluates them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["CONFIGS", "Config", "main", "run_args", "ship"]
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Config:
+    """A shipped learned configuration: its ``platoon-train`` options and what they are for."""
+
+    name: str
+    summary: str
+    args: tuple[str, ...]
+
+
+#: The options every shipped configuration shares: the medium procedural tier (corridors and
+#: rooms, disjoint from every test split), trained under the aruco sensing profile (camera noise,
+#: 30 Hz frames with 50 ms latency, detection drop-outs, LiDAR noise, acceleration limits) with
+#: the task-aware observation; 25 ms control period (aruco's 30 Hz camera needs one <= 1/30 s).
+_COMMON = (
+    "--scenario",
+    "procedural_medium_train",
+    "--sensor-profile",
+    "aruco",
+    "--task-aware-observations",
+    "--control-period",
+    "0.025",
+    "--timesteps",
+    "1500000",
+)
+
+#: The configurations trained by ``python -m training.sweep`` and shipped in ``models/``.
+CONFIGS: dict[str, Config] = {
+    c.name: c
+    for c in (
+        Config(
+            "ppo_ta_aruco",
+            "SB3 PPO on the env's reward, aruco profile, task-aware observations",
+            ("--algo", "ppo", *_COMMON),
+        ),
+        Config(
+            "lag_ta_aruco",
+            "PPO-Lagrangian (cost budget 0.05 per follower episode), aruco profile, task-aware "
+            "observations",
+            ("--algo", "ppo_lagrangian", "--cost-budget", "0.05", *_COMMON),
+        ),
+    )
+}
+
+#: The seeds of a sweep unless ``--seeds`` says otherwise.
+DEFAULT_SEEDS = (0, 1, 2, 3, 4)
+
+
+def run_dir(runs: Path, config: str, seed: int) -> Path:
+    """Where a sweep trains ``config`` with ``seed``."""
+    return Path(runs) / config / f"s{seed}"
+
+
+def run_args(config: Config, seed: int, out: Path) -> list[str]:
+    """The ``platoon-train`` arguments of one run (``--resume`` if ``out`` holds a run)."""
+    from training.train import RUN_FILES
+
+    args = [*config.args, "--seed", str(seed), "--out", str(out), "--no-progress-bar"]
+    if any((out / f).exists() for f in RUN_FILES):
+        args.append("--resume")
+    return args
+
+
+def _train(config: Config, seed: int, out: Path) -> tuple[str, int, float]:
+    out.mkdir(parents=True, exist_ok=True)
+    args = run_args(config, seed, out)
+    cmd = [sys.executable, "-m", "training.train", *args, "--torch-threads", "1"]
+    t0 = time.perf_counter()
+    with (out / "train.log").open("a") as log:
+        log.write("$ " + " ".join(cmd) + "\n")
+        log.flush()
+        rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT).returncode
+    return f"{config.name} s{seed}", rc, time.perf_counter() - t0
+
+
+def ship(runs: Path, models: Path, configs: Sequence[str], seeds: Sequence[int]) -> list[Path]:
+    """Copy every finished run's model, description and learning curve to ``models``.
+
+    A run is finished when its ``model.json`` exists, is not ``interrupted`` and has trained
+    the timesteps it was asked for; others are skipped with a note on stderr.
+    """
+    import json
+
+    shipped = []
+    for name in configs:
+        for seed in seeds:
+            src = run_dir(runs, name, seed)
+            meta_path = src / "model.json"
+            if not meta_path.exists():
+                print(f"skip {name} s{seed}: no {meta_path}", file=sys.stderr)
+                continue
+            meta = json.loads(meta_path.read_text())
+            if meta.get("interrupted") or meta["timesteps"] < meta["timesteps_requested"]:
+                print(
+                    f"skip {name} s{seed}: unfinished ({meta['timesteps']} steps)", file=sys.stderr
+                )
+                continue
+            dst = Path(models) / f"{name}_s{seed}"
+            dst.mkdir(parents=True, exist_ok=True)
+            for f in ("model.zip", "model.json", "progress.csv"):
+                shutil.copy2(src / f, dst / f)
+            shipped.append(dst)
+    return shipped
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="platoon-sweep", description=__doc__.split("\n\n")[0] if __doc__ else None
+    )
+    parser.add_argument(
+        "--config",
+        nargs="+",
+        choices=sorted(CONFIGS),
+        default=list(CONFIGS),
+        help="configurations to train (default: all)",
+    )
+    parser.add_argument(
+        "--seeds", nargs="+", type=int, default=list(DEFAULT_SEEDS), help="training seeds"
+    )
+    parser.add_argument("--jobs", type=int, default=2, help="runs trained at once (>= 1)")
+    parser.add_argument("--runs", default="runs/sweep", help="folder of the run directories")
+    parser.add_argument("--models", default="models", help="where --ship copies the models")
+    parser.add_argument("--ship", action="store_true", help="copy finished runs, train nothing")
+    parser.add_argument("--list", action="store_true", help="print the configurations and exit")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    a = parser.parse_args(argv)
+    if a.jobs < 1:
+        parser.error(f"--jobs must be >= 1, got {a.jobs}")
+    if len(set(a.seeds)) != len(a.seeds) or min(a.seeds) < 0:
+        parser.error(f"--seeds must be distinct and >= 0, got {a.seeds}")
+    if a.list:
+        for c in CONFIGS.values():
+            print(f"{c.name}: {c.summary}\n    platoon-train {' '.join(c.args)}")
+        return 0
+    runs = Path(a.runs)
+    if a.ship:
+        shipped = ship(runs, Path(a.models), a.config, a.seeds)
+        for p in shipped:
+            print(f"shipped {p}")
+        return 0 if shipped else 1
+    jobs = [(CONFIGS[n], s, run_dir(runs, n, s)) for n in a.config for s in a.seeds]
+    print(f"{len(jobs)} runs, {a.jobs} at a time, into {runs}/", flush=True)
+    failed = 0
+    with ThreadPoolExecutor(a.jobs) as pool:
+        for future in as_completed([pool.submit(_train, *j) for j in jobs]):
+            name, rc, wall = future.result()
+            status = "done" if rc == 0 else f"FAILED (exit {rc}; see its train.log)"
+            print(f"{name}: {status} in {wall / 60:.1f} min", flush=True)
+            failed += rc != 0
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
