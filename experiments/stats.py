@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = [
     "Aggregate",
     "aggregate",
+    "bootstrap_episodes",
     "iqm",
     "performance_profile",
     "probability_of_improvement",
@@ -120,6 +121,29 @@ def aggregate(
             float(points[k][0]), float(intervals[k][0, 0]), float(intervals[k][1, 0])
         )
     return out
+
+
+def bootstrap_episodes(episodes: ArrayLike, *, reps: int = 2000, seed: int = 0) -> Aggregate:
+    """The IQM over tasks of the task means of one run's ``(episodes, tasks)`` scores, with a
+    95 % interval from resampling the episodes within each task (rliable's stratified
+    bootstrap with the episodes as its "runs").
+
+    For a deterministic policy (one run), the episodes are the only source of variation: this
+    is its counterpart of :func:`aggregate` over training seeds.
+    """
+    library, metrics = _rliable()
+    e = _scores(episodes, "episodes")
+
+    def statistic(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.array([metrics.aggregate_iqm(x.mean(axis=0, keepdims=True))])
+
+    with _seeded(seed) as state:
+        points, intervals = library.get_interval_estimates(
+            {"run": e}, statistic, reps=reps, random_state=state
+        )
+    return Aggregate(
+        float(points["run"][0]), float(intervals["run"][0, 0]), float(intervals["run"][1, 0])
+    )
 
 
 def probability_of_improvement(

@@ -414,7 +414,7 @@ def test_a_7_vector_model_is_refused_by_a_task_aware_env() -> None:
     pytest.importorskip("stable_baselines3")
     from training import LearnedPolicy
 
-    shipped = LearnedPolicy.load(REPO / "models" / "ppo_corridors_s0")
+    shipped = LearnedPolicy.load(REPO / "models" / "legacy" / "ppo_corridors_s0")
     assert not shipped.task_aware and shipped.observation_layout == OBS_NAMES
     period = shipped.control_period
     with pytest.raises(ValueError, match=r"reads the 7-vector.*task-aware observations"):

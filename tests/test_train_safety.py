@@ -341,8 +341,8 @@ def test_check_env_refuses_meaningless_envs_and_notes_experiments(tmp_path: Path
 def test_shipped_models_load_and_pass_the_checks() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # both carry zip_sha256 (backfilled): no warning
-        corridors = LearnedPolicy.load(REPO / "models" / "ppo_corridors_s0")
-        procedural = LearnedPolicy.load(REPO / "models" / "ppo_procedural_s0")
+        corridors = LearnedPolicy.load(REPO / "models" / "legacy" / "ppo_corridors_s0")
+        procedural = LearnedPolicy.load(REPO / "models" / "legacy" / "ppo_procedural_s0")
     period = corridors.control_period
     train_env = platoon_env.make("procedural_corridors_train", control_period=period)
     assert corridors.scenario_fingerprint == config_fingerprint(train_env.source.config)

@@ -119,12 +119,12 @@ class LearningCurveCallback(BaseCallback):
         infos = self.locals["infos"]
         for k, info in enumerate(infos):
             self._episode_cost[k] += float(info.get("cost", 0.0))
-        for k in np.flatnonzero(dones):
+        for k in np.flatnonzero(dones).tolist():
             episode = infos[k].get("episode")
             if episode is not None:
                 self._returns.append(float(episode["r"]))
             self._costs.append(float(self._episode_cost[k]))
-        for team in np.unique(self._team_of[dones]):
+        for team in np.unique(self._team_of[dones]).tolist():
             slots = self._team_of == team
             self._teams.append(bool(np.all(self._episode_cost[slots] == 0)))
         self._episode_cost[dones] = 0.0
@@ -220,7 +220,11 @@ def curve_on_grid(
 
 
 def plot_learning_curves(
-    configs: Mapping[str, Sequence[Path]], out: Path, *, smooth: int = 5
+    configs: Mapping[str, Sequence[Path]],
+    out: Path,
+    *,
+    smooth: int = 5,
+    metadata: Mapping[str, str] | None = None,
 ) -> Path:
     """Return, success rate and episode cost vs timesteps, one line per configuration.
 
@@ -228,6 +232,7 @@ def plot_learning_curves(
         configs: configuration name → its runs' ``progress.csv`` files (one per seed).
         out: the PNG to write.
         smooth: a moving average over this many logged rows, per run, before averaging.
+        metadata: PNG text fields (e.g. :func:`experiments.stamp.png_metadata`).
 
     Each line is the mean over the configuration's seeds, the band spans the lowest and the
     highest seed; the legend gives the number of seeds.
@@ -237,8 +242,11 @@ def plot_learning_curves(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    columns = (("return_mean", "episode return"), ("success_rate", "success rate"))
-    columns += (("cost_mean", "episode cost (violations)"),)
+    columns = (
+        ("return_mean", "episode return"),
+        ("success_rate", "success rate"),
+        ("cost_mean", "episode cost (violations)"),
+    )
     fig, axes = plt.subplots(1, len(columns), figsize=(4.2 * len(columns), 3.4))
     for name, files in configs.items():
         runs = [_smoothed(read_progress(p), smooth) for p in files]
@@ -262,7 +270,7 @@ def plot_learning_curves(
     fig.tight_layout()
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120)
+    fig.savefig(out, dpi=120, metadata=dict(metadata or {}))
     plt.close(fig)
     return out
 

@@ -1,0 +1,201 @@
+"""Model cards: ``models/<run>/README.md`` and the index ``models/README.md``, from the leaderboard.
+
+A card states what a shipped model is (its configuration, seed and training options, read from
+its ``model.json``), what it cost to train (timesteps, wall time on the machine that trained it),
+how training ended (the last rows of its ``progress.csv``) and how it does on every leaderboard
+task (this run's episodes, from the leaderboard's store). :func:`write_cards` is called by
+``python -m experiments.leaderboard``, which also draws the learning curves of every
+configuration (:func:`training.curves.plot_learning_curves`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from experiments.leaderboard import Board, Entry
+
+__all__ = ["card_markdown", "index_markdown", "write_cards"]
+
+
+def _training_summary(meta: Mapping[str, Any]) -> list[str]:
+    cfg = meta.get("config", {})
+    layout = meta.get("observation_layout") or []
+    wall = float(meta.get("wall_time_s") or math.nan)
+    sb3 = meta.get("versions", {}).get("stable_baselines3", "?")
+    net = cfg.get("net_arch") or [64, 64]
+    return [
+        f"- algorithm: `{meta.get('algo')}` (Stable-Baselines3 {sb3})"
+        + (
+            f", cost budget {cfg.get('cost_budget')} per follower episode, multiplier step "
+            f"{cfg.get('lagrangian_lr')}"
+            if meta.get("algo") == "ppo_lagrangian"
+            else ""
+        ),
+        f"- trained on `{meta.get('scenario')}` with sensor profile "
+        f"`{cfg.get('sensor_profile') or 'ideal'}`, control period {meta.get('control_period')} s, "
+        f"{len(layout)}-value observation"
+        + (" (task-aware)" if cfg.get("task_aware_observations") else ""),
+        f"- seed {meta.get('seed')}; {meta.get('timesteps'):,} follower transitions in "
+        f"{wall / 60:.1f} min ({meta.get('timesteps_per_s', math.nan):.0f} transitions/s, one "
+        "core); code "
+        f"`{str(meta.get('git_commit') or '?')[:12]}`"
+        + (" (dirty)" if meta.get("git_dirty") else ""),
+        f"- network: {net} MLP; learning rate {cfg.get('learning_rate')}, "
+        f"γ {cfg.get('gamma')}, PPO rollout {cfg.get('n_steps')} × slots, {cfg.get('n_epochs')} "
+        "epochs",
+    ]
+
+
+def _curve_end(progress: Path, rows: int = 5) -> str:
+    from training.curves import read_progress
+
+    if not progress.is_file():
+        return "no `progress.csv` (trained before learning curves were logged)"
+    p = read_progress(progress)
+    last = slice(-rows, None)
+    return (
+        f"over the last {min(rows, len(p['timesteps']))} logged windows (up to "
+        f"{int(p['timesteps'][-1]):,} transitions): team success rate "
+        f"{np.nanmean(p['success_rate'][last]):.2f}, follower episode cost "
+        f"{np.nanmean(p['cost_mean'][last]):.3f}, return {np.nanmean(p['return_mean'][last]):.1f}"
+        + (f", multiplier λ {p['lambda'][-1]:.3f}" if not math.isnan(p["lambda"][-1]) else "")
+    )
+
+
+def _task_lines(board: Board, entry: Entry, run: int) -> list[str]:
+    lines = [
+        "| task | episodes | success | violations by cause | rms e_d [m] | rms e_β [rad] |",
+        "|---|---|---|---|---|---|",
+    ]
+    for t in board.tasks:
+        eps = board.metrics[entry.name][run].get(t, [])
+        if not eps:
+            state = "refused" if (entry.name, t) in board.refused else "not run"
+            lines.append(f"| {t.suite}: {t.label} | 0 | {state} | | | |")
+            continue
+        ok = sum(bool(m["success"]) for m in eps)
+        causes = Counter(m["violation"] for m in eps if m["violation"])
+        vio = ", ".join(f"{c} {n}" for c, n in causes.most_common()) or "0"
+        rms = [m["rms_e_d"] for m in eps if math.isfinite(m["rms_e_d"])]
+        rmb = [m["rms_e_beta"] for m in eps if math.isfinite(m["rms_e_beta"])]
+        lines.append(
+            f"| {t.suite}: {t.label} | {len(eps)} | {ok}/{len(eps)} | {vio} | "
+            f"{np.mean(rms) if rms else math.nan:.3f} | {np.mean(rmb) if rmb else math.nan:.3f} |"
+        )
+    return lines
+
+
+def card_markdown(board: Board, entry: Entry, run: int, summary: str = "") -> str:
+    """The card of ``entry``'s run ``run``."""
+    spec = entry.runs[run]
+    meta = spec.model_metadata()
+    folder = spec.path.parent if spec.path is not None else Path(".")
+    lines = [
+        f"# `{spec.name}`",
+        "",
+        f"Configuration **`{entry.name}`**, training seed {meta.get('seed')}"
+        + (f": {summary}." if summary else "."),
+        "Made by `python -m experiments.leaderboard`; the numbers are this seed's episodes in its "
+        "store. Train it again with `python -m training.sweep --config "
+        f"{entry.name} --seeds {meta.get('seed')}`.",
+        "",
+        "## Training",
+        "",
+        *_training_summary(meta),
+        f"- learning curve: {_curve_end(folder / 'progress.csv')}",
+        "",
+        "## Evaluation (every leaderboard task)",
+        "",
+        *_task_lines(board, entry, run),
+        "",
+        "## Use",
+        "",
+        "```python",
+        "from training.policies import LearnedPolicy",
+        f'policy = LearnedPolicy.load("models/{spec.name}/model.zip")',
+        'env = platoon_env.make("study_c", control_period=policy.control_period,',
+        '                       observation={"task_aware": True}, sensor_profile="aruco")',
+        "policy.check_env(env)  # refuses another observation layout or control period",
+        "```",
+        "",
+        "Loading `model.zip` unpickles code: load only model files you trust.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
+    """``models/README.md``: what is shipped and how each run does."""
+    from experiments.leaderboard import SUITES
+
+    lines = [
+        "# Shipped models",
+        "",
+        "Each folder holds `model.zip` (Stable-Baselines3), `model.json` (what `platoon-train` "
+        "recorded: scenario and its resolved config, control period, observation and action "
+        "layout, action range, every option, commit, versions, training segments and wall time), "
+        "`progress.csv` (the learning curve, `training.curves`) and its card `README.md`. "
+        "`LearnedPolicy.load(path)` loads one (it refuses a zip that is not the one its "
+        "`model.json` describes); `policy.check_env(env)` says whether an env suits it.",
+        "",
+        "The folders `<configuration>_s<seed>` are the training seeds of one configuration, "
+        "trained by `python -m training.sweep` (`--list` prints each configuration's options). "
+        "The cards, this table and the learning curves are written by "
+        "`python -m experiments.leaderboard`.",
+        "",
+        "| model | configuration | seed | transitions | wall time | "
+        + " | ".join(f"{s} success" for s in SUITES)
+        + " |",
+        "|---|---|---|---|---|" + "---|" * len(SUITES),
+    ]
+    for e in board.entries:
+        if not e.learned:
+            continue
+        for i, spec in enumerate(e.runs):
+            meta = spec.model_metadata()
+            wall_min = float(meta.get("wall_time_s") or 0) / 60
+            rates = []
+            for s in SUITES:
+                eps = [m for t in board.suite_tasks(s) for m in board.metrics[e.name][i].get(t, [])]
+                ok = sum(bool(m["success"]) for m in eps)
+                rates.append(f"{ok}/{len(eps)}" if eps else "–")
+            lines.append(
+                f"| [`{spec.name}`]({spec.name}/README.md) | `{e.name}` | {meta.get('seed')} | "
+                f"{meta.get('timesteps', 0):,} | {wall_min:.1f} min | " + " | ".join(rates) + " |"
+            )
+    lines += ["", "Configurations:", ""]
+    lines += [f"- `{k}`: {v}" for k, v in summaries.items()]
+    lines += ["", "Loading `model.zip` unpickles code: load only model files you trust.", ""]
+    return "\n".join(lines)
+
+
+def write_cards(board: Board, models: Path, curves: Path, metadata: Mapping[str, str]) -> None:
+    """Every learned run's card, the index and the learning-curve figure."""
+    from training.curves import plot_learning_curves
+    from training.sweep import CONFIGS
+
+    summaries = {
+        e.name: CONFIGS[e.name].summary if e.name in CONFIGS else ""
+        for e in board.entries
+        if e.learned
+    }
+    progress: dict[str, list[Path]] = {}
+    for e in board.entries:
+        if not e.learned:
+            continue
+        for i, spec in enumerate(e.runs):
+            assert spec.path is not None
+            folder = spec.path.parent
+            (folder / "README.md").write_text(card_markdown(board, e, i, summaries[e.name]))
+            if (folder / "progress.csv").is_file():
+                progress.setdefault(e.name, []).append(folder / "progress.csv")
+    (Path(models) / "README.md").write_text(index_markdown(board, summaries))
+    if progress:
+        plot_learning_curves(progress, curves, metadata=metadata)

@@ -1,0 +1,652 @@
+"""The leaderboard: every policy on the ``paper`` and ``heldout`` suites, with rliable statistics.
+
+Usage::
+
+    python -m experiments.leaderboard                    # the README's leaderboard
+    python -m experiments.leaderboard --paper-seeds 5 --heldout-seeds 10 --no-readme
+
+It runs, through the evaluation store (``--store``, default ``results/leaderboard``; an
+interrupted run resumes, and episodes already stored are not run again):
+
+* the analytic laws ``ppc``, ``filtered_ppc`` and ``last_seen``;
+* every shipped model ``models/<config>_s<seed>/``: the folders whose names differ only in
+  the ``_s<seed>`` suffix are the training seeds (**runs**) of one **configuration**;
+
+on every **task** of the two suites (:mod:`experiments.suites`): a scenario under a
+condition — ``paper``: studies A, B, C × {ideal, aruco}; ``heldout``: the easy, medium and hard
+test tiers × {ideal, aruco}; each task with the same episode seeds for every policy and run.
+
+Statistics (:mod:`experiments.stats`), per policy and suite:
+
+* **success**: the IQM over runs × tasks of the per-run task success rates, with a 95 %
+  stratified-bootstrap interval. A learned configuration's runs are its training seeds (the
+  bootstrap resamples seeds within each task). An analytic law is one deterministic run, so its
+  interval resamples the *episodes* within each task instead (its only source of variation);
+* **violations per 1,000 steps**, by cause: episodes ending with that cause, per 1,000 control
+  steps of 10 ms (the policies run at different control periods: the analytic laws at the
+  scenario's 10 ms, the models at the 25 ms they were trained at, so a raw step count would
+  favour the slower period);
+* **rms e_d**, **rms e_β** and **effort** (``platoon_env.rollout.episode_metrics``): the mean over
+  episodes of the episode values (those with a finite value: a follower that never saw its
+  predecessor has none);
+* the **probability of improvement** of each learned configuration over PPC and the filtered
+  PPC, on the success rates of all tasks of both suites, with its interval;
+* **performance profiles** (the fraction of run × task success rates above each threshold) and a
+  task-by-task success map with each cell's most frequent failure: where each policy fails;
+* the issue's **goal** for each configuration: the runs that, under aruco, complete every episode
+  of studies A, B and C and at least 95 % of every held-out tier (no violation in those
+  episodes), with a lower rms e_d than PPC's under aruco.
+
+Outputs: ``docs/leaderboard.md`` (every table, with the provenance of its rows), the figures
+``docs/figures/leaderboard_*.png``, the learning curves ``docs/figures/learning_curves.png``,
+each model's card ``models/<run>/README.md`` and the index ``models/README.md``
+(:mod:`experiments.cards`), and, unless ``--no-readme``, the README's table between the
+``<!-- leaderboard:start -->`` and ``<!-- leaderboard:end -->`` markers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+import sys
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
+from experiments.policies import PolicySpec, shipped_models
+from experiments.report import provenance_markdown
+from experiments.stamp import metadata_stamp, png_metadata
+from experiments.stats import (
+    Aggregate,
+    aggregate,
+    bootstrap_episodes,
+    performance_profile,
+    probability_of_improvement,
+)
+from experiments.store import Store
+from experiments.suites import Condition, suite
+from platoon_env.scenarios.schema import ScenarioError
+from platoon_env.violations import VIOLATION_CAUSES
+
+__all__ = [
+    "ANALYTIC",
+    "Board",
+    "Entry",
+    "Task",
+    "build_board",
+    "entries",
+    "main",
+    "tasks",
+]
+
+_TOOL = "experiments.leaderboard"
+ROOT = Path(__file__).resolve().parent.parent
+#: The analytic laws on the board (registry names).
+ANALYTIC = ("ppc", "filtered_ppc", "last_seen")
+#: The suites on the board.
+SUITES = ("paper", "heldout")
+#: The step a violation rate is counted per (the analytic laws' control period) [s].
+RATE_STEP = 0.01
+#: README markers between which the table is written.
+MARKERS = ("<!-- leaderboard:start -->", "<!-- leaderboard:end -->")
+_SEED_SUFFIX = re.compile(r"_s(\d+)$")
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One row group of the board: a policy configuration and its runs (training seeds)."""
+
+    name: str
+    runs: tuple[PolicySpec, ...]
+    learned: bool
+
+
+@dataclass(frozen=True)
+class Task:
+    """A scenario under a condition, in a suite, with its episode seeds ``0 .. seeds-1``."""
+
+    suite: str
+    scenario: str
+    condition_label: str
+    seeds: int
+    #: The condition itself (its overrides are a dict: the label stands for it in comparisons).
+    condition: Condition = field(compare=False, default=Condition("ideal"))
+
+    @property
+    def label(self) -> str:
+        short = self.scenario.removeprefix("procedural_").removesuffix("_test")
+        return f"{short}/{self.condition.label}"
+
+
+def entries(models_dir: Path) -> list[Entry]:
+    """The analytic laws, then the configurations of ``models_dir`` (its ``*_s<seed>``
+    folders grouped by the name before the suffix; a folder without one is a configuration of
+    one run)."""
+    out = [Entry(name, (PolicySpec.of(name),), False) for name in ANALYTIC]
+    groups: dict[str, list[PolicySpec]] = {}
+    for spec in shipped_models(Path(models_dir)):
+        groups.setdefault(_SEED_SUFFIX.sub("", spec.name), []).append(spec)
+    out += [Entry(name, tuple(specs), True) for name, specs in sorted(groups.items())]
+    return out
+
+
+def tasks(paper_seeds: int | None = None, heldout_seeds: int | None = None) -> list[Task]:
+    """Every task of the board's suites (``None``: the suite's own number of seeds)."""
+    counts = {"paper": paper_seeds, "heldout": heldout_seeds}
+    out = []
+    for name in SUITES:
+        s = suite(name)
+        given = counts[name]
+        n = s.seeds if given is None else given
+        if n < 1:
+            raise ValueError(f"{name} seeds must be >= 1, got {n}")
+        for scenario in s.scenarios:
+            for condition in s.conditions:
+                out.append(Task(name, scenario, condition.label, n, condition))
+    return out
+
+
+def cells(
+    board_entries: Sequence[Entry], board_tasks: Sequence[Task]
+) -> tuple[list[ResolvedCell], dict[tuple[str, Task], str]]:
+    """The resolved cells of every entry run × task × seed, and the (entry, task) pairs that
+    cannot run at all, with the reason (a model whose control period the condition's sensors
+    refuse, e.g. a 20 Hz policy with a 30 Hz camera)."""
+    out: list[ResolvedCell] = []
+    refused: dict[tuple[str, Task], str] = {}
+    for e in board_entries:
+        for spec in e.runs:
+            for t in board_tasks:
+                group = [
+                    Cell.of(spec, t.scenario, seed, t.condition.overrides)
+                    for seed in range(t.seeds)
+                ]
+                try:
+                    out += resolve_cells(group, unique=True)
+                except ScenarioError as exc:
+                    refused[(e.name, t)] = f"{spec.name}: {exc}"
+    return list({rc.key: rc for rc in out}.values()), refused
+
+
+# ----------------------------------------------------------------------------------------------
+# The board: per-episode metrics arranged by entry, run and task
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Board:
+    """The metrics of every episode, ``metrics[entry][run][task]`` = a list over seeds, and
+    the cells that were refused (the policy cannot run there) or failed."""
+
+    entries: list[Entry]
+    tasks: list[Task]
+    metrics: dict[str, list[dict[Task, list[dict[str, Any]]]]]
+    refused: dict[tuple[str, Task], str] = field(default_factory=dict)
+    missing: int = 0
+
+    def suite_tasks(self, name: str) -> list[Task]:
+        return [t for t in self.tasks if t.suite == name]
+
+    def episodes(self, entry: str, suite_name: str) -> list[dict[str, Any]]:
+        """Every episode of ``entry`` on ``suite_name`` (all runs, tasks and seeds)."""
+        return [
+            m
+            for run in self.metrics[entry]
+            for t in self.suite_tasks(suite_name)
+            for m in run.get(t, [])
+        ]
+
+    def success_matrix(self, entry: str, task_list: Sequence[Task]) -> NDArray[np.float64]:
+        """``(runs, tasks)`` success rates of ``entry`` (NaN for a task it has no episode of)."""
+        out = np.full((len(self.metrics[entry]), len(task_list)), math.nan)
+        for i, run in enumerate(self.metrics[entry]):
+            for j, t in enumerate(task_list):
+                eps = run.get(t, [])
+                if eps:
+                    out[i, j] = np.mean([bool(m["success"]) for m in eps])
+        return out
+
+    def episode_matrix(self, entry: str, task_list: Sequence[Task]) -> NDArray[np.float64]:
+        """``(episodes, tasks)`` 0/1 successes of a one-run entry (seed ``s`` is row ``s``)."""
+        run = self.metrics[entry][0]
+        n = max((len(run.get(t, [])) for t in task_list), default=0)
+        out = np.full((n, len(task_list)), math.nan)
+        for j, t in enumerate(task_list):
+            for s, m in enumerate(run.get(t, [])):
+                out[s, j] = float(bool(m["success"]))
+        return out
+
+
+def build_board(
+    board_entries: Sequence[Entry],
+    board_tasks: Sequence[Task],
+    result: GridResult,
+    refused: Mapping[tuple[str, Task], str] | None = None,
+) -> Board:
+    """Arrange a grid's records by entry, run and task (in seed order); ``refused``: the pairs
+    :func:`cells` could not resolve."""
+    records = result.records
+    by_cell = {rc.cell: rc for rc in result.cells}
+    metrics: dict[str, list[dict[Task, list[dict[str, Any]]]]] = {}
+    refused = dict(refused or {})
+    missing = 0
+    for e in board_entries:
+        runs = []
+        for spec in e.runs:
+            per_task: dict[Task, list[dict[str, Any]]] = {}
+            for t in board_tasks:
+                eps = []
+                if (e.name, t) in refused:
+                    continue
+                for seed in range(t.seeds):
+                    rc = by_cell.get(Cell.of(spec, t.scenario, seed, t.condition.overrides))
+                    rec = None if rc is None else records.get(rc.key)
+                    if rec is None or rec.status == "failed":
+                        missing += 1
+                    elif rec.status == "refused":
+                        refused[(e.name, t)] = rec.error.strip().splitlines()[-1][:200]
+                    else:
+                        eps.append(rec.metrics)
+                if eps:
+                    per_task[t] = eps
+            runs.append(per_task)
+        metrics[e.name] = runs
+    return Board(list(board_entries), list(board_tasks), metrics, refused, missing)
+
+
+# ----------------------------------------------------------------------------------------------
+# Statistics
+# ----------------------------------------------------------------------------------------------
+
+
+def success_aggregate(board: Board, entry: Entry, task_list: Sequence[Task]) -> Aggregate | None:
+    """The success IQM of ``entry`` over ``task_list`` and its 95 % interval (module doc);
+    None when the entry has no episode of some task."""
+    if entry.learned or len(entry.runs) > 1:
+        m = board.success_matrix(entry.name, task_list)
+        if np.isnan(m).any():
+            return None
+        return aggregate({entry.name: m}, "iqm")[entry.name]
+    e = board.episode_matrix(entry.name, task_list)
+    if e.size == 0 or np.isnan(e).any():
+        return None
+    return bootstrap_episodes(e)
+
+
+def _finite_mean(values: Sequence[float]) -> float:
+    v = [x for x in values if x is not None and math.isfinite(x)]
+    return float(np.mean(v)) if v else math.nan
+
+
+def suite_row(board: Board, entry: Entry, suite_name: str) -> dict[str, Any]:
+    """The leaderboard's numbers for ``entry`` on ``suite_name`` (module doc)."""
+    eps = board.episodes(entry.name, suite_name)
+    task_list = board.suite_tasks(suite_name)
+    steps = sum(float(m["sim_time"]) for m in eps) / RATE_STEP
+    causes = Counter(m["violation"] for m in eps if m["violation"])
+    return {
+        "policy": entry.name,
+        "suite": suite_name,
+        "runs": len(entry.runs),
+        "episodes": len(eps),
+        "success": success_aggregate(board, entry, task_list),
+        "violations_per_1k": {
+            c: 1000.0 * causes.get(c, 0) / steps if steps else math.nan for c in VIOLATION_CAUSES
+        },
+        "rms_e_d": _finite_mean([m["rms_e_d"] for m in eps]),
+        "rms_e_beta": _finite_mean([m["rms_e_beta"] for m in eps]),
+        "effort": _finite_mean([m["control_effort"] for m in eps]),
+        "refused": [
+            t.label for (name, t) in board.refused if name == entry.name and t.suite == suite_name
+        ],
+    }
+
+
+def improvement(board: Board, entry: Entry, other: Entry) -> Aggregate | None:
+    """``P(entry > other)`` on the success rates of every task of the board."""
+    x = board.success_matrix(entry.name, board.tasks)
+    y = board.success_matrix(other.name, board.tasks)
+    if np.isnan(x).any() or np.isnan(y).any():
+        return None
+    return probability_of_improvement(x, y)
+
+
+def goal(board: Board, entry: Entry, ppc_rms: float) -> dict[str, Any]:
+    """Which runs of ``entry`` reach the issue's goal under aruco (module doc)."""
+    per_run = []
+    for i, run in enumerate(board.metrics[entry.name]):
+        studies_ok = tiers_ok = True
+        rms = []
+        for t in board.tasks:
+            if t.condition.label != "aruco":
+                continue
+            eps = run.get(t, [])
+            rate = float(np.mean([bool(m["success"]) for m in eps])) if eps else 0.0
+            rms += [m["rms_e_d"] for m in eps]
+            if t.suite == "paper":
+                studies_ok &= bool(eps) and rate == 1.0
+            else:
+                tiers_ok &= bool(eps) and rate >= 0.95
+        run_rms = _finite_mean(rms)
+        per_run.append(
+            {
+                "run": entry.runs[i].name,
+                "studies": studies_ok,
+                "tiers": tiers_ok,
+                "rms_e_d": run_rms,
+                "rms_below_ppc": bool(run_rms < ppc_rms),
+                "met": studies_ok and tiers_ok and bool(run_rms < ppc_rms),
+            }
+        )
+    return {"policy": entry.name, "runs": per_run, "met": sum(r["met"] for r in per_run)}
+
+
+# ----------------------------------------------------------------------------------------------
+# Markdown and figures
+# ----------------------------------------------------------------------------------------------
+
+
+def _f(x: float, digits: int = 3) -> str:
+    return "–" if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def _agg(a: Aggregate | None) -> str:
+    return "–" if a is None else f"{a.value:.2f} [{a.low:.2f}, {a.high:.2f}]"
+
+
+def _violations(v: Mapping[str, float]) -> str:
+    parts = [f"{c.replace('collision_', 'coll. ')} {x:.2f}" for c, x in v.items() if x > 0]
+    return ", ".join(parts) if parts else "0"
+
+
+def table_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The main table: a row per policy and suite."""
+    lines = [
+        "| policy | suite | runs × episodes | success IQM [95 % CI] | violations / 1,000 steps "
+        "(10 ms) by cause | rms e_d [m] | rms e_β [rad] | effort |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        per_run = r["episodes"] // max(r["runs"], 1)
+        refused = f" (refused: {', '.join(r['refused'])})" if r["refused"] else ""
+        lines.append(
+            f"| {r['policy']} | {r['suite']} | {r['runs']} × {per_run} | {_agg(r['success'])}"
+            f"{refused} | {_violations(r['violations_per_1k'])} | {_f(r['rms_e_d'])} | "
+            f"{_f(r['rms_e_beta'])} | {_f(r['effort'], 2)} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def task_table_markdown(board: Board) -> str:
+    """Success rate per policy and task (mean over runs) and the most frequent failure."""
+    head = "| policy | " + " | ".join(t.label for t in board.tasks) + " |"
+    lines = [head, "|---|" + "---|" * len(board.tasks)]
+    for e in board.entries:
+        cells_ = []
+        for t in board.tasks:
+            eps = [m for run in board.metrics[e.name] for m in run.get(t, [])]
+            if not eps:
+                cells_.append("refused" if (e.name, t) in board.refused else "–")
+                continue
+            rate = np.mean([bool(m["success"]) for m in eps])
+            worst = Counter(m["violation"] for m in eps if m["violation"]).most_common(1)
+            note = f" ({worst[0][0].replace('collision_', 'coll. ')})" if worst else ""
+            cells_.append(f"{rate:.2f}{note}")
+        lines.append(f"| {e.name} | " + " | ".join(cells_) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_tasks(board: Board, out: Path, metadata: Mapping[str, str]) -> Path:
+    """A policy × task map of success rates (mean over runs), each cell annotated with its rate
+    and its most frequent violation cause."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rates = np.full((len(board.entries), len(board.tasks)), math.nan)
+    notes = [["" for _ in board.tasks] for _ in board.entries]
+    abbrev = {
+        "collision_robot": "robot",
+        "collision_obstacle": "obst.",
+        "occluded": "occl.",
+        "out_of_range": "range",
+        "out_of_fov": "fov",
+    }
+    for i, e in enumerate(board.entries):
+        for j, t in enumerate(board.tasks):
+            eps = [m for run in board.metrics[e.name] for m in run.get(t, [])]
+            if eps:
+                rates[i, j] = np.mean([bool(m["success"]) for m in eps])
+                worst = Counter(m["violation"] for m in eps if m["violation"]).most_common(1)
+                notes[i][j] = f"{rates[i, j]:.2f}" + (f"\n{abbrev[worst[0][0]]}" if worst else "")
+            elif (e.name, t) in board.refused:
+                notes[i][j] = "refused"
+    fig, ax = plt.subplots(figsize=(1.1 * len(board.tasks) + 2.5, 0.55 * len(board.entries) + 1.6))
+    im = ax.imshow(rates, vmin=0, vmax=1, cmap="RdYlGn", aspect="auto")
+    for i in range(len(board.entries)):
+        for j in range(len(board.tasks)):
+            ax.text(j, i, notes[i][j], ha="center", va="center", fontsize=7)
+    ax.set_xticks(
+        range(len(board.tasks)), [t.label for t in board.tasks], rotation=40, ha="right", fontsize=8
+    )
+    ax.set_yticks(range(len(board.entries)), [e.name for e in board.entries], fontsize=8)
+    fig.colorbar(im, ax=ax, label="success rate (mean over runs)")
+    ax.set_title("Success per task, and the most frequent violation")
+    fig.tight_layout()
+    fig.savefig(out, dpi=120, metadata=dict(metadata))
+    plt.close(fig)
+    return out
+
+
+def plot_profiles(board: Board, out: Path, metadata: Mapping[str, str]) -> Path:
+    """Performance profiles per suite: the fraction of run × task success rates > τ."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    taus = np.linspace(0, 1, 101)
+    fig, axes = plt.subplots(1, len(SUITES), figsize=(5 * len(SUITES), 3.6), sharey=True)
+    for ax, name in zip(np.atleast_1d(axes), SUITES, strict=True):
+        task_list = board.suite_tasks(name)
+        data = {}
+        for e in board.entries:
+            m = board.success_matrix(e.name, task_list)
+            if not np.isnan(m).any():
+                data[e.name] = m
+        if data:
+            for k, v in performance_profile(data, taus.tolist()).items():
+                ax.plot(taus, v, label=k)
+        ax.set_title(f"{name} suite")
+        ax.set_xlabel("success-rate threshold τ")
+        ax.grid(alpha=0.3)
+    np.atleast_1d(axes)[0].set_ylabel("fraction of runs × tasks > τ")
+    np.atleast_1d(axes)[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out, dpi=120, metadata=dict(metadata))
+    plt.close(fig)
+    return out
+
+
+def improvement_markdown(board: Board) -> str:
+    """P(learned > PPC) and P(learned > filtered PPC) over every task."""
+    by_name = {e.name: e for e in board.entries}
+    lines = [
+        "| configuration | P(> PPC) [95 % CI] | P(> filtered PPC) [95 % CI] |",
+        "|---|---|---|",
+    ]
+    for e in board.entries:
+        if not e.learned:
+            continue
+        a = improvement(board, e, by_name["ppc"])
+        b = improvement(board, e, by_name["filtered_ppc"])
+        lines.append(f"| {e.name} | {_agg(a)} | {_agg(b)} |")
+    return "\n".join(lines) + "\n"
+
+
+def goal_markdown(goals: Sequence[Mapping[str, Any]], ppc_rms: float) -> str:
+    lines = [
+        f"PPC's rms e_d under aruco (all tasks): {_f(ppc_rms)} m.",
+        "",
+        "| configuration | runs meeting the goal | A, B, C all completed | every tier ≥ 95 % | "
+        "rms e_d below PPC's |",
+        "|---|---|---|---|---|",
+    ]
+    for g in goals:
+        runs = g["runs"]
+        lines.append(
+            f"| {g['policy']} | {g['met']} of {len(runs)} | {sum(r['studies'] for r in runs)} | "
+            f"{sum(r['tiers'] for r in runs)} | {sum(r['rms_below_ppc'] for r in runs)} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def splice_readme(readme: Path, text: str) -> None:
+    """Replace what lies between the README's markers with ``text``."""
+    body = readme.read_text()
+    start, end = MARKERS
+    if start not in body or end not in body:
+        raise ValueError(f"{readme} has no {start} ... {end} markers")
+    head, rest = body.split(start, 1)
+    _, tail = rest.split(end, 1)
+    readme.write_text(f"{head}{start}\n{text}{end}{tail}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Command line
+# ----------------------------------------------------------------------------------------------
+
+
+def _positive(text: str) -> int:
+    n = int(text)
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {n}")
+    return n
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="python -m experiments.leaderboard", description=(__doc__ or "").split("\n\n")[0]
+    )
+    p.add_argument("--models", type=Path, default=ROOT / "models", help="shipped models folder")
+    p.add_argument(
+        "--store",
+        type=Path,
+        default=Path("results/leaderboard"),
+        help="the evaluation store (a folder or a .sqlite file)",
+    )
+    p.add_argument(
+        "--paper-seeds",
+        type=_positive,
+        default=None,
+        help="episodes per paper task (default: the suite's, 20)",
+    )
+    p.add_argument(
+        "--heldout-seeds",
+        type=_positive,
+        default=None,
+        help="layouts per held-out task (default: the suite's, 200)",
+    )
+    p.add_argument("--workers", type=_positive, default=2, help="worker processes")
+    p.add_argument("--docs", type=Path, default=ROOT / "docs", help="where the tables go")
+    p.add_argument(
+        "--readme", type=Path, default=ROOT / "README.md", help="the README whose table is replaced"
+    )
+    p.add_argument("--no-readme", action="store_true", help="leave the README alone")
+    p.add_argument("--no-cards", action="store_true", help="leave the model cards alone")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parse_args(argv)
+    board_entries = entries(args.models)
+    board_tasks = tasks(args.paper_seeds, args.heldout_seeds)
+    stamp = metadata_stamp(
+        _TOOL,
+        {
+            "policies": {s.name: s.description() for e in board_entries for s in e.runs},
+            "tasks": [f"{t.suite}:{t.label}:{t.seeds}" for t in board_tasks],
+        },
+        argv,
+    )
+    grid, refused = cells(board_entries, board_tasks)
+    print(f"{len(board_entries)} policies, {len(board_tasks)} tasks, {len(grid)} episodes")
+    with Store(store_path(args.store)) as store:
+        result = run_grid(
+            store,
+            grid,
+            tool=_TOOL,
+            stamp=stamp,
+            workers=args.workers,
+            progress=not args.no_progress,
+        )
+        print(f"{store.path}: {result.ran} episode(s) run, {result.reused} already in the store")
+        if result.interrupted:
+            print(f"interrupted: finished episodes are in {store.path}; re-run to resume")
+            return 130
+        records = [result.records[rc.key] for rc in result.cells if rc.key in result.records]
+        provenance = provenance_markdown(store, records, result.run_id)
+    board = build_board(board_entries, board_tasks, result, refused)
+    rows = [suite_row(board, e, s) for s in SUITES for e in board_entries]
+    ppc_aruco = [
+        m["rms_e_d"]
+        for run in board.metrics["ppc"]
+        for t, eps in run.items()
+        if t.condition.label == "aruco"
+        for m in eps
+    ]
+    ppc_rms = _finite_mean(ppc_aruco)
+    goals = [goal(board, e, ppc_rms) for e in board_entries if e.learned]
+    figures = args.docs / "figures"
+    figures.mkdir(parents=True, exist_ok=True)
+    meta = png_metadata(stamp)
+    plot_tasks(board, figures / "leaderboard_tasks.png", meta)
+    plot_profiles(board, figures / "leaderboard_profiles.png", meta)
+    table = table_markdown(rows)
+    seeds = ", ".join(f"{s}: {board.suite_tasks(s)[0].seeds} episodes per task" for s in SUITES)
+    doc = [
+        "# Leaderboard\n",
+        "Made by `python -m experiments.leaderboard` (see its module docstring for every "
+        "statistic); do not edit by hand.\n",
+        provenance,
+        f"Tasks: {len(board_tasks)} ({seeds}); learned configurations: their shipped training "
+        "seeds are the runs.\n",
+        "## Per policy and suite\n",
+        table,
+        "## Per task: success rate (mean over runs) and the most frequent violation\n",
+        task_table_markdown(board),
+        "![success per task](figures/leaderboard_tasks.png)\n",
+        "## Probability of improvement (success rates of all 12 tasks)\n",
+        improvement_markdown(board),
+        "## Performance profiles\n",
+        "![performance profiles](figures/leaderboard_profiles.png)\n",
+        "## The goal (aruco: A, B, C completed, every tier ≥ 95 %, rms e_d below PPC)\n",
+        goal_markdown(goals, ppc_rms),
+    ]
+    if board.missing:
+        doc.append(f"\n**{board.missing} episode(s) failed or are missing**: re-run to retry.\n")
+    (args.docs / "leaderboard.md").write_text("\n".join(doc))
+    if not args.no_cards:
+        from experiments.cards import write_cards
+
+        write_cards(board, args.models, figures / "learning_curves.png", meta)
+    if not args.no_readme:
+        splice_readme(args.readme, table)
+    print(table)
+    print(improvement_markdown(board))
+    print(goal_markdown(goals, ppc_rms))
+    print(f"wrote {args.docs / 'leaderboard.md'} and {figures}/leaderboard_*.png")
+    return 1 if result.failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,194 @@
+"""The leaderboard's arrangement and statistics, on hand-made boards, and one tiny real run."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.importorskip("rliable")
+
+from experiments import leaderboard as lb
+from experiments.policies import PolicySpec
+from experiments.stats import bootstrap_episodes
+from experiments.suites import ARUCO, IDEAL
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _ep(success: bool, violation: str = "", sim_time: float = 10.0, rms: float = 0.1) -> dict:
+    return {
+        "success": success,
+        "violation": violation,
+        "sim_time": sim_time,
+        "rms_e_d": rms,
+        "rms_e_beta": 0.05,
+        "control_effort": 2.0,
+    }
+
+
+def _tasks(seeds: int = 4) -> list[lb.Task]:
+    return [
+        lb.Task(suite, scenario, c.label, seeds, c)
+        for suite, scenarios in (("paper", ("study_a", "study_b")), ("heldout", ("t_easy",)))
+        for scenario in scenarios
+        for c in (IDEAL, ARUCO)
+    ]
+
+
+def _board(per_entry: dict[str, list[dict[lb.Task, list[dict[str, Any]]]]]) -> lb.Board:
+    entries = []
+    for name, runs in per_entry.items():
+        learned = name.startswith("m")
+        specs = tuple(PolicySpec.of("ppc", f"{name}_s{i}") for i in range(len(runs)))
+        entries.append(lb.Entry(name, specs, learned))
+    return lb.Board(entries, _tasks(), per_entry)
+
+
+def test_entries_group_seed_folders_into_configurations(tmp_path: Path) -> None:
+    src = next(REPO.glob("models/**/ppo_corridors_s0/model.zip")).parent
+    for name in ("cfg_a_s0", "cfg_a_s1", "cfg_b_s3", "solo"):
+        shutil.copytree(src, tmp_path / name)
+    entries = lb.entries(tmp_path)
+    assert [e.name for e in entries] == [*lb.ANALYTIC, "cfg_a", "cfg_b", "solo"]
+    by = {e.name: e for e in entries}
+    assert [s.name for s in by["cfg_a"].runs] == ["cfg_a_s0", "cfg_a_s1"]
+    assert by["cfg_a"].learned and not by["ppc"].learned
+    assert len(by["solo"].runs) == 1
+
+
+def test_tasks_cover_both_suites_with_their_seeds() -> None:
+    tasks = lb.tasks()
+    assert len(tasks) == 12 and len(set(tasks)) == 12
+    assert {t.seeds for t in tasks if t.suite == "paper"} == {20}
+    assert {t.seeds for t in tasks if t.suite == "heldout"} == {200}
+    assert {t.condition_label for t in tasks} == {"ideal", "aruco"}
+    small = lb.tasks(3, 5)
+    assert {(t.suite, t.seeds) for t in small} == {("paper", 3), ("heldout", 5)}
+    with pytest.raises(ValueError):
+        lb.tasks(0, 5)
+
+
+def test_a_model_the_sensors_refuse_is_refused_not_run(tmp_path: Path) -> None:
+    src = next(REPO.glob("models/**/ppo_corridors_s0/model.zip")).parent
+    shutil.copytree(src, tmp_path / "old_s0")  # 0.05 s: aruco's 30 Hz camera refuses it
+    entries = [e for e in lb.entries(tmp_path) if e.learned]
+    cells, refused = lb.cells(entries, lb.tasks(1, 1))
+    assert {t.condition_label for (_, t) in refused} == {"aruco"}
+    assert len(refused) == 6 and all("frame_rate" in why for why in refused.values())
+    assert len(cells) == 6  # the ideal tasks, one seed each
+
+
+def test_suite_row_counts_violations_per_1000_steps_of_10_ms() -> None:
+    t = _tasks()
+    runs = [{task: [_ep(True), _ep(False, "occluded"), _ep(True), _ep(True)] for task in t}]
+    board = _board({"ppc": runs})
+    row = lb.suite_row(board, board.entries[0], "paper")
+    # 4 paper tasks x 4 episodes x 10 s = 160 s = 16,000 steps of 10 ms; 4 occlusions
+    assert row["episodes"] == 16
+    assert row["violations_per_1k"]["occluded"] == pytest.approx(1000 * 4 / 16000)
+    assert row["violations_per_1k"]["collision_robot"] == 0
+    assert row["rms_e_d"] == pytest.approx(0.1)
+
+
+def test_success_of_a_deterministic_law_bootstraps_its_episodes() -> None:
+    t = _tasks()
+    rates = {t[0]: 4, t[1]: 3, t[2]: 2, t[3]: 0}
+    runs = [{task: [_ep(i < rates.get(task, 4)) for i in range(4)] for task in t}]
+    board = _board({"ppc": runs})
+    agg = lb.success_aggregate(board, board.entries[0], board.suite_tasks("paper"))
+    assert agg is not None
+    # task means 1, .75, .5, 0 -> IQM of 4 values trims one at each end: (.75 + .5) / 2
+    assert agg.value == pytest.approx(0.625)
+    assert agg.low < agg.value < agg.high
+    same = bootstrap_episodes(board.episode_matrix("ppc", board.suite_tasks("paper")))
+    assert (same.value, same.low, same.high) == (agg.value, agg.low, agg.high)
+
+
+def test_success_of_a_configuration_is_over_its_seeds() -> None:
+    t = _tasks()
+    good = {task: [_ep(True)] * 4 for task in t}
+    bad = {task: [_ep(False, "collision_obstacle")] * 4 for task in t}
+    board = _board({"m": [good, good, bad]})
+    m = board.success_matrix("m", board.suite_tasks("paper"))
+    assert m.shape == (3, 4) and m[:2].min() == 1 and m[2].max() == 0
+    agg = lb.success_aggregate(board, board.entries[0], board.suite_tasks("paper"))
+    assert agg is not None
+    # 12 scores, 8 ones and 4 zeros; IQM trims 3 at each end: 5 ones of 6
+    assert agg.value == pytest.approx(5 / 6)
+    assert agg.low <= agg.value <= agg.high
+
+
+def test_a_missing_task_gives_no_aggregate() -> None:
+    t = _tasks()
+    runs = [{task: [_ep(True)] * 4 for task in t[1:]}]
+    board = _board({"m": runs})
+    assert lb.success_aggregate(board, board.entries[0], board.suite_tasks("paper")) is None
+
+
+def test_the_goal_needs_every_study_every_tier_and_a_lower_rms() -> None:
+    t = _tasks()
+    perfect = {task: [_ep(True, rms=0.05)] * 4 for task in t}
+    one_miss = dict(perfect)
+    aruco_a = next(x for x in t if x.scenario == "study_a" and x.condition_label == "aruco")
+    one_miss[aruco_a] = [_ep(True)] * 3 + [_ep(False, "occluded")]
+    ideal_only_fail = dict(perfect)
+    ideal_a = next(x for x in t if x.scenario == "study_a" and x.condition_label == "ideal")
+    ideal_only_fail[ideal_a] = [_ep(False, "occluded")] * 4  # the goal is under aruco only
+    board = _board({"m": [perfect, one_miss, ideal_only_fail]})
+    g = lb.goal(board, board.entries[0], ppc_rms=0.1)
+    assert [r["met"] for r in g["runs"]] == [True, False, True]
+    assert g["met"] == 2
+    assert lb.goal(board, board.entries[0], ppc_rms=0.01)["met"] == 0
+
+
+def test_tables_and_readme_splice(tmp_path: Path) -> None:
+    t = _tasks()
+    board = _board({"ppc": [{task: [_ep(True)] * 4 for task in t}]})
+    rows = [lb.suite_row(board, e, s) for s in lb.SUITES for e in board.entries]
+    table = lb.table_markdown(rows)
+    assert table.count("\n") == 4 and "| ppc | paper | 1 × 16 |" in table
+    tasks_md = lb.task_table_markdown(board)
+    assert "study_a/aruco" in tasks_md and "1.00" in tasks_md
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{lb.MARKERS[0]}\nold\n{lb.MARKERS[1]}\nend\n")
+    lb.splice_readme(readme, table)
+    body = readme.read_text()
+    assert "old" not in body and table in body and body.startswith("intro") and "end" in body
+    readme.write_text("no markers")
+    with pytest.raises(ValueError, match="markers"):
+        lb.splice_readme(readme, table)
+
+
+def test_a_tiny_leaderboard_run_writes_its_outputs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    models = tmp_path / "models"
+    models.mkdir()
+    docs = tmp_path / "docs"
+    rc = lb.main(
+        [
+            "--models", str(models), "--store", str(tmp_path / "store"), "--paper-seeds", "1",
+            "--heldout-seeds", "1", "--docs", str(docs), "--no-readme", "--workers", "1",
+            "--no-progress",
+        ]
+    )  # fmt: skip
+    assert rc == 0
+    text = (docs / "leaderboard.md").read_text()
+    for name in lb.ANALYTIC:
+        assert f"| {name} | paper | 1 × 6 |" in text
+        assert f"| {name} | heldout | 1 × 6 |" in text
+    assert (docs / "figures" / "leaderboard_tasks.png").stat().st_size > 0
+    assert (docs / "figures" / "leaderboard_profiles.png").stat().st_size > 0
+    # a second run finds every episode in the store
+    rc = lb.main(
+        [
+            "--models", str(models), "--store", str(tmp_path / "store"), "--paper-seeds", "1",
+            "--heldout-seeds", "1", "--docs", str(docs), "--no-readme", "--workers", "1",
+            "--no-progress",
+        ]
+    )  # fmt: skip
+    assert rc == 0
+    assert "0 episode(s) run, 36 already in the store" in capsys.readouterr().out
