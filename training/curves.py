@@ -21,7 +21,9 @@ During training, :class:`LearningCurveCallback` appends one row to ``DIR/progres
     the followers' mean episode cost, the sum of ``info["cost"]`` (1 at a step with a
     violation): the quantity ``ppo_lagrangian`` holds to its budget.
 ``lambda``
-    the Lagrange multiplier after the window (``ppo_lagrangian``; else empty).
+    the Lagrange multiplier when the row is written (``ppo_lagrangian``; else empty). It is
+    updated after each rollout, so a row shows the value the window's last rollout trained
+    with, not yet the update from its costs.
 
 A resumed run keeps the rows up to the timesteps it resumes from and drops the later ones (the
 checkpoint it continues from predates them).

@@ -10,7 +10,8 @@ Usage::
 A **configuration** (:data:`CONFIGS`) is a named set of ``platoon-train`` options; a run is a
 configuration and a seed, trained into ``RUNS/<config>/s<seed>`` (``--runs``, default
 ``runs/sweep``). Each run is one ``platoon-train`` process with ``--resume`` when its directory
-already holds a run, so an interrupted sweep continues where it stopped and a finished run is
+holds a model or checkpoint (``--force`` when it holds only the logs of a run killed before its
+first checkpoint), so an interrupted sweep continues where it stopped and a finished run is
 left as it is (``platoon-train``'s own rules: a run whose options changed is refused, naming
 the differences). ``--jobs`` runs train side by side (one core each: ``--torch-threads 1``).
 Each run's output goes to ``RUNS/<config>/s<seed>/train.log``; the sweep prints a line per run
@@ -90,13 +91,21 @@ def run_dir(runs: Path, config: str, seed: int) -> Path:
     return Path(runs) / config / f"s{seed}"
 
 
+#: The files a run can continue from (``platoon-train --resume``).
+RESUMABLE = ("model.zip", "checkpoint.zip", "rllib_checkpoint")
+
+
 def run_args(config: Config, seed: int, out: Path) -> list[str]:
-    """The ``platoon-train`` arguments of one run (``--resume`` if ``out`` holds a run)."""
+    """The ``platoon-train`` arguments of one run: ``--resume`` if ``out`` holds a model or a
+    checkpoint to continue from; ``--force`` if it holds only the logs of a run killed before
+    its first checkpoint (nothing to continue from: it starts over); else neither."""
     from training.train import RUN_FILES
 
     args = [*config.args, "--seed", str(seed), "--out", str(out), "--no-progress-bar"]
-    if any((out / f).exists() for f in RUN_FILES):
+    if any((out / f).exists() for f in RESUMABLE):
         args.append("--resume")
+    elif any((out / f).exists() for f in RUN_FILES):
+        args.append("--force")
     return args
 
 
@@ -112,11 +121,16 @@ def _train(config: Config, seed: int, out: Path) -> tuple[str, int, float]:
     return f"{config.name} s{seed}", rc, time.perf_counter() - t0
 
 
+#: What :func:`ship` copies of a finished run.
+SHIPPED_FILES = ("model.zip", "model.json", "progress.csv")
+
+
 def ship(runs: Path, models: Path, configs: Sequence[str], seeds: Sequence[int]) -> list[Path]:
     """Copy every finished run's model, description and learning curve to ``models``.
 
     A run is finished when its ``model.json`` exists, is not ``interrupted`` and has trained
-    the timesteps it was asked for; others are skipped with a note on stderr.
+    the timesteps it was asked for; others, and runs missing one of :data:`SHIPPED_FILES`, are
+    skipped with a note on stderr (nothing of them is copied).
     """
     import json
 
@@ -136,7 +150,7 @@ def ship(runs: Path, models: Path, configs: Sequence[str], seeds: Sequence[int])
                 continue
             dst = Path(models) / f"{name}_s{seed}"
             dst.mkdir(parents=True, exist_ok=True)
-            for f in ("model.zip", "model.json", "progress.csv"):
+            for f in SHIPPED_FILES:
                 shutil.copy2(src / f, dst / f)
             shipped.append(dst)
     return shipped

@@ -1,0 +1,278 @@
+"""``platoon-sweep`` (``training.sweep``): the ``platoon-train`` arguments of each run (with
+``--resume`` exactly when its directory holds a run), the shipped configurations, ``ship()``
+and the command line. No training is run here."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from training import sweep
+from training.sweep import CONFIGS, RESUMABLE, main, run_args, run_dir, ship
+from training.train import RUN_FILES, check_scenario, make_env, parse_args, plan_run
+
+CONFIG = CONFIGS["ppo_ta_aruco"]
+SHIPPED = ("model.zip", "model.json", "progress.csv")
+
+
+def mark_run(out: Path, name: str) -> None:
+    """Make ``out`` hold a run through ``name`` (a directory for tb/ and rllib_checkpoint/)."""
+    out.mkdir(parents=True, exist_ok=True)
+    if name in ("tb", "rllib_checkpoint"):
+        (out / name).mkdir()
+    else:
+        (out / name).write_text("x")
+
+
+def value_after(args: list[str], flag: str) -> str:
+    assert args.count(flag) == 1, args
+    return args[args.index(flag) + 1]
+
+
+# ------------------------------------------------------------------------------------------------
+# run_args
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("state", ["missing", "empty", "only_train_log"])
+def test_run_args_of_a_directory_without_a_run_do_not_resume(tmp_path: Path, state: str) -> None:
+    out = tmp_path / "ppo_ta_aruco" / "s3"
+    if state != "missing":
+        out.mkdir(parents=True)
+    if state == "only_train_log":
+        (out / "train.log").write_text("$ python -m training.train ...\n")
+    args = run_args(CONFIG, 3, out)
+    assert "--resume" not in args
+    assert args[: len(CONFIG.args)] == list(CONFIG.args)
+    assert value_after(args, "--seed") == "3"
+    assert value_after(args, "--out") == str(out)
+    assert args.count("--no-progress-bar") == 1
+    cfg = parse_args(args)
+    assert (cfg.seed, cfg.out, cfg.progress_bar, cfg.resume) == (3, str(out), False, False)
+
+
+@pytest.mark.parametrize("name", RESUMABLE)
+def test_run_args_resume_when_the_directory_holds_a_run(tmp_path: Path, name: str) -> None:
+    out = tmp_path / "lag_ta_aruco" / "s1"
+    mark_run(out, name)
+    config = CONFIGS["lag_ta_aruco"]
+    args = run_args(config, 1, out)
+    assert args.count("--resume") == 1
+    assert args[: len(config.args)] == list(config.args)
+    assert value_after(args, "--seed") == "1"
+    assert value_after(args, "--out") == str(out)
+    assert "--no-progress-bar" in args
+    cfg = parse_args(args)
+    assert cfg.resume and not cfg.force and cfg.seed == 1 and cfg.out == str(out)
+
+
+@pytest.mark.parametrize("name", sorted(set(RUN_FILES) - set(RESUMABLE)))
+def test_run_files_without_a_model_start_the_run_over(tmp_path: Path, name: str) -> None:
+    # the logs or a description without the model or checkpoint: nothing to continue from
+    assert "progress.csv" in RUN_FILES and "model.json" in RUN_FILES
+    out = tmp_path / name.replace(".", "_")
+    mark_run(out, name)
+    args = run_args(CONFIG, 0, out)
+    assert args[-1] == "--force" and "--resume" not in args
+    cfg = parse_args(args)
+    assert cfg.force and not cfg.resume
+
+
+def test_run_dir_layout() -> None:
+    assert run_dir(Path("runs/sweep"), "ppo_ta_aruco", 4) == Path("runs/sweep/ppo_ta_aruco/s4")
+
+
+def test_a_run_killed_before_its_first_checkpoint_starts_over(tmp_path: Path) -> None:
+    # tb/ and progress.csv exist from the start, the first checkpoint only after 100k steps:
+    # with nothing to continue from, the sweep starts the run over (--force), not --resume
+    out = tmp_path / "ppo_ta_aruco" / "s0"
+    mark_run(out, "tb")
+    (out / "progress.csv").write_text("timesteps,wall_time_s,episodes\n")
+    args = run_args(CONFIG, 0, out)
+    assert "--force" in args and "--resume" not in args
+    cfg = parse_args(args)
+    env = make_env(cfg)
+    try:
+        assert plan_run(cfg, env).mode == "new"  # --force: a fresh run, no error
+    finally:
+        env.close()
+
+
+# ------------------------------------------------------------------------------------------------
+# The shipped configurations
+# ------------------------------------------------------------------------------------------------
+def test_configs_are_named_by_their_keys() -> None:
+    assert set(CONFIGS) == {"ppo_ta_aruco", "lag_ta_aruco"}
+    for name, config in CONFIGS.items():
+        assert config.name == name and config.summary
+        assert "--seed" not in config.args and "--out" not in config.args
+        assert "--resume" not in config.args and "--force" not in config.args
+
+
+@pytest.mark.parametrize("name", sorted(CONFIGS))
+def test_every_config_parses_and_resolves(name: str) -> None:
+    config = CONFIGS[name]
+    cfg = parse_args([*config.args, "--seed", "0", "--out", "x"])
+    assert cfg.task_aware_observations is True
+    assert cfg.sensor_profile == "aruco"
+    assert cfg.control_period <= 1 / 30
+    assert cfg.algo == {"ppo_ta_aruco": "ppo", "lag_ta_aruco": "ppo_lagrangian"}[name]
+    assert cfg.timesteps >= 1
+    env = make_env(cfg)
+    try:
+        assert check_scenario(cfg, env) == []  # platoon-train would not refuse it
+        assert env.control_period == pytest.approx(cfg.control_period)
+        agent = env.possible_agents[0]
+        assert env.observation_space(agent).shape == (13,)  # the task-aware observation
+    finally:
+        env.close()
+
+
+def test_lagrangian_config_sets_its_budget() -> None:
+    cfg = parse_args([*CONFIGS["lag_ta_aruco"].args, "--seed", "0", "--out", "x"])
+    assert cfg.cost_budget == pytest.approx(0.05)
+
+
+# ------------------------------------------------------------------------------------------------
+# ship
+# ------------------------------------------------------------------------------------------------
+def fake_run(runs: Path, config: str, seed: int, **meta: Any) -> Path:
+    src = run_dir(runs, config, seed)
+    src.mkdir(parents=True)
+    (src / "model.zip").write_bytes(f"zip {config} {seed}".encode())
+    (src / "model.json").write_text(json.dumps(meta))
+    (src / "progress.csv").write_text(f"timesteps\n{seed}\n")
+    (src / "checkpoint.zip").write_bytes(b"not shipped")
+    (src / "train.log").write_text("not shipped")
+    return src
+
+
+def test_ship_copies_finished_runs_and_skips_the_others(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    runs, models = tmp_path / "runs", tmp_path / "models"
+    done = fake_run(runs, "ppo_ta_aruco", 0, timesteps=1000, timesteps_requested=1000)
+    fake_run(runs, "ppo_ta_aruco", 1, timesteps=400, timesteps_requested=1000)
+    fake_run(runs, "ppo_ta_aruco", 2, timesteps=1000, timesteps_requested=1000, interrupted=True)
+    more = fake_run(
+        runs, "lag_ta_aruco", 0, timesteps=1024, timesteps_requested=1000, interrupted=False
+    )
+    shipped = ship(runs, models, ["ppo_ta_aruco", "lag_ta_aruco"], [0, 1, 2, 3])
+    assert shipped == [models / "ppo_ta_aruco_s0", models / "lag_ta_aruco_s0"]
+    for src, dst in ((done, shipped[0]), (more, shipped[1])):
+        assert sorted(p.name for p in dst.iterdir()) == sorted(SHIPPED)
+        for f in SHIPPED:
+            assert (dst / f).read_bytes() == (src / f).read_bytes()
+    assert sorted(p.name for p in models.iterdir()) == ["lag_ta_aruco_s0", "ppo_ta_aruco_s0"]
+    err = capsys.readouterr().err
+    assert "skip ppo_ta_aruco s1: unfinished (400 steps)" in err
+    assert "skip ppo_ta_aruco s2" in err  # interrupted
+    assert "skip ppo_ta_aruco s3: no" in err  # missing
+    assert "skip lag_ta_aruco s1: no" in err
+    assert "ppo_ta_aruco s0" not in err and "lag_ta_aruco s0" not in err
+
+
+def test_ship_replaces_an_earlier_copy(tmp_path: Path) -> None:
+    runs, models = tmp_path / "runs", tmp_path / "models"
+    src = fake_run(runs, "ppo_ta_aruco", 0, timesteps=10, timesteps_requested=10)
+    (models / "ppo_ta_aruco_s0").mkdir(parents=True)
+    (models / "ppo_ta_aruco_s0" / "model.zip").write_bytes(b"old")
+    ship(runs, models, ["ppo_ta_aruco"], [0])
+    assert (models / "ppo_ta_aruco_s0" / "model.zip").read_bytes() == (
+        src / "model.zip"
+    ).read_bytes()
+
+
+def test_main_ship_exit_status(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    runs, models = tmp_path / "runs", tmp_path / "models"
+    argv = ["--ship", "--runs", str(runs), "--models", str(models), "--seeds", "0"]
+    assert main(argv) == 1  # nothing to ship
+    assert not models.exists() or not any(models.iterdir())
+    fake_run(runs, "lag_ta_aruco", 0, timesteps=5, timesteps_requested=5)
+    assert main(argv) == 0
+    assert f"shipped {models / 'lag_ta_aruco_s0'}" in capsys.readouterr().out
+    assert (models / "lag_ta_aruco_s0" / "model.zip").is_file()
+
+
+# ------------------------------------------------------------------------------------------------
+# Command line
+# ------------------------------------------------------------------------------------------------
+def test_list_prints_every_config(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--list"]) == 0
+    out = capsys.readouterr().out
+    for name, config in CONFIGS.items():
+        assert f"{name}: {config.summary}" in out
+        assert "platoon-train " + " ".join(config.args) in out
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--seeds", "1", "1"],
+        ["--seeds", "0", "-1"],
+        ["--jobs", "0"],
+        ["--jobs", "-2", "--list"],
+        ["--config", "no_such_config"],
+    ],
+)
+def test_bad_arguments_are_argparse_errors(
+    argv: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def no_training(*args: Any) -> Any:
+        raise AssertionError("a refused sweep must not train")
+
+    monkeypatch.setattr(sweep, "_train", no_training)
+    with pytest.raises(SystemExit) as info:
+        main([*argv, "--runs", str(tmp_path / "runs")])
+    assert info.value.code == 2
+    assert not (tmp_path / "runs").exists()
+
+
+def test_main_trains_every_run_and_fails_if_one_failed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    started: list[tuple[str, int, Path]] = []
+
+    def fake_train(config: Any, seed: int, out: Path) -> tuple[str, int, float]:
+        started.append((config.name, seed, out))
+        return f"{config.name} s{seed}", 3 if (config.name, seed) == ("lag_ta_aruco", 1) else 0, 6
+
+    monkeypatch.setattr(sweep, "_train", fake_train)
+    runs = tmp_path / "runs"
+    assert main(["--seeds", "0", "1", "--jobs", "2", "--runs", str(runs)]) == 1
+    assert sorted(started) == sorted((n, s, run_dir(runs, n, s)) for n in CONFIGS for s in (0, 1))
+    out = capsys.readouterr().out
+    assert "4 runs, 2 at a time" in out
+    assert "lag_ta_aruco s1: FAILED (exit 3" in out
+    assert "ppo_ta_aruco s0: done in 0.1 min" in out
+    started.clear()
+    assert main(["--config", "ppo_ta_aruco", "--seeds", "2", "--runs", str(runs)]) == 0
+    assert started == [("ppo_ta_aruco", 2, run_dir(runs, "ppo_ta_aruco", 2))]
+
+
+def test_train_runs_platoon_train_with_one_torch_thread_and_logs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    seen: dict[str, Any] = {}
+
+    def fake_run(cmd: list[str], **kwargs: Any) -> subprocess.CompletedProcess[bytes]:
+        seen["cmd"], seen["kwargs"] = cmd, kwargs
+        kwargs["stdout"].write("trained\n")
+        return subprocess.CompletedProcess(cmd, 0)
+
+    monkeypatch.setattr(sweep.subprocess, "run", fake_run)
+    out = tmp_path / "runs" / "ppo_ta_aruco" / "s0"
+    name, rc, wall = sweep._train(CONFIG, 0, out)
+    assert (name, rc) == ("ppo_ta_aruco s0", 0) and wall >= 0
+    cmd = seen["cmd"]
+    assert cmd[:3] == [sys.executable, "-m", "training.train"]
+    assert cmd[3:-2] == run_args(CONFIG, 0, out)
+    assert cmd[-2:] == ["--torch-threads", "1"]
+    assert seen["kwargs"]["cwd"] == sweep.ROOT
+    log = (out / "train.log").read_text()
+    assert log.startswith("$ " + " ".join(cmd) + "\n") and log.endswith("trained\n")
