@@ -149,7 +149,7 @@ def test_tables_and_readme_splice(tmp_path: Path) -> None:
     board = _board({"ppc": [{task: [_ep(True)] * 4 for task in t}]})
     rows = [lb.suite_row(board, e, s) for s in lb.SUITES for e in board.entries]
     table = lb.table_markdown(rows)
-    assert table.count("\n") == 4 and "| ppc | paper | 1 × 16 |" in table
+    assert table.count("\n") == 4 and "| ppc | paper | 1 × 16 | 1.00 [1.00, 1.00] | 1.00 |" in table
     tasks_md = lb.task_table_markdown(board)
     assert "study_a/aruco" in tasks_md and "1.00" in tasks_md
     readme = tmp_path / "README.md"
