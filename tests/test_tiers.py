@@ -342,3 +342,11 @@ def test_heldout_suite_runs_every_tier() -> None:
         assert gen is not None and gen.split == "test"
         block = seed_range("test", gen.tier)
         assert all(max(block.start, t.start) >= min(block.stop, t.stop) for t in train)
+
+
+def test_procedural_source_repr_names_the_tier() -> None:
+    import platoon_env
+
+    tiered = repr(platoon_env.make("procedural_hard_test").source)
+    assert "split='test'" in tiered and "tier='hard'" in tiered
+    assert "tier=" not in repr(platoon_env.make("procedural_test").source)

@@ -197,7 +197,11 @@ class ProceduralSource:
     def __repr__(self) -> str:
         gen = self._template.generator
         assert gen is not None
-        return f"ProceduralSource({self._template.name!r}, kind={gen.kind!r}, split={gen.split!r})"
+        tier = "" if gen.tier is None else f", tier={gen.tier!r}"
+        return (
+            f"ProceduralSource({self._template.name!r}, kind={gen.kind!r}, split={gen.split!r}"
+            f"{tier})"
+        )
 
 
 #: Anything :func:`scenario_source` accepts.
