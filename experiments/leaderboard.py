@@ -362,8 +362,12 @@ def _agg(a: Aggregate | None) -> str:
     return "–" if a is None else f"{a.value:.2f} [{a.low:.2f}, {a.high:.2f}]"
 
 
+def _rate(x: float) -> str:
+    return "<0.001" if 0 < x < 0.0005 else f"{x:.3f}"
+
+
 def _violations(v: Mapping[str, float]) -> str:
-    parts = [f"{c.replace('collision_', 'coll. ')} {x:.2f}" for c, x in v.items() if x > 0]
+    parts = [f"{c.replace('collision_', 'coll. ')} {_rate(x)}" for c, x in v.items() if x > 0]
     return ", ".join(parts) if parts else "0"
 
 

@@ -90,6 +90,8 @@ def test_suite_row_counts_violations_per_1000_steps_of_10_ms() -> None:
     assert row["episodes"] == 16
     assert row["violations_per_1k"]["occluded"] == pytest.approx(1000 * 4 / 16000)
     assert row["violations_per_1k"]["collision_robot"] == 0
+    assert lb._violations(row["violations_per_1k"]) == "occluded 0.250"
+    assert lb._violations({"occluded": 0.0001, "out_of_fov": 0.0}) == "occluded <0.001"
     assert row["rms_e_d"] == pytest.approx(0.1)
 
 
