@@ -118,6 +118,7 @@ def card_markdown(board: Board, entry: Entry, run: int, summary: str = "") -> st
         "## Use",
         "",
         "```python",
+        "import platoon_env",
         "from training.policies import LearnedPolicy",
         f'policy = LearnedPolicy.load("models/{spec.name}/model.zip")',
         'env = platoon_env.make("study_c", control_period=policy.control_period,',
