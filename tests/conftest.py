@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import os
+from collections.abc import Iterator
 from typing import Any
 
 import matplotlib
@@ -40,3 +41,16 @@ CORRIDOR: dict[str, Any] = {
 def corridor() -> dict[str, Any]:
     """A straight 4 m wide corridor with one box obstacle, two followers (study C parameters)."""
     return copy.deepcopy(CORRIDOR)
+
+
+@pytest.fixture
+def one_torch_thread() -> Iterator[None]:
+    """Training runs single-threaded (as platoon-train does); the thread count is restored
+    afterwards. Test files that train use it for every test:
+    ``pytestmark = pytest.mark.usefixtures("one_torch_thread")``."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

@@ -8,7 +8,6 @@ import csv
 import itertools
 import json
 import math
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +15,6 @@ import numpy as np
 import pytest
 
 pytest.importorskip("stable_baselines3")
-import torch
 from stable_baselines3.common.vec_env import VecMonitor
 
 from training.curves import (
@@ -58,12 +56,7 @@ TINY = [
 ]
 
 
-@pytest.fixture(autouse=True)
-def one_torch_thread() -> Iterator[None]:
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def run(out: Path, algo: str, timesteps: int, *extra: str) -> int:

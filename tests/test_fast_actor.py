@@ -5,7 +5,6 @@ deterministic=True)`` to the bit without calling ``predict``; any other model (S
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -49,12 +48,7 @@ class BoxEnv(gym.Env[np.ndarray, np.ndarray]):
         return np.zeros(13, dtype=np.float32), 0.0, False, self._t >= 8, {}
 
 
-@pytest.fixture(autouse=True)
-def one_torch_thread() -> Iterator[None]:
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def observations(n: int, size: int, seed: int) -> np.ndarray:

@@ -170,13 +170,12 @@ def test_a_tiny_leaderboard_run_writes_its_outputs(
     models = tmp_path / "models"
     models.mkdir()
     docs = tmp_path / "docs"
-    rc = lb.main(
-        [
-            "--models", str(models), "--store", str(tmp_path / "store"), "--paper-seeds", "1",
-            "--heldout-seeds", "1", "--docs", str(docs), "--no-readme", "--workers", "1",
-            "--no-progress",
-        ]
-    )  # fmt: skip
+    argv = [
+        "--models", str(models), "--store", str(tmp_path / "store"), "--paper-seeds", "1",
+        "--heldout-seeds", "1", "--docs", str(docs), "--no-readme", "--workers", "1",
+        "--no-progress",
+    ]  # fmt: skip
+    rc = lb.main(argv)
     assert rc == 0
     text = (docs / "leaderboard.md").read_text()
     for name in lb.ANALYTIC:
@@ -185,12 +184,6 @@ def test_a_tiny_leaderboard_run_writes_its_outputs(
     assert (docs / "figures" / "leaderboard_tasks.png").stat().st_size > 0
     assert (docs / "figures" / "leaderboard_profiles.png").stat().st_size > 0
     # a second run finds every episode in the store
-    rc = lb.main(
-        [
-            "--models", str(models), "--store", str(tmp_path / "store"), "--paper-seeds", "1",
-            "--heldout-seeds", "1", "--docs", str(docs), "--no-readme", "--workers", "1",
-            "--no-progress",
-        ]
-    )  # fmt: skip
+    rc = lb.main(argv)
     assert rc == 0
     assert "0 episode(s) run, 36 already in the store" in capsys.readouterr().out
