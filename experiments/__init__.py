@@ -8,7 +8,11 @@ shares (``platoon-evaluate``, ``baselines.comparison``, ``baselines.paper_figure
 * :mod:`experiments.grid` — :class:`Cell` and :func:`run_grid`, policies × scenarios × seeds ×
   overrides on the store, in worker processes that die with their parent;
 * :mod:`experiments.stamp` — :func:`metadata_stamp`, the code/versions/command of a run;
-* :mod:`experiments.report` — statistics and the exports (CSV, markdown provenance).
+* :mod:`experiments.report` — statistics and the exports (CSV, markdown provenance);
+* :mod:`experiments.suites` — the named benchmark suites (``paper``, ``heldout``,
+  ``robustness``); :mod:`experiments.stats` — rliable aggregates over seeds or episodes;
+* :mod:`experiments.leaderboard` — every policy on the ``paper`` and ``heldout`` suites, the
+  tables, figures and goal check; :mod:`experiments.cards` — the model cards it writes.
 """
 
 from experiments.grid import Cell, GridResult, resolve_cells, run_grid
