@@ -170,11 +170,25 @@ def test_ship_copies_finished_runs_and_skips_the_others(
             assert (dst / f).read_bytes() == (src / f).read_bytes()
     assert sorted(p.name for p in models.iterdir()) == ["lag_ta_aruco_s0", "ppo_ta_aruco_s0"]
     err = capsys.readouterr().err
-    assert "skip ppo_ta_aruco s1: unfinished (400 steps)" in err
+    assert "skip ppo_ta_aruco s1: unfinished (400 of 1000)" in err
     assert "skip ppo_ta_aruco s2" in err  # interrupted
     assert "skip ppo_ta_aruco s3: no" in err  # missing
     assert "skip lag_ta_aruco s1: no" in err
     assert "ppo_ta_aruco s0" not in err and "lag_ta_aruco s0" not in err
+
+
+def test_ship_skips_a_run_missing_a_file_or_its_counts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    runs, models = tmp_path / "runs", tmp_path / "models"
+    no_curve = fake_run(runs, "ppo_ta_aruco", 0, timesteps=10, timesteps_requested=10)
+    (no_curve / "progress.csv").unlink()
+    fake_run(runs, "ppo_ta_aruco", 1, timesteps=10)  # no timesteps_requested
+    assert ship(runs, models, ["ppo_ta_aruco"], [0, 1]) == []
+    assert not models.exists() or not any(models.iterdir())  # nothing half-shipped
+    err = capsys.readouterr().err
+    assert "skip ppo_ta_aruco s0: no progress.csv" in err
+    assert "skip ppo_ta_aruco s1: unfinished (10 of None)" in err
 
 
 def test_ship_replaces_an_earlier_copy(tmp_path: Path) -> None:

@@ -143,10 +143,13 @@ def ship(runs: Path, models: Path, configs: Sequence[str], seeds: Sequence[int])
                 print(f"skip {name} s{seed}: no {meta_path}", file=sys.stderr)
                 continue
             meta = json.loads(meta_path.read_text())
-            if meta.get("interrupted") or meta["timesteps"] < meta["timesteps_requested"]:
-                print(
-                    f"skip {name} s{seed}: unfinished ({meta['timesteps']} steps)", file=sys.stderr
-                )
+            done, wanted = meta.get("timesteps"), meta.get("timesteps_requested")
+            if meta.get("interrupted") or done is None or wanted is None or done < wanted:
+                print(f"skip {name} s{seed}: unfinished ({done} of {wanted})", file=sys.stderr)
+                continue
+            absent = [f for f in SHIPPED_FILES if not (src / f).is_file()]
+            if absent:
+                print(f"skip {name} s{seed}: no {', '.join(absent)} in {src}", file=sys.stderr)
                 continue
             dst = Path(models) / f"{name}_s{seed}"
             dst.mkdir(parents=True, exist_ok=True)
