@@ -62,7 +62,7 @@ from numpy.typing import NDArray
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
 from experiments.policies import PolicySpec, shipped_models
 from experiments.report import provenance_markdown
-from experiments.stamp import metadata_stamp, png_metadata
+from experiments.stamp import REPO_ROOT, metadata_stamp, png_metadata
 from experiments.stats import (
     Aggregate,
     aggregate,
@@ -87,7 +87,6 @@ __all__ = [
 ]
 
 _TOOL = "experiments.leaderboard"
-ROOT = Path(__file__).resolve().parent.parent
 #: The analytic laws on the board (registry names).
 ANALYTIC = ("ppc", "filtered_ppc", "last_seen")
 #: The suites on the board.
@@ -391,6 +390,16 @@ def table_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def task_outcome(board: Board, entry: str, task: Task) -> tuple[float, str] | None:
+    """``entry``'s success rate on ``task`` over all its runs' episodes, and the most frequent
+    violation cause ("" if none); None without an episode (refused or not run)."""
+    eps = [m for run in board.metrics[entry] for m in run.get(task, [])]
+    if not eps:
+        return None
+    worst = Counter(m["violation"] for m in eps if m["violation"]).most_common(1)
+    return float(np.mean([bool(m["success"]) for m in eps])), worst[0][0] if worst else ""
+
+
 def task_table_markdown(board: Board) -> str:
     """Success rate per policy and task (mean over runs) and the most frequent failure."""
     head = "| policy | " + " | ".join(t.label for t in board.tasks) + " |"
@@ -398,13 +407,12 @@ def task_table_markdown(board: Board) -> str:
     for e in board.entries:
         cells_ = []
         for t in board.tasks:
-            eps = [m for run in board.metrics[e.name] for m in run.get(t, [])]
-            if not eps:
+            outcome = task_outcome(board, e.name, t)
+            if outcome is None:
                 cells_.append("refused" if (e.name, t) in board.refused else "–")
                 continue
-            rate = np.mean([bool(m["success"]) for m in eps])
-            worst = Counter(m["violation"] for m in eps if m["violation"]).most_common(1)
-            note = f" ({worst[0][0].replace('collision_', 'coll. ')})" if worst else ""
+            rate, worst = outcome
+            note = f" ({worst.replace('collision_', 'coll. ')})" if worst else ""
             cells_.append(f"{rate:.2f}{note}")
         lines.append(f"| {e.name} | " + " | ".join(cells_) + " |")
     return "\n".join(lines) + "\n"
@@ -429,11 +437,10 @@ def plot_tasks(board: Board, out: Path, metadata: Mapping[str, str]) -> Path:
     }
     for i, e in enumerate(board.entries):
         for j, t in enumerate(board.tasks):
-            eps = [m for run in board.metrics[e.name] for m in run.get(t, [])]
-            if eps:
-                rates[i, j] = np.mean([bool(m["success"]) for m in eps])
-                worst = Counter(m["violation"] for m in eps if m["violation"]).most_common(1)
-                notes[i][j] = f"{rates[i, j]:.2f}" + (f"\n{abbrev[worst[0][0]]}" if worst else "")
+            outcome = task_outcome(board, e.name, t)
+            if outcome is not None:
+                rates[i, j], worst = outcome
+                notes[i][j] = f"{rates[i, j]:.2f}" + (f"\n{abbrev[worst]}" if worst else "")
             elif (e.name, t) in board.refused:
                 notes[i][j] = "refused"
     fig, ax = plt.subplots(figsize=(1.1 * len(board.tasks) + 2.5, 0.55 * len(board.entries) + 1.6))
@@ -543,7 +550,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="python -m experiments.leaderboard", description=(__doc__ or "").split("\n\n")[0]
     )
-    p.add_argument("--models", type=Path, default=ROOT / "models", help="shipped models folder")
+    p.add_argument(
+        "--models", type=Path, default=REPO_ROOT / "models", help="shipped models folder"
+    )
     p.add_argument(
         "--store",
         type=Path,
@@ -563,9 +572,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="layouts per held-out task (default: the suite's, 200)",
     )
     p.add_argument("--workers", type=_positive, default=2, help="worker processes")
-    p.add_argument("--docs", type=Path, default=ROOT / "docs", help="where the tables go")
+    p.add_argument("--docs", type=Path, default=REPO_ROOT / "docs", help="where the tables go")
     p.add_argument(
-        "--readme", type=Path, default=ROOT / "README.md", help="the README whose table is replaced"
+        "--readme",
+        type=Path,
+        default=REPO_ROOT / "README.md",
+        help="the README whose table is replaced",
     )
     p.add_argument("--no-readme", action="store_true", help="leave the README alone")
     p.add_argument("--no-cards", action="store_true", help="leave the model cards alone")
@@ -613,6 +625,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ]
     ppc_rms = _finite_mean(ppc_aruco)
     goals = [goal(board, e, ppc_rms) for e in board_entries if e.learned]
+    improvements = improvement_markdown(board)
+    goal_text = goal_markdown(goals, ppc_rms)
     figures = args.docs / "figures"
     figures.mkdir(parents=True, exist_ok=True)
     meta = png_metadata(stamp)
@@ -641,11 +655,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         task_table_markdown(board),
         "![success per task](figures/leaderboard_tasks.png)\n",
         "## Probability of improvement (success rates of all 12 tasks)\n",
-        improvement_markdown(board),
+        improvements,
         "## Performance profiles\n",
         "![performance profiles](figures/leaderboard_profiles.png)\n",
         "## The goal (aruco: A, B, C completed, every tier ≥ 95 %, rms e_d below PPC)\n",
-        goal_markdown(goals, ppc_rms),
+        goal_text,
     ]
     if board.missing:
         doc.append(f"\n**{board.missing} episode(s) failed or are missing**: re-run to retry.\n")
@@ -657,8 +671,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.no_readme:
         splice_readme(args.readme, table)
     print(table)
-    print(improvement_markdown(board))
-    print(goal_markdown(goals, ppc_rms))
+    print(improvements)
+    print(goal_text)
     print(f"wrote {args.docs / 'leaderboard.md'} and {figures}/leaderboard_*.png")
     return 1 if result.failed else 0
 

@@ -10,6 +10,7 @@ import pytest
 import shapely
 from pettingzoo.test import parallel_api_test
 from shapely.geometry import LineString, box
+from workspaces import path_headings
 
 import platoon_env
 from platoon_env.scenarios import corridor_layouts, procedural, room_layouts
@@ -42,12 +43,7 @@ def _same_layout(a: Scenario, b: Scenario) -> bool:
 
 def _max_turn(path: np.ndarray, window: float = 6.0, step: float = 0.05) -> float:
     """Largest heading change of the path within ``window`` metres of arc length [rad]."""
-    d = np.diff(path, axis=0)
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(d[:, 0], d[:, 1]))])
-    grid = np.arange(0.0, s[-1], step)
-    xy = np.column_stack([np.interp(grid, s, path[:, 0]), np.interp(grid, s, path[:, 1])])
-    e = np.diff(xy, axis=0)
-    heading = np.unwrap(np.arctan2(e[:, 1], e[:, 0]))
+    heading = path_headings(path, step)
     lag = int(window / step)
     return float(
         max(np.max(np.abs(heading[k:] - heading[:-k])) for k in range(1, min(lag, len(heading))))

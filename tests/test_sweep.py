@@ -287,6 +287,6 @@ def test_train_runs_platoon_train_with_one_torch_thread_and_logs(
     assert cmd[:3] == [sys.executable, "-m", "training.train"]
     assert cmd[3:-2] == run_args(CONFIG, 0, out)
     assert cmd[-2:] == ["--torch-threads", "1"]
-    assert seen["kwargs"]["cwd"] == sweep.ROOT
+    assert seen["kwargs"]["cwd"] == sweep.REPO_ROOT
     log = (out / "train.log").read_text()
     assert log.startswith("$ " + " ".join(cmd) + "\n") and log.endswith("trained\n")

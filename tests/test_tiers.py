@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 from shapely.geometry import LineString, box
+from workspaces import path_headings
 
 import platoon_env
 from platoon_env.scenarios._layout import Params
@@ -72,12 +73,7 @@ def _clearance(sc: Scenario) -> float:
 
 def _max_turn(path: np.ndarray, window: float = 3.0, step: float = 0.05) -> float:
     """The largest heading change of the path over ``window`` metres of arc length [rad]."""
-    d = np.diff(path, axis=0)
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(d[:, 0], d[:, 1]))])
-    grid = np.arange(0.0, s[-1], step)
-    xy = np.column_stack([np.interp(grid, s, path[:, 0]), np.interp(grid, s, path[:, 1])])
-    e = np.diff(xy, axis=0)
-    heading = np.unwrap(np.arctan2(e[:, 1], e[:, 0]))
+    heading = path_headings(path, step)
     lag = int(window / step)
     return float(np.max(np.abs(heading[lag:] - heading[:-lag])))
 

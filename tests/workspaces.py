@@ -273,3 +273,14 @@ def sample_lattice_platoon(
 
 
 PlatoonSampler = Callable[[BaseGeometry, np.random.Generator, int], NDArray[np.float64]]
+
+
+def path_headings(path: NDArray[np.float64], step: float) -> NDArray[np.float64]:
+    """The unwrapped heading [rad] of a polyline ``path`` (``(K, 2)``) resampled every ``step``
+    metres of arc length: entry ``i`` is the direction from sample ``i`` to sample ``i + 1``."""
+    d = np.diff(path, axis=0)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(d[:, 0], d[:, 1]))])
+    grid = np.arange(0.0, s[-1], step)
+    xy = np.column_stack([np.interp(grid, s, path[:, 0]), np.interp(grid, s, path[:, 1])])
+    e = np.diff(xy, axis=0)
+    return np.unwrap(np.arctan2(e[:, 1], e[:, 0]))

@@ -34,9 +34,9 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["CONFIGS", "Config", "main", "run_args", "ship"]
+from experiments.stamp import REPO_ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
+__all__ = ["CONFIGS", "Config", "main", "run_args", "ship"]
 
 
 @dataclass(frozen=True)
@@ -117,7 +117,7 @@ def _train(config: Config, seed: int, out: Path) -> tuple[str, int, float]:
     with (out / "train.log").open("a") as log:
         log.write("$ " + " ".join(cmd) + "\n")
         log.flush()
-        rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT).returncode
+        rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT).returncode
     return f"{config.name} s{seed}", rc, time.perf_counter() - t0
 
 
