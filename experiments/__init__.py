@@ -1,18 +1,20 @@
-"""Experiments: the evaluation store, the policy registry and the grid runner every driver
-shares (``platoon-evaluate``, ``baselines.comparison``, ``baselines.paper_figures``,
-``baselines.frontiers``).
+"""Experiments: the engine every driver (:mod:`experiments.studies`) runs on.
 
 * :mod:`experiments.store` — :class:`Store`, one SQLite database of episodes keyed by content
   fingerprints, safe under crashes and concurrent evaluators;
-* :mod:`experiments.policies` — :class:`PolicySpec` and :data:`REGISTRY`, every runnable policy;
+* :mod:`experiments.policies` — :class:`PolicySpec` and :data:`REGISTRY`, every runnable policy
+  (each driver's default list is derived from it);
 * :mod:`experiments.grid` — :class:`Cell` and :func:`run_grid`, policies × scenarios × seeds ×
   overrides on the store, in worker processes that die with their parent;
 * :mod:`experiments.stamp` — :func:`metadata_stamp`, the code/versions/command of a run;
 * :mod:`experiments.report` — statistics and the exports (CSV, markdown provenance);
 * :mod:`experiments.suites` — the named benchmark suites (``paper``, ``heldout``,
-  ``robustness``); :mod:`experiments.stats` — rliable aggregates over seeds or episodes;
-* :mod:`experiments.leaderboard` — every policy on the ``paper`` and ``heldout`` suites, the
-  tables, figures and goal check; :mod:`experiments.cards` — the model cards it writes.
+  ``robustness``) and the study list; :mod:`experiments.axes` — the realism axes;
+  :mod:`experiments.stats` — rliable aggregates over seeds or episodes.
+
+The drivers and command-line tools (evaluate, leaderboard, cards, sweep, paper figures,
+comparison, frontiers, discretisation) are in :mod:`experiments.studies`, a layer above this
+one: nothing here imports them.
 """
 
 from experiments.grid import Cell, GridResult, resolve_cells, run_grid

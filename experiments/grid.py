@@ -1,8 +1,8 @@
 """The grid runner: policies × scenarios × seeds × overrides, on the evaluation store.
 
-Every experiment of the project (``platoon-evaluate``, ``python -m baselines.comparison``,
-``python -m baselines.paper_figures``, ``python -m baselines.frontiers``) describes what it
-wants as a list of :class:`Cell` and hands it to :func:`run_grid`, which
+Every experiment of the project (the drivers of :mod:`experiments.studies`: ``platoon-evaluate``,
+the comparison, the paper figures, the frontiers, ...) describes what it wants as a list of
+:class:`Cell` and hands it to :func:`run_grid`, which
 
 1. resolves each cell in this process: the scenario's config with the policy's and the cell's
    overrides, and the fingerprints that key it in the :class:`~experiments.store.Store`

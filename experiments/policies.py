@@ -27,8 +27,10 @@ from platoon_env.scenarios.fingerprint import canonical_json, file_sha256, text_
 __all__ = [
     "MODEL",
     "REGISTRY",
+    "STUDY_DRIVERS",
     "PolicyKind",
     "PolicySpec",
+    "analytic_policies",
     "build_policy",
     "register_policy",
     "shipped_models",
@@ -43,33 +45,68 @@ class PolicyKind:
     """A registered policy: ``factory`` is ``"module:callable"``, called as
     ``factory(env, **params)`` in the worker (a dotted path, so that it reaches spawned
     processes); ``signals`` says whether the policy records internal signals worth keeping
-    (PPC's performance functions)."""
+    (PPC's performance functions: the frontiers diagnose its failures from them); ``label`` is
+    its name in tables and figures; ``studies`` names the drivers that run it by default
+    (:data:`STUDY_DRIVERS`), so that each driver's list of policies is derived from here."""
 
     factory: str
     description: str
     signals: bool = False
+    label: str = ""
+    studies: frozenset[str] = frozenset()
 
+    def __post_init__(self) -> None:
+        unknown = set(self.studies) - set(STUDY_DRIVERS)
+        if unknown:
+            raise ValueError(
+                f"unknown driver(s) {sorted(unknown)} in studies; known: {', '.join(STUDY_DRIVERS)}"
+            )
+
+
+#: The drivers whose default policy list is read from :data:`REGISTRY`
+#: (:func:`analytic_policies`).
+STUDY_DRIVERS: tuple[str, ...] = ("comparison", "frontiers", "leaderboard", "evaluate")
+
+_ALL = frozenset(STUDY_DRIVERS)
 
 #: Policy kinds by name. ``model`` (a trained model) is not in it: it needs a path.
 REGISTRY: dict[str, PolicyKind] = {
     "ppc": PolicyKind(
-        "baselines.ppc:PPCPolicy", "the paper's Prescribed Performance Control law", True
+        "baselines.ppc:PPCPolicy",
+        "the paper's Prescribed Performance Control law",
+        signals=True,
+        label="PPC",
+        studies=_ALL,
     ),
     "filtered_ppc": PolicyKind(
         "baselines.filtered_ppc:FilteredPPCPolicy",
         "PPC behind a constant-velocity Kalman filter with noise-tightened funnels",
-        True,
+        signals=True,
+        label="filtered PPC",
+        studies=frozenset({"frontiers", "leaderboard"}),
     ),
     "last_seen": PolicyKind(
         "baselines.last_seen:LastSeenPolicy",
         "ref. [32] as the paper describes it: saturated tracking, drive to where the "
         "predecessor was last seen",
+        label="last-seen [32]",
+        studies=frozenset({"comparison", "frontiers", "leaderboard"}),
     ),
     "last_seen_fov": PolicyKind(
         "baselines.last_seen:LastSeenFOVPolicy",
         "the last-seen baseline with this project's field-of-view slow-down (not in the paper)",
+        label="last-seen + FOV slow-down",
+        studies=frozenset({"comparison"}),
     ),
 }
+
+
+def analytic_policies(driver: str) -> dict[str, PolicyKind]:
+    """The registered policies ``driver`` (one of :data:`STUDY_DRIVERS`) runs by default, in
+    registry order."""
+    if driver not in STUDY_DRIVERS:
+        raise ValueError(f"unknown driver {driver!r}; known: {', '.join(STUDY_DRIVERS)}")
+    return {name: kind for name, kind in REGISTRY.items() if driver in kind.studies}
 
 
 def register_policy(name: str, kind: PolicyKind) -> None:

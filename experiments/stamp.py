@@ -9,61 +9,16 @@ writes it into the headers of its markdown exports (:func:`stamp_markdown`) and 
 from __future__ import annotations
 
 import datetime as dt
-import importlib.metadata
 import os
 import platform
 import socket
-import subprocess
 import sys
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
+from platoon_env.provenance import REPO_ROOT, code_version, package_versions
+
 __all__ = ["REPO_ROOT", "code_version", "metadata_stamp", "png_metadata", "stamp_markdown"]
-
-#: The source checkout holding this package (a clone: it has ``.git``).
-REPO_ROOT = Path(__file__).resolve().parents[1]
-#: The distributions whose versions change results.
-_PACKAGES = ("numpy", "numba", "scipy", "shapely", "gymnasium", "pettingzoo", "torch")
-_PACKAGES_OPTIONAL = ("stable-baselines3", "ray")
-#: The source folders whose uncommitted edits change results.
-_SOURCE_DIRS = ("platoon_env", "baselines", "training", "experiments", "models")
-
-
-def code_version(root: Path = REPO_ROOT) -> dict[str, Any]:
-    """``{"commit": sha, "modified": [paths]}`` of the checkout at ``root`` ({} outside one).
-
-    ``modified`` lists the uncommitted files under the source folders: rows made with them
-    are not reproducible from the commit alone.
-    """
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True
-        ).stdout.strip()
-        status = subprocess.run(
-            ["git", "status", "--porcelain", "--", *_SOURCE_DIRS],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout
-    except (OSError, subprocess.CalledProcessError):
-        return {}
-    return {"commit": commit, "modified": sorted(line[3:] for line in status.splitlines())}
-
-
-def _versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
-    import platoon_env
-
-    out["platoon_env"] = platoon_env.__version__
-    for name in (*_PACKAGES, *_PACKAGES_OPTIONAL):
-        try:
-            out[name] = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            if name in _PACKAGES:
-                out[name] = "not installed"
-    return out
 
 
 def metadata_stamp(
@@ -76,7 +31,7 @@ def metadata_stamp(
         "time": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "argv": list(sys.argv[1:] if argv is None else argv),
         **code_version(),
-        "versions": _versions(),
+        "versions": package_versions(),
         "host": socket.gethostname(),
         "platform": platform.platform(),
         "cpus": os.cpu_count(),

@@ -11,7 +11,7 @@ runs every policy on every scenario × condition × seed, through the evaluation
   disjoint from every training split and from each other), ideal and ``aruco``, 200 seeds per
   tier (200 layouts each: seed ``s`` of an episode draws its layout number).
 * ``robustness`` — the studies under each level of each realism axis of the robustness
-  frontier (:data:`baselines.frontiers.AXES`, one axis at a time), 10 seeds.
+  frontier (:data:`experiments.axes.AXES`, one axis at a time), 10 seeds.
 """
 
 from __future__ import annotations
@@ -20,9 +20,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from experiments.axes import AXES, level_key
 from platoon_env.scenarios.schema import GENERATOR_TIERS
 
-__all__ = ["SUITES", "Condition", "Suite", "suite"]
+__all__ = ["HELDOUT", "LEADERBOARD_SUITES", "STUDIES", "SUITES", "Condition", "Suite", "suite"]
 
 
 @dataclass(frozen=True)
@@ -46,14 +47,13 @@ class Suite:
 
 IDEAL = Condition("ideal")
 ARUCO = Condition("aruco", {"sensor_profile": "aruco"})
-STUDIES = ("study_a", "study_b", "study_c")
+#: The paper's three studies (``study_a``, ``study_b``, ``study_c``): every driver reads this.
+STUDIES: tuple[str, ...] = ("study_a", "study_b", "study_c")
 #: The test split of every procedural difficulty tier, easiest first.
 HELDOUT = tuple(f"procedural_{tier}_test" for tier in GENERATOR_TIERS)
 
 
 def _robustness_conditions() -> tuple[Condition, ...]:
-    from baselines.frontiers import AXES, level_key
-
     out: list[Condition] = [IDEAL]
     for name, axis in AXES.items():
         for level in axis.levels:
@@ -95,3 +95,5 @@ def suite(name: str) -> Suite:
 
 #: The suite names (built on demand by :func:`suite`).
 SUITES: tuple[str, ...] = ("paper", "heldout", "robustness")
+#: The suites of the leaderboard (:mod:`experiments.studies.leaderboard`), in its column order.
+LEADERBOARD_SUITES: tuple[str, ...] = ("paper", "heldout")

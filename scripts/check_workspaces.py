@@ -64,6 +64,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 import platoon_env  # noqa: E402
+from experiments.suites import STUDIES  # noqa: E402
 from platoon_env.geometry.sensing import (  # noqa: E402
     SENSE_BETA,
     SENSE_CLEARANCE,
@@ -82,7 +83,6 @@ from platoon_env.scenarios.scenario import (  # noqa: E402
 from platoon_env.scenarios.schema import ScenarioError  # noqa: E402
 
 DATA_DIR = REPO / "platoon_env" / "scenarios" / "data"
-STUDIES = ("study_a", "study_b", "study_c")
 
 SAMPLE_STEP = 0.02  # [m] spacing of the dense samples along the path (measurement only)
 RAY_LENGTH = 10.0  # [m] perpendicular rays for the passage width are cut at this length

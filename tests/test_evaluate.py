@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from training.evaluate import CSV_COLUMNS, PolicySpec, main, summarise, wilson
+from experiments.studies.evaluate import CSV_COLUMNS, PolicySpec, main, summarise, wilson
 from training.train import main as train_main
 
 
@@ -135,7 +135,7 @@ def test_summary_counts_causes() -> None:
 def test_realism_flag_parsing() -> None:
     import argparse
 
-    from training.evaluate import nest_assignments, parse_args, parse_assignment
+    from experiments.studies.evaluate import nest_assignments, parse_args, parse_assignment
 
     assert parse_assignment("noise.position=0.01") == (("noise", "position"), 0.01)
     assert parse_assignment("frame_rate=null") == (("frame_rate",), None)
@@ -201,7 +201,7 @@ def test_realism_flag_parsing() -> None:
 def test_realism_flag_errors(
     flags: list[str], message: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from training.evaluate import parse_args
+    from experiments.studies.evaluate import parse_args
 
     with pytest.raises(SystemExit) as exc:
         parse_args(["--policy", "ppc", "--scenario", "study_a", *flags])

@@ -25,7 +25,7 @@ GRID = ["--policy", "ppc", "--scenario", "study_c", "--set", "max_episode_steps=
 
 def _evaluate(out: Path, *extra: str) -> subprocess.Popen[str]:
     return subprocess.Popen(
-        [sys.executable, "-m", "training.evaluate", *GRID, "--out", str(out), *extra],
+        [sys.executable, "-m", "experiments.studies.evaluate", *GRID, "--out", str(out), *extra],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

@@ -1,4 +1,4 @@
-"""baselines.frontiers: the Wilson interval, the grid, resuming, diagnostics and a quick run."""
+"""The frontiers study: the Wilson interval, the grid, resuming, diagnostics and a quick run."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from baselines.frontiers import (
+from experiments.grid import resolve_cells, run_cell
+from experiments.studies.frontiers import (
     AXES,
     CONTROLLERS,
     CSV_COLUMNS,
@@ -17,7 +18,6 @@ from baselines.frontiers import (
     main,
     wilson_interval,
 )
-from experiments.grid import resolve_cells, run_cell
 
 
 def test_wilson_interval_hand_case() -> None:
@@ -160,7 +160,7 @@ def test_worker_pool(tmp_path: Path) -> None:
 def test_robot_contact_is_diagnosed_on_the_rear_robot() -> None:
     import numpy as np
 
-    from baselines.frontiers import diagnosed_follower, failure_diagnostics
+    from experiments.studies.frontiers import diagnosed_follower, failure_diagnostics
     from platoon_env.geometry.sensing import SENSE_BETA, SENSE_D
     from platoon_env.rollout import Episode
 

@@ -11,8 +11,8 @@ import pytest
 
 import platoon_env
 from baselines import LastSeenPolicy
-from baselines.comparison import run, visibility_breaks
 from baselines.last_seen import MODE_LOST, MODE_TRACKING, LastSeenFOVPolicy, ego_motion
+from experiments.studies.comparison import run, visibility_breaks
 from platoon_env.dynamics.unicycle import integrate
 from platoon_env.geometry.sensing import SENSE_VISIBLE
 from platoon_env.observation import OBS_SIZE
@@ -242,7 +242,7 @@ def test_study_c_ppc_keeps_sight_last_seen_loses_it() -> None:
 
 
 def test_evaluate_knows_last_seen() -> None:
-    from training.evaluate import PolicySpec, build
+    from experiments.studies.evaluate import PolicySpec, build
 
     spec = PolicySpec.parse("last_seen")
     assert spec == PolicySpec("last_seen", "last_seen")

@@ -10,9 +10,9 @@ import pytest
 
 pytest.importorskip("rliable")
 
-from experiments import leaderboard as lb
 from experiments.policies import PolicySpec
 from experiments.stats import bootstrap_episodes
+from experiments.studies import leaderboard as lb
 from experiments.suites import ARUCO, IDEAL
 
 REPO = Path(__file__).resolve().parent.parent

@@ -36,7 +36,7 @@ def test_error_dynamics_match_finite_differences(seed: int) -> None:
 def test_ppc_completes_study_without_violation(study: str) -> None:
     """Default settings, seed 0: the leader reaches the end, no violation, no funnel exit.
 
-    (The five-seed record is produced by ``python -m baselines.paper_figures``.)
+    (The five-seed record is produced by ``python -m experiments.studies.paper_figures``.)
     """
     env = platoon_env.make(study)
     policy = PPCPolicy(env)

@@ -279,7 +279,7 @@ def test_two_runners_train_with_distinct_seeds_and_the_central_critic(local_ray:
 def test_cli_run_checkpoint_evaluates_and_resumes(tmp_path: Path) -> None:
     """``platoon-train --engine rllib`` with 2 runners, then ``platoon-evaluate`` on its model
     and checkpoint (no Ray needed there), then ``--resume`` up to a larger total."""
-    from training.evaluate import main as evaluate_main
+    from experiments.studies.evaluate import main as evaluate_main
 
     out = tmp_path / "run"
     cmd = [

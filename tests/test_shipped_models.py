@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 import platoon_env
+from experiments.studies.sweep import CONFIGS, DEFAULT_SEEDS
 from training.curves import read_progress
 from training.policies import LearnedPolicy
-from training.sweep import CONFIGS, DEFAULT_SEEDS
 
 REPO = Path(__file__).resolve().parent.parent
 MODELS = REPO / "models"

@@ -1,5 +1,5 @@
-"""``platoon-sweep`` (``training.sweep``): the ``platoon-train`` arguments of each run (with
-``--resume`` exactly when its directory holds a run), the shipped configurations, ``ship()``
+"""``platoon-sweep`` (``experiments.studies.sweep``): the ``platoon-train`` arguments of each run
+(with ``--resume`` exactly when its directory holds a run), the shipped configurations, ``ship()``
 and the command line. No training is run here."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from training import sweep
-from training.sweep import CONFIGS, RESUMABLE, main, run_args, run_dir, ship
+from experiments.studies import sweep
+from experiments.studies.sweep import CONFIGS, RESUMABLE, main, run_args, run_dir, ship
 from training.train import RUN_FILES, check_scenario, make_env, parse_args, plan_run
 
 CONFIG = CONFIGS["ppo_ta_aruco"]

@@ -4,7 +4,7 @@ A card states what a shipped model is (its configuration, seed and training opti
 its ``model.json``), what it cost to train (timesteps, wall time on the machine that trained it),
 how training ended (the last rows of its ``progress.csv``) and how it does on every leaderboard
 task (this run's episodes, from the leaderboard's store). :func:`write_cards` is called by
-``python -m experiments.leaderboard``, which also draws the learning curves of every
+``python -m experiments.studies.leaderboard``, which also draws the learning curves of every
 configuration (:func:`training.curves.plot_learning_curves`).
 """
 
@@ -18,8 +18,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from experiments.studies.sweep import CONFIGS
+from experiments.suites import LEADERBOARD_SUITES as SUITES
+from training.curves import plot_learning_curves, read_progress
+
 if TYPE_CHECKING:
-    from experiments.leaderboard import Board, Entry
+    from experiments.studies.leaderboard import Board, Entry
 
 __all__ = ["card_markdown", "index_markdown", "write_cards"]
 
@@ -54,7 +58,6 @@ def _training_summary(meta: Mapping[str, Any]) -> list[str]:
 
 
 def _curve_end(progress: Path, rows: int = 5) -> str:
-    from training.curves import read_progress
 
     if not progress.is_file():
         return "no `progress.csv` (trained before learning curves were logged)"
@@ -102,8 +105,8 @@ def card_markdown(board: Board, entry: Entry, run: int, summary: str = "") -> st
         "",
         f"Configuration **`{entry.name}`**, training seed {meta.get('seed')}"
         + (f": {summary}." if summary else "."),
-        "Made by `python -m experiments.leaderboard`; the numbers are this seed's episodes in its "
-        "store. Train it again with `python -m training.sweep --config "
+        "Made by `platoon-leaderboard`; the numbers are this seed's episodes in its "
+        "store. Train it again with `python -m experiments.studies.sweep --config "
         f"{entry.name} --seeds {meta.get('seed')}`.",
         "",
         "## Training",
@@ -134,7 +137,6 @@ def card_markdown(board: Board, entry: Entry, run: int, summary: str = "") -> st
 
 def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
     """``models/README.md``: what is shipped and how each run does."""
-    from experiments.leaderboard import SUITES
 
     lines = [
         "# Shipped models",
@@ -147,9 +149,9 @@ def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
         "`model.json` describes); `policy.check_env(env)` says whether an env suits it.",
         "",
         "The folders `<configuration>_s<seed>` are the training seeds of one configuration, "
-        "trained by `python -m training.sweep` (`--list` prints each configuration's options). "
+        "trained by `platoon-sweep` (`--list` prints each configuration's options). "
         "The cards, this table and the learning curves are written by "
-        "`python -m experiments.leaderboard`.",
+        "`python -m experiments.studies.leaderboard`.",
         "",
         "| model | configuration | seed | transitions | wall time | "
         + " | ".join(f"{s} success" for s in SUITES)
@@ -179,8 +181,6 @@ def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
 
 def write_cards(board: Board, models: Path, curves: Path, metadata: Mapping[str, str]) -> None:
     """Every learned run's card, the index and the learning-curve figure."""
-    from training.curves import plot_learning_curves
-    from training.sweep import CONFIGS
 
     summaries = {
         e.name: CONFIGS[e.name].summary if e.name in CONFIGS else ""

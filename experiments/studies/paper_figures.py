@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m baselines.paper_figures [--out docs/figures] [--seeds 20] [--workers 2]
+    python -m experiments.studies.paper_figures [--out docs/figures] [--seeds 20] [--workers 2]
                                       [--study study_c ...]
 
 For each study: the platoon's snapshots with fields of view (Fig. 5, 12), the distance and
@@ -29,12 +29,12 @@ from experiments.policies import PolicySpec
 from experiments.report import provenance_markdown, seed_ranges, wilson
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store
+from experiments.suites import STUDIES
 from platoon_env.plots import new_figure, plot_commands, plot_errors, plot_snapshots, save_figure
 from platoon_env.rollout import run_episode
 
-STUDIES = ("study_a", "study_b", "study_c")
 PPC = PolicySpec.of("ppc", "PPC")
-_TOOL = "python -m baselines.paper_figures"
+_TOOL = "python -m experiments.studies.paper_figures"
 
 
 def figures(study: str, out: Path, metadata: dict[str, str] | None = None) -> list[Path]:

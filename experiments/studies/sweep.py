@@ -2,10 +2,10 @@
 
 Usage::
 
-    python -m training.sweep                      # every configuration, seeds 0-4, 2 at a time
-    python -m training.sweep --config ppo_ta_aruco --seeds 0 1 --jobs 1
-    python -m training.sweep --list               # the configurations and their options
-    python -m training.sweep --ship               # copy finished runs to models/<config>_s<seed>
+    platoon-sweep                      # every configuration, seeds 0-4, 2 at a time
+    platoon-sweep --config ppo_ta_aruco --seeds 0 1 --jobs 1
+    platoon-sweep --list               # the configurations and their options
+    platoon-sweep --ship               # copy finished runs to models/<config>_s<seed>
 
 A **configuration** (:data:`CONFIGS`) is a named set of ``platoon-train`` options; a run is a
 configuration and a seed, trained into ``RUNS/<config>/s<seed>`` (``--runs``, default
@@ -18,7 +18,7 @@ Each run's output goes to ``RUNS/<config>/s<seed>/train.log``; the sweep prints 
 as it ends, and exits non-zero if one failed (the others are still trained).
 
 ``--ship`` copies ``model.zip``, ``model.json`` and ``progress.csv`` of every finished run to
-``models/<config>_s<seed>/`` (the cards are written by :mod:`experiments.leaderboard`, which
+``models/<config>_s<seed>/`` (the cards are written by :mod:`experiments.studies.leaderboard`, which
 evaluates them).
 """
 
@@ -64,7 +64,7 @@ _COMMON = (
     "1500000",
 )
 
-#: The configurations trained by ``python -m training.sweep`` and shipped in ``models/``.
+#: The configurations trained by ``python -m experiments.studies.sweep`` and shipped in ``models/``.
 CONFIGS: dict[str, Config] = {
     c.name: c
     for c in (

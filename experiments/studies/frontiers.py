@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m baselines.frontiers [--out results/frontiers] [--seeds 10] [--workers 2]
+    python -m experiments.studies.frontiers [--out results/frontiers] [--seeds 10] [--workers 2]
                                   [--study study_c ...] [--controller ppc ...] [--axis latency ...]
                                   [--quick] [--max-episode-steps N]
 
@@ -51,7 +51,7 @@ import math
 import statistics
 import sys
 from collections import Counter
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,8 +59,9 @@ from typing import Any
 import numpy as np
 
 from baselines.ppc import EPS_MAX
+from experiments.axes import AXES, Axis, level_key
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
-from experiments.policies import REGISTRY, PolicySpec
+from experiments.policies import PolicySpec, analytic_policies
 from experiments.report import (
     format_value,
     provenance_markdown,
@@ -70,6 +71,7 @@ from experiments.report import (
 )
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store
+from experiments.suites import STUDIES
 from platoon_env.geometry.sensing import SENSE_BETA, SENSE_D
 from platoon_env.rollout import Episode, episode_metrics
 from platoon_env.scenarios.schema import VIOLATION_CAUSES
@@ -93,8 +95,6 @@ __all__ = [
     "wilson_interval",
 ]
 
-#: The paper's three studies.
-STUDIES: tuple[str, ...] = ("study_a", "study_b", "study_c")
 
 #: Columns that identify a row (one episode); a resumed run skips the keys already written.
 KEY_COLUMNS: tuple[str, ...] = ("controller", "study", "axis", "level", "seed")
@@ -174,121 +174,20 @@ class Controller:
         return PolicySpec.of(self.kind)
 
 
-#: Controller name (the CSV's ``controller``) -> :class:`Controller`.
+#: Controller name (the CSV's ``controller``) -> :class:`Controller`: the registered policies
+#: whose ``studies`` include the frontiers (:func:`experiments.policies.analytic_policies`).
 CONTROLLERS: dict[str, Controller] = {
-    "ppc": Controller("PPC", "ppc", ppc=True),
-    "last_seen": Controller("last-seen [32]", "last_seen", ppc=False),
-    "filtered_ppc": Controller("filtered PPC", "filtered_ppc", ppc=True),
+    name: Controller(kind.label, name, ppc=kind.signals)
+    for name, kind in analytic_policies("frontiers").items()
 }
-assert set(CONTROLLERS) <= set(REGISTRY)
 
 
 # ----------------------------------------------------------------------------------------------
 # The grid
 # ----------------------------------------------------------------------------------------------
 
-Level = float | str | None
-
-
-def level_key(level: Level) -> str:
-    """The CSV form of a level: ``"none"`` for None, ``f"{x:g}"`` for a number, else the text."""
-    if level is None:
-        return "none"
-    if isinstance(level, str):
-        return level
-    return f"{float(level):g}"
-
-
-@dataclass(frozen=True)
-class Axis:
-    """One realism axis: its levels (in the unit shown, from ideal to harsh) and how a level
-    becomes ``platoon_env.make`` overrides."""
-
-    name: str
-    label: str  # axis title with its unit
-    levels: tuple[Level, ...]
-    quick: tuple[Level, ...]  # the levels of a --quick run
-    to_overrides: Callable[[Any], dict[str, Any]]
-    none_label: str = "none"  # how the level None is shown
-
-    def show(self, level: Level) -> str:
-        """A level as shown in tables and on plots."""
-        return self.none_label if level is None else level_key(level)
-
-    def overrides(self, level: Level) -> dict[str, Any]:
-        """The ``make`` keyword overrides of ``level`` ({} for the ideal level)."""
-        return self.to_overrides(level)
-
-
-def _noise(cm: float) -> dict[str, Any]:
-    return {"camera": {"noise": {"position": cm / 100.0}}} if cm else {}
-
-
-def _detection(p: float) -> dict[str, Any]:
-    return {"camera": {"detection": p}} if p != 1 else {}
-
-
-def _latency(ms: float) -> dict[str, Any]:
-    return {"camera": {"latency": ms / 1000.0}} if ms else {}
-
-
-def _frame_rate(hz: float | None) -> dict[str, Any]:
-    return {} if hz is None else {"camera": {"frame_rate": hz}}
-
-
-def _accel(a: float | None) -> dict[str, Any]:
-    return {} if a is None else {"robot": {"accel_max": a}}
-
-
-def profile_overrides(name: str) -> dict[str, Any]:
-    """The ``make`` overrides of a shipped sensor profile: ``sensor_profile=name`` when
-    ``make`` takes it, else the blocks :func:`platoon_env.scenarios.profiles.load_profile`
-    returns. Raises (ImportError, ScenarioError, ...) while the profile is not available."""
-    from platoon_env.scenarios import options
-
-    try:
-        from platoon_env.scenarios.profiles import load_profile
-    except ImportError as exc:
-        raise ImportError(f"platoon_env.scenarios.profiles not available: {exc}") from None
-    blocks = load_profile(name)  # fails if the profile is missing or invalid
-    if getattr(options, "PROFILE_OPTION", None) in options.OVERRIDE_OPTIONS:
-        return {"sensor_profile": name}
-    if not isinstance(blocks, Mapping):
-        raise TypeError(f"load_profile({name!r}) returned {type(blocks).__name__}, not blocks")
-    return {str(k): dict(v) for k, v in blocks.items()}
-
-
-#: The realism axes of the frontier, each run alone (:func:`build_grid`).
-AXES: dict[str, Axis] = {
-    a.name: a
-    for a in (
-        Axis(
-            "camera_noise",
-            "camera position noise sigma [cm]",
-            (0.0, 0.5, 1.0, 2.0, 5.0, 10.0),
-            (0.0, 5.0),
-            _noise,
-        ),
-        Axis("detection", "detection probability", (1.0, 0.95, 0.8, 0.5), (1.0, 0.5), _detection),
-        Axis(
-            "latency", "camera latency [ms]", (0.0, 10.0, 30.0, 50.0, 100.0), (0.0, 50.0), _latency
-        ),
-        Axis(
-            "frame_rate",
-            "camera frame rate [Hz]",
-            (None, 30.0, 15.0),
-            (None, 15.0),
-            _frame_rate,
-            none_label="every step",
-        ),
-        Axis("accel_max", "accel_max [m/s²]", (None, 2.0, 1.0, 0.5), (None, 0.5), _accel),
-        Axis("profile", "sensor profile", ("aruco",), ("aruco",), profile_overrides),
-    )
-}
-
-
 #: The measure of a frontier episode (:func:`episode_row`).
-MEASURE = "baselines.frontiers:episode_row"
+MEASURE = "experiments.studies.frontiers:episode_row"
 
 
 def episode_overrides(
@@ -803,12 +702,12 @@ def plot_study(
 # Command line
 # ----------------------------------------------------------------------------------------------
 
-_TOOL = "python -m baselines.frontiers"
+_TOOL = "python -m experiments.studies.frontiers"
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        prog="python -m baselines.frontiers",
+        prog="python -m experiments.studies.frontiers",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -18,9 +18,10 @@ first seed's episodes).
 With no arguments it runs the default benchmark: PPC against every shipped model
 (``models/*/model.zip``) on the paper's three studies and the held-out procedural test set.
 
-Policies (``--policy``, repeatable): ``ppc`` (the paper's law), ``filtered_ppc`` (PPC behind a
-Kalman filter, for noisy sensing), ``last_seen`` (ref. [32]'s baseline), ``NAME=KIND`` (one of
-those under another name) or ``NAME=PATH`` (a model saved by ``platoon-train``; PATH is ``DIR``
+Policies (``--policy``, repeatable): a registered kind (:data:`experiments.policies.REGISTRY`,
+listed with their descriptions by ``--help``: the paper's PPC law, the filtered PPC, ref. [32]'s
+last-seen baseline and its field-of-view variant), ``NAME=KIND`` (one of those under another
+name) or ``NAME=PATH`` (a model saved by ``platoon-train``; PATH is ``DIR``
 or ``DIR/model.zip``). Each policy runs at its own control period: the analytic laws at the
 env's default, a learned model at the period it was trained with (its ``model.json``);
 metrics are in seconds and metres, so they compare across periods.
@@ -58,7 +59,13 @@ from tqdm import tqdm
 
 import platoon_env
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
-from experiments.policies import PolicySpec, build_policy, shipped_models
+from experiments.policies import (
+    REGISTRY,
+    PolicySpec,
+    analytic_policies,
+    build_policy,
+    shipped_models,
+)
 from experiments.report import (
     format_value,
     mean_ci,
@@ -68,7 +75,7 @@ from experiments.report import (
     write_csv,
     write_csv_stamp,
 )
-from experiments.stamp import metadata_stamp, png_metadata
+from experiments.stamp import REPO_ROOT, metadata_stamp, png_metadata
 from experiments.store import Store, StoreError
 from experiments.suites import SUITES, Condition, suite
 from platoon_env.rollout import METRIC_NAMES, Episode, PolicyLike
@@ -94,7 +101,7 @@ __all__ = [
 ]
 
 #: The shipped models live here (a source checkout; see models/README.md).
-MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
+MODELS_DIR = REPO_ROOT / "models"
 DEFAULT_SCENARIOS = ("study_a", "study_b", "study_c", "procedural_test")
 #: Episodes (seeds) per policy and scenario by default: every table on the studies is over at
 #: least 20 seeds (each draws its own leader speed factor and start perturbation).
@@ -224,8 +231,9 @@ def build(
 
 
 def default_policies() -> list[PolicySpec]:
-    """PPC and every shipped model."""
-    return [PolicySpec.of("ppc"), *shipped_models(MODELS_DIR)]
+    """The registered policies the default benchmark runs (PPC) and every shipped model."""
+    analytic = [PolicySpec.of(name) for name in analytic_policies("evaluate")]
+    return [*analytic, *shipped_models(MODELS_DIR)]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -408,8 +416,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         action="append",
         type=PolicySpec.parse,
         default=None,
-        help="ppc, filtered_ppc, last_seen, NAME=KIND or NAME=PATH (repeatable); "
-        "default: ppc and every shipped model",
+        help=f"a registered kind ({', '.join(REGISTRY)}), NAME=KIND or NAME=PATH (repeatable); "
+        f"default: {', '.join(analytic_policies('evaluate'))} and every shipped model",
     )
     parser.add_argument(
         "--scenario",

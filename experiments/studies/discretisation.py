@@ -7,7 +7,7 @@ none, over all seeds, is reported. The env's default control period is chosen fr
 
 Usage::
 
-    python -m baselines.discretisation [--seeds 5] [--periods 0.005 0.01 0.02 ...]
+    python -m experiments.studies.discretisation [--seeds 5] [--periods 0.005 0.01 0.02 ...]
         [--substeps 2] [--study study_a ...] [--out docs/discretisation.md] [--workers 2]
 """
 
@@ -21,9 +21,9 @@ from tqdm import tqdm
 
 import platoon_env
 from baselines.ppc import PPCPolicy
+from experiments.suites import STUDIES
 from platoon_env.rollout import episode_metrics, run_episode
 
-STUDIES = ("study_a", "study_b", "study_c")
 DEFAULT_PERIODS = (0.005, 0.01, 0.015, 0.02, 0.03, 0.04, 0.05)
 
 

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m baselines.comparison [--out docs/figures] [--seeds 20] [--workers 2]
+    python -m experiments.studies.comparison [--out docs/figures] [--seeds 20] [--workers 2]
                                    [--store results/comparison/results.sqlite]
 
 The policies (:data:`POLICIES`: :class:`baselines.PPCPolicy`, :class:`baselines.LastSeenPolicy`
@@ -46,7 +46,7 @@ from tqdm import tqdm
 
 import platoon_env
 from experiments.grid import Cell, GridResult, run_grid
-from experiments.policies import PolicySpec, build_policy
+from experiments.policies import PolicySpec, analytic_policies, build_policy
 from experiments.report import mean_ci, provenance_markdown, wilson
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store
@@ -83,14 +83,14 @@ _COLLISION_MASK = causes_to_mask(COLLISIONS)
 #: The make() overrides of every comparison episode.
 OVERRIDES: dict[str, Any] = {"terminate_on": list(COLLISIONS)}
 #: The measure of a comparison episode (:func:`comparison_metrics`).
-MEASURE = "baselines.comparison:comparison_metrics"
-_TOOL = "python -m baselines.comparison"
+MEASURE = "experiments.studies.comparison:comparison_metrics"
+_TOOL = "python -m experiments.studies.comparison"
 
-#: Display name -> the registered policy (:mod:`experiments.policies`).
+#: Display name -> the registered policy: those whose ``studies`` include the comparison
+#: (:func:`experiments.policies.analytic_policies`).
 POLICIES: dict[str, PolicySpec] = {
-    "PPC": PolicySpec.of("ppc", "PPC"),
-    "last-seen [32]": PolicySpec.of("last_seen", "last-seen [32]"),
-    "last-seen + FOV slow-down": PolicySpec.of("last_seen_fov", "last-seen + FOV slow-down"),
+    kind.label: PolicySpec.of(name, kind.label)
+    for name, kind in analytic_policies("comparison").items()
 }
 
 

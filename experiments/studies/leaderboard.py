@@ -2,8 +2,8 @@
 
 Usage::
 
-    python -m experiments.leaderboard                    # the README's leaderboard
-    python -m experiments.leaderboard --paper-seeds 5 --heldout-seeds 10 --no-readme
+    python -m experiments.studies.leaderboard                    # the README's leaderboard
+    python -m experiments.studies.leaderboard --paper-seeds 5 --heldout-seeds 10 --no-readme
 
 It runs, through the evaluation store (``--store``, default ``results/leaderboard``; an
 interrupted run resumes, and episodes already stored are not run again):
@@ -40,7 +40,7 @@ Statistics (:mod:`experiments.stats`), per policy and suite:
 Outputs: ``docs/leaderboard.md`` (every table, with the provenance of its rows), the figures
 ``docs/figures/leaderboard_*.png``, the learning curves ``docs/figures/learning_curves.png``,
 each model's card ``models/<run>/README.md`` and the index ``models/README.md``
-(:mod:`experiments.cards`), and, unless ``--no-readme``, the README's table between the
+(:mod:`experiments.studies.cards`), and, unless ``--no-readme``, the README's table between the
 ``<!-- leaderboard:start -->`` and ``<!-- leaderboard:end -->`` markers.
 """
 
@@ -60,7 +60,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
-from experiments.policies import PolicySpec, shipped_models
+from experiments.policies import PolicySpec, analytic_policies, shipped_models
 from experiments.report import provenance_markdown
 from experiments.stamp import REPO_ROOT, metadata_stamp, png_metadata
 from experiments.stats import (
@@ -71,7 +71,8 @@ from experiments.stats import (
     probability_of_improvement,
 )
 from experiments.store import Store
-from experiments.suites import Condition, suite
+from experiments.studies.cards import write_cards
+from experiments.suites import LEADERBOARD_SUITES, Condition, suite
 from platoon_env.scenarios.schema import ScenarioError
 from platoon_env.violations import VIOLATION_CAUSES
 
@@ -86,11 +87,11 @@ __all__ = [
     "tasks",
 ]
 
-_TOOL = "experiments.leaderboard"
+_TOOL = "experiments.studies.leaderboard"
 #: The analytic laws on the board (registry names).
-ANALYTIC = ("ppc", "filtered_ppc", "last_seen")
+ANALYTIC: tuple[str, ...] = tuple(analytic_policies("leaderboard"))
 #: The suites on the board.
-SUITES = ("paper", "heldout")
+SUITES = LEADERBOARD_SUITES
 #: The step a violation rate is counted per (the analytic laws' control period) [s].
 RATE_STEP = 0.01
 #: README markers between which the table is written.
@@ -548,7 +549,8 @@ def _positive(text: str) -> int:
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
-        prog="python -m experiments.leaderboard", description=(__doc__ or "").split("\n\n")[0]
+        prog="python -m experiments.studies.leaderboard",
+        description=(__doc__ or "").split("\n\n")[0],
     )
     p.add_argument(
         "--models", type=Path, default=REPO_ROOT / "models", help="shipped models folder"
@@ -636,7 +638,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     seeds = ", ".join(f"{s}: {board.suite_tasks(s)[0].seeds} episodes per task" for s in SUITES)
     doc = [
         "# Leaderboard\n",
-        "Made by `python -m experiments.leaderboard` (see its module docstring for every "
+        "Made by `python -m experiments.studies.leaderboard` (see its module docstring for every "
         "statistic); do not edit by hand.\n",
         provenance,
         f"Tasks: {len(board_tasks)} ({seeds}); learned configurations: their shipped training "
@@ -665,8 +667,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         doc.append(f"\n**{board.missing} episode(s) failed or are missing**: re-run to retry.\n")
     (args.docs / "leaderboard.md").write_text("\n".join(doc))
     if not args.no_cards:
-        from experiments.cards import write_cards
-
         write_cards(board, args.models, figures / "learning_curves.png", meta)
     if not args.no_readme:
         splice_readme(args.readme, table)
