@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from platoon_env.provenance import REPO_ROOT
 from platoon_env.scenarios.fingerprint import canonical_json, file_sha256, text_sha256
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "PolicySpec",
     "analytic_policies",
     "build_policy",
+    "default_models_dir",
     "register_policy",
     "shipped_models",
 ]
@@ -276,6 +278,20 @@ def build_policy(spec: PolicySpec, env: Any) -> Any:
     return _resolve(spec.factory)(env, **spec.kwargs)
 
 
+def default_models_dir() -> Path | None:
+    """The folder of shipped models when none is named: the source checkout's ``models/``
+    (a clone), else ``./models`` in the working directory; None when neither holds a model
+    (an installed wheel run elsewhere: pass ``--models DIR``, e.g. a clone's ``models/``)."""
+    candidates = [REPO_ROOT / "models"] if (REPO_ROOT / ".git").exists() else []
+    for folder in (*candidates, Path("models")):
+        if any(folder.glob("*/model.zip")):
+            return folder
+    return None
+
+
 def shipped_models(models_dir: Path) -> list[PolicySpec]:
-    """A spec per ``models_dir/*/model.zip`` (sorted by folder name)."""
+    """A spec per ``models_dir/*/model.zip`` (sorted by folder name); a ``models_dir`` that is
+    not a folder is a ``ValueError`` naming it (a typo must not silently run no model)."""
+    if not models_dir.is_dir():
+        raise ValueError(f"models folder {models_dir} does not exist or is not a folder")
     return [PolicySpec.model(p) for p in sorted(models_dir.glob("*/model.zip"))]

@@ -60,10 +60,12 @@ from tqdm import tqdm
 import platoon_env
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
 from experiments.policies import (
+    MODEL,
     REGISTRY,
     PolicySpec,
     analytic_policies,
     build_policy,
+    default_models_dir,
     shipped_models,
 )
 from experiments.report import (
@@ -75,9 +77,10 @@ from experiments.report import (
     write_csv,
     write_csv_stamp,
 )
-from experiments.stamp import REPO_ROOT, metadata_stamp, png_metadata
+from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store, StoreError
 from experiments.suites import SUITES, Condition, suite
+from platoon_env.extras import MissingExtraError, require_extra
 from platoon_env.rollout import METRIC_NAMES, Episode, PolicyLike
 from platoon_env.scenarios.fingerprint import canonical_json
 from platoon_env.scenarios.schema import ScenarioError, config_to_mapping
@@ -100,8 +103,6 @@ __all__ = [
     "wilson",
 ]
 
-#: The shipped models live here (a source checkout; see models/README.md).
-MODELS_DIR = REPO_ROOT / "models"
 DEFAULT_SCENARIOS = ("study_a", "study_b", "study_c", "procedural_test")
 #: Episodes (seeds) per policy and scenario by default: every table on the studies is over at
 #: least 20 seeds (each draws its own leader speed factor and start perturbation).
@@ -230,10 +231,12 @@ def build(
     return env, policy
 
 
-def default_policies() -> list[PolicySpec]:
-    """The registered policies the default benchmark runs (PPC) and every shipped model."""
+def default_policies(models: Path | None = None) -> list[PolicySpec]:
+    """The registered policies the default benchmark runs (PPC) and every model in ``models``
+    (default: :func:`experiments.policies.default_models_dir`; none when it finds none)."""
     analytic = [PolicySpec.of(name) for name in analytic_policies("evaluate")]
-    return [*analytic, *shipped_models(MODELS_DIR)]
+    folder = models if models is not None else default_models_dir()
+    return [*analytic, *(shipped_models(folder) if folder is not None else [])]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -446,6 +449,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--out", type=Path, default=Path("results/benchmark"), help="output folder")
     parser.add_argument(
+        "--models",
+        type=Path,
+        default=None,
+        help="folder of models (DIR/*/model.zip) the default policies include; default: the "
+        "source checkout's models/, else ./models",
+    )
+    parser.add_argument(
         "--workers",
         type=_positive("count", 1),
         default=2,
@@ -496,7 +506,27 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.episodes = the_suite.seeds if the_suite is not None else DEFAULT_EPISODES
     if args.out.exists() and not args.out.is_dir():
         parser.error(f"--out {args.out}: exists and is not a folder")
-    args.policy = args.policy or default_policies()
+    if str(args.out) in ("", "."):
+        parser.error("--out must name an output folder, not the working directory")
+    if args.models is not None and not args.models.is_dir():
+        parser.error(f"--models {args.models}: no such folder")
+    if args.policy is None:
+        args.policy = default_policies(args.models)
+        if not any(p.kind == MODEL for p in args.policy):
+            print(
+                "note: no trained models found (looked in the source checkout's models/ and "
+                "./models); running the analytic policies only: pass --models DIR to add them",
+                file=sys.stderr,
+            )
+    elif args.models is not None:
+        parser.error("--models adds models to the default policies; with --policy name each model")
+    if any(p.kind == MODEL for p in args.policy):
+        try:
+            require_extra(
+                "train", "stable_baselines3", "torch", purpose="evaluating trained models"
+            )
+        except MissingExtraError as exc:
+            parser.error(str(exc))
     names = [p.name for p in args.policy]
     if len(set(names)) != len(names):
         parser.error(f"policy names must be unique, got {names}")

@@ -60,9 +60,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
-from experiments.policies import PolicySpec, analytic_policies, shipped_models
+from experiments.policies import PolicySpec, analytic_policies, default_models_dir, shipped_models
 from experiments.report import provenance_markdown
-from experiments.stamp import REPO_ROOT, metadata_stamp, png_metadata
+from experiments.stamp import metadata_stamp, png_metadata
 from experiments.stats import (
     Aggregate,
     aggregate,
@@ -87,7 +87,7 @@ __all__ = [
     "tasks",
 ]
 
-_TOOL = "experiments.studies.leaderboard"
+_TOOL = "platoon-leaderboard"
 #: The analytic laws on the board (registry names).
 ANALYTIC: tuple[str, ...] = tuple(analytic_policies("leaderboard"))
 #: The suites on the board.
@@ -549,11 +549,15 @@ def _positive(text: str) -> int:
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
-        prog="python -m experiments.studies.leaderboard",
+        prog="platoon-leaderboard",
         description=(__doc__ or "").split("\n\n")[0],
     )
     p.add_argument(
-        "--models", type=Path, default=REPO_ROOT / "models", help="shipped models folder"
+        "--models",
+        type=Path,
+        default=None,
+        help="folder of models (DIR/*/model.zip); default: the source checkout's models/, else "
+        "./models",
     )
     p.add_argument(
         "--store",
@@ -574,12 +578,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="layouts per held-out task (default: the suite's, 200)",
     )
     p.add_argument("--workers", type=_positive, default=2, help="worker processes")
-    p.add_argument("--docs", type=Path, default=REPO_ROOT / "docs", help="where the tables go")
+    p.add_argument(
+        "--docs", type=Path, default=Path("docs"), help="where the tables go (default: ./docs)"
+    )
     p.add_argument(
         "--readme",
         type=Path,
-        default=REPO_ROOT / "README.md",
-        help="the README whose table is replaced",
+        default=Path("README.md"),
+        help="the README whose table (between its leaderboard markers) is replaced "
+        "(default: ./README.md)",
     )
     p.add_argument("--no-readme", action="store_true", help="leave the README alone")
     p.add_argument("--no-cards", action="store_true", help="leave the model cards alone")
@@ -589,7 +596,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    board_entries = entries(args.models)
+    models = args.models if args.models is not None else default_models_dir()
+    if models is None or not models.is_dir():
+        print(
+            f"platoon-leaderboard: error: no models folder "
+            f"({args.models or 'none found in the checkout or ./models'}); pass --models DIR",
+            file=sys.stderr,
+        )
+        return 2
+    board_entries = entries(models)
     board_tasks = tasks(args.paper_seeds, args.heldout_seeds)
     stamp = metadata_stamp(
         _TOOL,
@@ -667,7 +682,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         doc.append(f"\n**{board.missing} episode(s) failed or are missing**: re-run to retry.\n")
     (args.docs / "leaderboard.md").write_text("\n".join(doc))
     if not args.no_cards:
-        write_cards(board, args.models, figures / "learning_curves.png", meta)
+        write_cards(board, models, figures / "learning_curves.png", meta)
     if not args.no_readme:
         splice_readme(args.readme, table)
     print(table)
