@@ -169,7 +169,10 @@ def episode_metrics(ep: Episode, transient: float = DEFAULT_TRANSIENT) -> dict[s
     dt = ep.control_period
     sensed = ep.sensed[1:]  # after each step
     times = ep.times[1:]
-    after = times >= min(transient, times[-1] if times.size else 0.0)
+    # An episode that ends before the transient is over is scored over all of its steps (not
+    # over its last step only, which a threshold of min(transient, end) would keep).
+    ended_early = not times.size or times[-1] < transient
+    after = np.ones(times.shape, dtype=bool) if ended_early else times >= transient
     visible = sensed[:, :, SENSE_VISIBLE] > 0
     sel = after[:, None] & visible
     e_d = sensed[:, :, SENSE_D] - ep.d_des

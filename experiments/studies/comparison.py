@@ -45,6 +45,7 @@ import numpy as np
 from tqdm import tqdm
 
 import platoon_env
+from experiments.cli import add_grid_options
 from experiments.grid import Cell, GridResult, run_grid
 from experiments.policies import PolicySpec, analytic_policies, build_policy
 from experiments.report import mean_ci, provenance_markdown, wilson
@@ -367,19 +368,13 @@ def main(argv: Sequence[str] | None = None) -> str:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--out", type=Path, default=Path("docs/figures"), help="output folder")
-    parser.add_argument("--seeds", type=int, default=20, help="seeds per study and policy")
-    parser.add_argument("--workers", type=int, default=2, help="parallel worker processes")
-    parser.add_argument(
-        "--store",
-        type=Path,
-        default=Path("results/comparison/results.sqlite"),
-        help="the evaluation store the episodes go to (and resume from)",
+    add_grid_options(
+        parser,
+        seeds=20,
+        seeds_help="seeds per study and policy",
+        store=Path("results/comparison/results.sqlite"),
     )
     args = parser.parse_args(argv)
-    if args.seeds < 1:
-        parser.error("--seeds must be >= 1")
-    if args.workers < 1:
-        parser.error("--workers must be >= 1")
     out: Path = args.out
     cells = [
         Cell.of(spec, study, seed, OVERRIDES, measure=MEASURE)

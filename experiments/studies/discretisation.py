@@ -21,6 +21,7 @@ from tqdm import tqdm
 
 import platoon_env
 from baselines.ppc import PPCPolicy
+from experiments.cli import add_grid_options, count, number
 from experiments.suites import STUDIES
 from platoon_env.rollout import episode_metrics, run_episode
 
@@ -37,13 +38,14 @@ def run_one(study: str, period: float, substeps: int, seed: int) -> dict[str, ob
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python -m experiments.studies.discretisation",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--study", action="append", choices=STUDIES, help="default: all")
-    parser.add_argument("--periods", type=float, nargs="+", default=list(DEFAULT_PERIODS))
-    parser.add_argument("--substeps", type=int, nargs="+", default=[2])
-    parser.add_argument("--seeds", type=int, default=5)
-    parser.add_argument("--workers", type=int, default=2, help="parallel processes")
+    parser.add_argument("--periods", type=number, nargs="+", default=list(DEFAULT_PERIODS))
+    parser.add_argument("--substeps", type=count(1, "substeps"), nargs="+", default=[2])
+    add_grid_options(parser, seeds=5, seeds_help="seeds per study and period", store=None)
     parser.add_argument("--out", type=Path, default=None, help="also write the table here")
     args = parser.parse_args(argv)
     studies = args.study or list(STUDIES)

@@ -58,6 +58,7 @@ import yaml
 from tqdm import tqdm
 
 import platoon_env
+from experiments.cli import count
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
 from experiments.policies import (
     MODEL,
@@ -392,20 +393,6 @@ def plot_scenario(
 # ----------------------------------------------------------------------------------------------
 
 
-def _positive(name: str, minimum: int) -> Any:
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
-        return value
-
-    parse.__name__ = name
-    return parse
-
-
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     """Parse and validate the command line; every error is an argparse usage error (exit 2)
     raised before anything is written."""
@@ -437,13 +424,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--episodes",
-        type=_positive("count", 1),
+        type=count(1, "count"),
         default=None,
         help="episodes (seeds) per policy, scenario and condition (default 20, or the suite's)",
     )
     parser.add_argument(
         "--seed",
-        type=_positive("seed", 0),
+        type=count(0, "seed"),
         default=0,
         help="first seed (>= 0); episodes use seed..seed+K-1",
     )
@@ -457,7 +444,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--workers",
-        type=_positive("count", 1),
+        type=count(1, "count"),
         default=2,
         help="parallel worker processes (1: run in this process)",
     )

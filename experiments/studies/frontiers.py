@@ -60,6 +60,7 @@ import numpy as np
 
 from baselines.ppc import EPS_MAX
 from experiments.axes import AXES, Axis, level_key
+from experiments.cli import add_grid_options, count
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
 from experiments.policies import PolicySpec, analytic_policies
 from experiments.report import (
@@ -707,15 +708,14 @@ _TOOL = "python -m experiments.studies.frontiers"
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        prog="python -m experiments.studies.frontiers",
+        prog=_TOOL,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--out", type=Path, default=Path("results/frontiers"), help="output folder")
-    parser.add_argument(
-        "--seeds", type=int, default=None, help=f"seeds per point (default {DEFAULT_SEEDS})"
+    add_grid_options(
+        parser, seeds=None, seeds_help=f"seeds per point (default {DEFAULT_SEEDS})", store=None
     )
-    parser.add_argument("--workers", type=int, default=2, help="parallel worker processes")
     parser.add_argument("--study", action="append", choices=STUDIES, help="default: all three")
     parser.add_argument(
         "--controller",
@@ -731,19 +731,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--max-episode-steps",
-        type=int,
+        type=count(1, "steps"),
         default=None,
         help="override every study's episode limit (for smoke tests; default: the study's)",
     )
     args = parser.parse_args(argv)
     if args.seeds is None:
         args.seeds = QUICK_SEEDS if args.quick else DEFAULT_SEEDS
-    if args.seeds < 1:
-        parser.error("--seeds must be >= 1")
-    if args.workers < 1:
-        parser.error("--workers must be >= 1")
-    if args.max_episode_steps is not None and args.max_episode_steps < 1:
-        parser.error("--max-episode-steps must be >= 1")
     args.study = list(dict.fromkeys(args.study or STUDIES))
     args.controller = list(dict.fromkeys(args.controller or CONTROLLERS))
     args.axis = list(dict.fromkeys(args.axis or AXES))

@@ -59,6 +59,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from experiments.cli import count
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
 from experiments.policies import PolicySpec, analytic_policies, default_models_dir, shipped_models
 from experiments.report import provenance_markdown
@@ -540,13 +541,6 @@ def splice_readme(readme: Path, text: str) -> None:
 # ----------------------------------------------------------------------------------------------
 
 
-def _positive(text: str) -> int:
-    n = int(text)
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {n}")
-    return n
-
-
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="platoon-leaderboard",
@@ -567,17 +561,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     p.add_argument(
         "--paper-seeds",
-        type=_positive,
+        type=count(1),
         default=None,
         help="episodes per paper task (default: the suite's, 20)",
     )
     p.add_argument(
         "--heldout-seeds",
-        type=_positive,
+        type=count(1),
         default=None,
         help="layouts per held-out task (default: the suite's, 200)",
     )
-    p.add_argument("--workers", type=_positive, default=2, help="worker processes")
+    p.add_argument("--workers", type=count(1), default=2, help="worker processes")
     p.add_argument(
         "--docs", type=Path, default=Path("docs"), help="where the tables go (default: ./docs)"
     )

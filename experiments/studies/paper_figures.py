@@ -24,6 +24,7 @@ from tqdm import tqdm
 
 import platoon_env
 from baselines.ppc import PPCPolicy
+from experiments.cli import add_grid_options
 from experiments.grid import Cell, run_grid
 from experiments.policies import PolicySpec
 from experiments.report import provenance_markdown, seed_ranges, wilson
@@ -119,20 +120,14 @@ def main(argv: list[str] | None = None) -> None:
         prog=_TOOL, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--out", type=Path, default=Path("docs/figures"), help="output folder")
-    parser.add_argument("--seeds", type=int, default=20, help="seeds per study for the record")
-    parser.add_argument("--workers", type=int, default=2, help="parallel worker processes")
-    parser.add_argument("--study", action="append", choices=STUDIES, help="default: all three")
-    parser.add_argument(
-        "--store",
-        type=Path,
-        default=Path("results/paper_figures/results.sqlite"),
-        help="the evaluation store the record's episodes go to (and resume from)",
+    add_grid_options(
+        parser,
+        seeds=20,
+        seeds_help="seeds per study for the record",
+        store=Path("results/paper_figures/results.sqlite"),
     )
+    parser.add_argument("--study", action="append", choices=STUDIES, help="default: all three")
     args = parser.parse_args(argv)
-    if args.seeds < 1:
-        parser.error("--seeds must be >= 1")
-    if args.workers < 1:
-        parser.error("--workers must be >= 1")
     studies = args.study or list(STUDIES)
     stamp = png_metadata(metadata_stamp(_TOOL, {"seeds": 0, "studies": studies}, argv))
     for study in tqdm(studies, desc="figures", unit="study"):

@@ -34,6 +34,7 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
+from experiments.cli import count
 from experiments.stamp import REPO_ROOT
 
 __all__ = ["CONFIGS", "Config", "main", "run_args", "ship"]
@@ -171,9 +172,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="configurations to train (default: all)",
     )
     parser.add_argument(
-        "--seeds", nargs="+", type=int, default=list(DEFAULT_SEEDS), help="training seeds"
+        "--seeds",
+        nargs="+",
+        type=count(0, "seed"),
+        default=list(DEFAULT_SEEDS),
+        help="training seeds",
     )
-    parser.add_argument("--jobs", type=int, default=2, help="runs trained at once (>= 1)")
+    parser.add_argument(
+        "--jobs", type=count(1, "jobs"), default=2, help="runs trained at once (>= 1)"
+    )
     parser.add_argument("--runs", default="runs/sweep", help="folder of the run directories")
     parser.add_argument("--models", default="models", help="where --ship copies the models")
     parser.add_argument("--ship", action="store_true", help="copy finished runs, train nothing")
