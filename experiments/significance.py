@@ -38,6 +38,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import binomtest, fisher_exact
 
+from experiments.stats import Aggregate
+
 __all__ = [
     "ALPHA",
     "Comparison",
@@ -55,16 +57,8 @@ __all__ = [
 ALPHA = 0.05
 
 
-@dataclass(frozen=True)
-class Interval:
-    """A point estimate and its 95 % interval."""
-
-    value: float
-    low: float
-    high: float
-
-    def __str__(self) -> str:
-        return f"{self.value:.3f} [{self.low:.3f}, {self.high:.3f}]"
+#: A point estimate and its 95 % interval (the statistics module's record).
+Interval = Aggregate
 
 
 def _count(k: int, n: int) -> tuple[int, int]:
