@@ -31,7 +31,10 @@ def count(minimum: int = 1, name: str = "count") -> Callable[[str], int]:
     ``2.5`` is refused)."""
 
     def parse(text: str) -> int:
-        value = number(text)
+        try:
+            value = number(text)
+        except argparse.ArgumentTypeError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
         if value != int(value):
             raise argparse.ArgumentTypeError(f"{text!r} is not a whole number")
         if value < minimum:
