@@ -5,7 +5,9 @@ Research code uses:
 * :func:`make` / :func:`parallel_env` — the PettingZoo ``ParallelEnv``; :func:`env` — its AEC form;
 * :func:`list_scenarios`, :func:`load_scenario` — shipped workspaces, YAML files or dicts;
 * Gymnasium ids ``platoon_env/SingleFollower-Study{A,B,C}[-Aruco]-v0`` and the procedural
-  tiers ``...-Procedural{Easy,Medium,Hard}{Train,Test}[-Aruco]-v0``, registered on import.
+  tiers ``...-Procedural{Easy,Medium,Hard}{Train,Test}[-Aruco]-v0``, registered on import, each
+  with a vector entry point (``gymnasium.make_vec``: the batched core,
+  :mod:`platoon_env.gym_vector`) and ``normalize_actions=True`` for actions in ``[-1, 1]``.
 """
 
 from __future__ import annotations

@@ -8,16 +8,29 @@ procedural difficulty tiers, each split (``ProceduralEasyTrain``, ``ProceduralEa
 ``ProceduralHardTest``: a new layout of that tier and split on every reset, built for the one
 follower). Observation and action are those of the one follower of the parallel env; the
 reward is its reward; ``terminated`` and ``truncated`` follow the parallel env.
+
+Every id also has a vector entry point: ``gymnasium.make_vec(id, num_envs)`` builds a
+:class:`~platoon_env.gym_vector.SingleFollowerVectorEnv` (the batched core: all envs stepped by
+one compiled call). ``normalize_actions=True`` (both forms) makes the action space
+``Box(-1, 1, (2,))``, mapped to ``[u, omega]`` by an :class:`~platoon_env.action_range.ActionRange`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
 
+from platoon_env.action_range import (
+    ActionRange,
+    action_range_of,
+    normalised_action_space,
+    physical_actions,
+)
 from platoon_env.env import PlatoonParallelEnv
+from platoon_env.observation import ACT_SIZE
 from platoon_env.scenarios.schema import GENERATOR_SPLITS, GENERATOR_TIERS
 from platoon_env.scenarios.source import SourceLike
 
@@ -49,20 +62,53 @@ GYM_IDS: dict[str, dict[str, Any]] = {
 }
 
 
+def single_follower(overrides: dict[str, Any]) -> dict[str, Any]:
+    """``overrides`` with one follower: the Gymnasium views drive ``follower_1`` only."""
+    return {**overrides, "followers": 1}
+
+
 class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
     """One follower (``follower_1``) tracking the scripted leader of ``scenario``.
 
-    Arguments are those of :func:`platoon_env.make`; ``followers`` is forced to 1.
+    **Action space**: the follower's ``Box([-u_max, -omega_max], [u_max, omega_max])``
+    ``[u, omega]`` [m/s, rad/s] (values outside are clipped), or with ``normalize_actions``
+    ``Box(-1, 1, (2,), float32)``, mapped by ``action_range`` (clipped to ``[-1, 1]`` first).
+    NaN or inf raise ``ValueError`` and change nothing.
+
+    **Observation**, **reward**, **episode end**, **info**: the follower's in
+    :class:`~platoon_env.env.PlatoonParallelEnv` (``terminated``: a violation in
+    ``terminate_on``; ``truncated``: the leader arrived and settled, or ``max_episode_steps``).
+    ``reset(seed, options)`` as the parallel env's (options ``perturb``, ``poses``).
+
+    Args:
+        scenario: as :func:`platoon_env.make`.
+        normalize_actions: act in ``[-1, 1]^2`` instead of the actuator Box.
+        action_range: with ``normalize_actions``, the :class:`ActionRange` (or a mapping of
+            its fields) that ``[-1, 1]^2`` covers; None: ``ActionRange()`` (u in
+            [-0.5, 1.5] m/s, omega in +-2 rad/s). It must lie within the actuator Box.
+        **overrides: as :func:`platoon_env.make` (``render_mode``, ``diagnostics``, the
+            scenario options); ``followers`` is forced to 1.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
 
-    def __init__(self, scenario: SourceLike = "study_c", **overrides: Any) -> None:
-        overrides["followers"] = 1
-        self.parallel = PlatoonParallelEnv(scenario, **overrides)
+    def __init__(
+        self,
+        scenario: SourceLike = "study_c",
+        *,
+        normalize_actions: bool = False,
+        action_range: ActionRange | Mapping[str, float] | None = None,
+        **overrides: Any,
+    ) -> None:
+        self.parallel = PlatoonParallelEnv(scenario, **single_follower(overrides))
         self.agent = self.parallel.possible_agents[0]
         self.observation_space = self.parallel.observation_space(self.agent)
-        self.action_space = self.parallel.action_space(self.agent)
+        physical = self.parallel.action_space(self.agent)
+        #: The map of normalised actions to ``[u, omega]`` (None: actions are physical).
+        self.action_range = action_range_of(
+            normalize_actions, action_range, physical, "SingleFollowerEnv"
+        )
+        self.action_space = physical if self.action_range is None else normalised_action_space()
         self.render_mode = self.parallel.render_mode
 
     def reset(
@@ -75,6 +121,8 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
     def step(
         self, action: np.ndarray
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        if self.action_range is not None:
+            action = physical_actions(action, (ACT_SIZE,), self.action_range, "action")
         obs, rew, term, trunc, infos = self.parallel.step({self.agent: action})
         a = self.agent
         return obs[a], rew[a], term[a], trunc[a], infos[a]
@@ -87,12 +135,14 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
 
 
 def register_gym_ids() -> None:
-    """Register :data:`GYM_IDS` with Gymnasium (idempotent)."""
+    """Register :data:`GYM_IDS` with Gymnasium (idempotent), each with its vector entry point
+    (:class:`~platoon_env.gym_vector.SingleFollowerVectorEnv`)."""
     for env_id, kwargs in GYM_IDS.items():
         if env_id not in gym.registry:
             gym.register(
                 id=env_id,
                 entry_point="platoon_env.gym_env:SingleFollowerEnv",
+                vector_entry_point="platoon_env.gym_vector:SingleFollowerVectorEnv",
                 kwargs=dict(kwargs),
                 max_episode_steps=None,
             )

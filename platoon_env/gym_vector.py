@@ -1,0 +1,355 @@
+"""Gymnasium's vector API over the batched core: the vector entry point of every Gymnasium id.
+
+``gymnasium.make_vec("platoon_env/SingleFollower-StudyC-v0", num_envs=8)`` (the default
+``vectorization_mode`` for these ids is ``"vector_entry_point"``) builds a
+:class:`SingleFollowerVectorEnv`: ``num_envs`` copies of the id's single env
+(:class:`~platoon_env.gym_env.SingleFollowerEnv`) held by one
+:class:`~platoon_env.batched.BatchedPlatoon`, so a step of all of them is one compiled call.
+Sub-env ``i`` reset with seed ``s`` and fed the same actions returns exactly what
+``gymnasium.make(id)`` reset with ``s`` returns (``tests/test_gym_vector.py``), including the
+infos, batched as Gymnasium's own vector envs batch them.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from platoon_env.action_range import (
+    ActionRange,
+    action_range_of,
+    normalised_action_space,
+    physical_actions,
+)
+from platoon_env.batched import BatchedPlatoon
+from platoon_env.env import _check_seed
+from platoon_env.geometry.sensing import SENSE_NAMES, SENSE_VISIBLE
+from platoon_env.gym_env import single_follower
+from platoon_env.observation import ACT_SIZE
+from platoon_env.reward import REWARD_TERMS
+from platoon_env.scenarios.options import check_bool
+from platoon_env.scenarios.source import SourceLike
+from platoon_env.violations import VIOLATION_INFO, first_cause
+
+__all__ = ["SingleFollowerVectorEnv", "sub_env_seeds"]
+
+
+def _objects(values: Sequence[Any]) -> np.ndarray:
+    """A 1-D object array of ``values`` (tuples stay elements, not rows)."""
+    array = np.empty(len(values), dtype=object)
+    for k, value in enumerate(values):
+        array[k] = value
+    return array
+
+
+# ``info["violation"]``, ``["violations"]`` and ``["cost"]`` of every violation mask, as arrays
+# indexed by a batch of masks (the single env's VIOLATION_INFO, one lookup for all envs).
+_FIRST_CAUSE = _objects([first for first, _, _ in VIOLATION_INFO])
+_CAUSES = _objects([causes for _, causes, _ in VIOLATION_INFO])
+_COST = np.array([cost for _, _, cost in VIOLATION_INFO], dtype=np.int64)
+
+#: The sensing columns that the single env's info reports under their own names.
+_SENSE_INFO = ("d", "beta", "d_W_l", "d_W_r", "d_l", "d_r", "clearance")
+
+
+def sub_env_seeds(seed: int, num_envs: int) -> list[int]:
+    """The reset seeds that ``reset(seed=seed)`` gives sub-envs ``0 .. num_envs - 1``: the first
+    64-bit word of each child of ``numpy.random.SeedSequence(seed).spawn(num_envs)``, so
+    different ``seed``\\ s share no sub-env stream (``seed + i`` would: seeds 0 and 1 would share
+    ``num_envs - 1`` of them)."""
+    children = np.random.SeedSequence(_check_seed(seed)).spawn(num_envs)
+    return [int(child.generate_state(1, dtype=np.uint64)[0]) for child in children]
+
+
+class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
+    """``num_envs`` single-follower envs of one scenario, stepped together by the batched core.
+
+    **Spaces**: ``single_observation_space`` and ``single_action_space`` are the single env's
+    (:class:`~platoon_env.gym_env.SingleFollowerEnv`: the follower's observation Box; the
+    actuator Box ``[u, omega]``, or ``Box(-1, 1, (2,))`` with ``normalize_actions``);
+    ``observation_space`` and ``action_space`` batch them: ``(num_envs, K)`` and
+    ``(num_envs, 2)``. Actions outside the Box are clipped; a wrong shape, a non-real dtype,
+    NaN or inf raise (``ValueError``/``TypeError``) and change nothing.
+
+    **step** returns ``observations (num_envs, K) float32``, ``rewards (num_envs,) float64``,
+    ``terminated``, ``truncated`` ``(num_envs,) bool`` (the single env's episode rules) and
+    ``infos``: the single env's info keys as arrays over the sub-envs, each with its ``_key``
+    mask (``reward_terms`` a dict of arrays with its own masks), as Gymnasium's
+    ``SyncVectorEnv`` batches them.
+
+    **Autoreset**: ``AutoresetMode.SAME_STEP`` (``metadata["autoreset_mode"]``). A sub-env
+    whose episode ends in a step is reset within that step, continuing its own RNG (no
+    reseeding; as ``env.reset()`` without a seed): its row of the returned observations is
+    the first observation of the next episode and its row of ``infos`` that reset's info;
+    ``infos["final_obs"]`` (an object array, None for the others) and ``infos["final_info"]``
+    (a dict of arrays) hold the ended episode's last observation and info, masked by
+    ``infos["_final_obs"]`` and ``infos["_final_info"]``. Its reward, ``terminated`` and
+    ``truncated`` are the ended episode's last ones. There is never a step that only resets.
+
+    **reset(seed, options)**: ``seed`` None continues each sub-env's RNG; a list gives one seed
+    (or None) per sub-env, exactly as ``gymnasium.make(id).reset(seed=...)`` would take it; one
+    int ``s`` seeds the sub-envs with :func:`sub_env_seeds` (independent streams of
+    ``SeedSequence(s)``, not Gymnasium's ``s + i``). ``options``: ``perturb`` (bool, as the
+    single env's) and ``reset_mask`` (a bool array ``(num_envs,)``: reset only those sub-envs,
+    as Gymnasium's vector envs do; the others keep their state and observation row, and the
+    infos mask them out). The single env's ``poses`` option is not available (the batched core
+    starts every episode from the scenario's configuration); other keys are ignored with a
+    warning, as the single env does.
+
+    **render()**: with ``render_mode="rgb_array"``, a tuple of one ``(H, W, 3)`` frame per
+    sub-env.
+
+    Args:
+        num_envs: number of sub-envs.
+        scenario: as :func:`platoon_env.make` (a shipped name, a YAML path, a dict, ...).
+        render_mode: ``"rgb_array"`` or None.
+        diagnostics: as the single env's (False: ``infos`` keeps only ``violation``,
+            ``violations`` and ``cost``).
+        normalize_actions, action_range: as :class:`~platoon_env.gym_env.SingleFollowerEnv`.
+        n_threads: numba threads stepping the sub-envs (1: a serial loop); results do not
+            depend on it.
+        **overrides: the scenario options of :func:`platoon_env.make` (``followers`` is
+            forced to 1).
+    """
+
+    metadata: dict[str, Any] = {
+        "render_modes": ["rgb_array"],
+        "render_fps": 25,
+        "autoreset_mode": AutoresetMode.SAME_STEP,
+    }
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        scenario: SourceLike = "study_c",
+        *,
+        render_mode: str | None = None,
+        diagnostics: bool = True,
+        normalize_actions: bool = False,
+        action_range: ActionRange | Mapping[str, float] | None = None,
+        n_threads: int = 1,
+        **overrides: Any,
+    ) -> None:
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be 'rgb_array' or None, got {render_mode!r}")
+        self.diagnostics = check_bool("diagnostics", diagnostics, "make_vec()")
+        #: The batched core holding the sub-envs (its ground-truth arrays: poses, sensing, ...).
+        self.batch = BatchedPlatoon(
+            scenario, num_envs, n_threads=n_threads, **single_follower(overrides)
+        )
+        self.num_envs = self.batch.batch_size
+        self.render_mode = render_mode
+        self.single_observation_space = self.batch.single_observation_space
+        physical = self.batch.single_action_space
+        #: The map of normalised actions to ``[u, omega]`` (None: actions are physical).
+        self.action_range = action_range_of(
+            normalize_actions, action_range, physical, "SingleFollowerVectorEnv"
+        )
+        self.single_action_space = (
+            physical if self.action_range is None else normalised_action_space()
+        )
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        # Violation masks of the state on show (the last step's, zero after a reset): render().
+        self._masks = np.zeros(self.num_envs, dtype=np.int64)
+        self._renderers: list[Any] = [None] * self.num_envs
+        self._drawn: list[Any] = [None] * self.num_envs  # the scenario each renderer draws
+
+    # ----------------------------------------------------------------------------------------
+    # Gymnasium VectorEnv API
+    # ----------------------------------------------------------------------------------------
+    def reset(
+        self,
+        *,
+        seed: int | Sequence[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start new episodes (see the class doc for ``seed`` and ``options``); returns the
+        observations ``(num_envs, K)`` and the reset infos."""
+        options = dict(options or {})
+        mask = self._reset_mask(options.pop("reset_mask", None))
+        perturb = options.pop("perturb", None)
+        if perturb is not None:
+            perturb = check_bool("options['perturb']", perturb, "reset()")
+        if "poses" in options:
+            raise ValueError(
+                "reset(): options['poses'] is not available in the vector env (the batched core "
+                "starts from the scenario's configuration); use gymnasium.make(id) for it"
+            )
+        if options:
+            warnings.warn(
+                f"reset(): ignoring unknown option(s) {', '.join(sorted(map(str, options)))}",
+                stacklevel=2,
+            )
+        seeds = self._seeds(seed)
+        idx = np.flatnonzero(mask)
+        obs = self.batch.reset([seeds[i] for i in idx], envs=idx, perturb=perturb)
+        self._masks[idx] = 0
+        return obs[:, 0], _masked(self._info_values(self._masks), mask)
+
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Advance every sub-env by one control period (``actions``: ``(num_envs, 2)``);
+        sub-envs whose episode ends are reset in the same step (see the class doc)."""
+        shape = (self.num_envs, ACT_SIZE)
+        act = physical_actions(actions, shape, self.action_range, "actions")
+        obs, rewards, terminated, truncated, step_info = self.batch.step(
+            act.reshape(self.num_envs, 1, ACT_SIZE)
+        )
+        obs = obs[:, 0]
+        masks = step_info["violations"][:, 0]
+        values = self._info_values(masks, self.batch.reward_terms[:, 0])
+        self._masks[:] = masks
+        ended = terminated | truncated
+        if not ended.any():
+            return obs, rewards[:, 0], terminated, truncated, _masked(values, ~ended)
+        # SAME_STEP: the ended sub-envs' final observation and info, then their reset's.
+        idx = np.flatnonzero(ended)
+        final_obs = _objects([obs[i] if end else None for i, end in enumerate(ended.tolist())])
+        final_info = _masked(values, ended)
+        obs = self.batch.reset([None] * len(idx), envs=idx)[:, 0]
+        self._masks[idx] = 0
+        infos = _merged(_masked(values, ~ended), _masked(self._info_values(self._masks), ended))
+        infos["final_obs"], infos["_final_obs"] = final_obs, ended.copy()
+        infos["final_info"], infos["_final_info"] = final_info, ended.copy()
+        return obs, rewards[:, 0], terminated, truncated, infos
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """One ``rgb_array`` frame per sub-env (None, with a warning, without a render_mode)."""
+        if self.render_mode is None:
+            warnings.warn(
+                "render() called without a render_mode; pass render_mode='rgb_array' to make_vec()",
+                stacklevel=2,
+            )
+            return None
+        from platoon_env.rendering import Renderer
+
+        poses = self.batch.poses
+        visible = self.batch.sensed[:, :, SENSE_VISIBLE] > 0
+        sim_time = self.batch.sim_time
+        frames = []
+        for i, scenario in enumerate(self.batch.scenarios):
+            if self._drawn[i] is not scenario:  # a new layout: redraw from scratch
+                if self._renderers[i] is not None:
+                    self._renderers[i].close()
+                self._renderers[i] = Renderer(
+                    scenario.free_space,
+                    scenario.config,
+                    self.render_mode,
+                    fps=self.metadata["render_fps"],
+                    bounds=self.batch.source.bounds,
+                )
+                self._drawn[i] = scenario
+            names = [first_cause(int(self._masks[i]))]
+            frames.append(
+                self._renderers[i].render(poses[i], visible[i], float(sim_time[i]), names)
+            )
+        return tuple(frames)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        """Release the renderers."""
+        for renderer in self._renderers:
+            if renderer is not None:
+                renderer.close()
+        self._renderers = [None] * self.num_envs
+        self._drawn = [None] * self.num_envs
+
+    # ----------------------------------------------------------------------------------------
+    # Internals
+    # ----------------------------------------------------------------------------------------
+    def _reset_mask(self, mask: Any) -> np.ndarray:
+        """The sub-envs to reset: all, or ``options["reset_mask"]`` (checked as Gymnasium's
+        vector envs check it)."""
+        if mask is None:
+            return np.ones(self.num_envs, dtype=bool)
+        if not isinstance(mask, np.ndarray):
+            raise TypeError(f"options['reset_mask'] must be a numpy array, got {type(mask)}")
+        if mask.shape != (self.num_envs,):
+            raise ValueError(
+                f"options['reset_mask'] must have shape ({self.num_envs},), got {mask.shape}"
+            )
+        if mask.dtype != np.bool_:
+            raise TypeError(f"options['reset_mask'] must have dtype bool, got {mask.dtype}")
+        if not mask.any():
+            raise ValueError("options['reset_mask'] must contain at least one True value")
+        return mask.copy()
+
+    def _seeds(self, seed: int | Sequence[int | None] | None) -> list[int | None]:
+        """One checked seed (or None) per sub-env."""
+        if seed is None:
+            return [None] * self.num_envs
+        if isinstance(seed, int | np.integer) and not isinstance(seed, bool):
+            return list(sub_env_seeds(int(seed), self.num_envs))
+        if isinstance(seed, str | bytes) or not isinstance(seed, Sequence | np.ndarray):
+            raise TypeError(f"seed must be an int, a list of ints (or None) or None, got {seed!r}")
+        if len(seed) != self.num_envs:
+            raise ValueError(f"need one seed per sub-env ({self.num_envs}), got {len(seed)}")
+        return [None if s is None else _check_seed(s) for s in seed]
+
+    def _info_values(self, masks: np.ndarray, terms: np.ndarray | None = None) -> dict[str, Any]:
+        """The single env's info entries of every sub-env, as arrays over the sub-envs (or, for
+        ``reward_terms``, a dict of them): ``masks`` their violation masks, ``terms`` their
+        reward terms ``(num_envs, len(REWARD_TERMS))`` (None after a reset, whose info has
+        empty ``reward_terms``); the sensing is the core's current one."""
+        values: dict[str, Any] = {
+            "violation": _FIRST_CAUSE[masks],
+            "violations": _CAUSES[masks],
+            "cost": _COST[masks],
+        }
+        if self.diagnostics:
+            sensed = self.batch.sensed[:, 0]
+            d_des = np.array([s.config.formation.d_des for s in self.batch.scenarios])
+            for name in _SENSE_INFO:
+                values[name] = sensed[:, SENSE_NAMES.index(name)]
+            values["e_d"] = values["d"] - d_des
+            values["e_beta"] = values["beta"]
+            values["visible"] = sensed[:, SENSE_VISIBLE] > 0.0
+            values["reward_terms"] = (
+                {} if terms is None else {t: terms[:, k] for k, t in enumerate(REWARD_TERMS)}
+            )
+        return values
+
+
+def _masked(values: dict[str, Any], rows: np.ndarray) -> dict[str, Any]:
+    """``values`` (arrays over all sub-envs, or dicts of them) kept in ``rows`` only, each key
+    with its ``_key`` mask: Gymnasium's batched info of the sub-envs in ``rows`` (no keys for
+    no rows: a key appears once some sub-env has it)."""
+    out: dict[str, Any] = {}
+    if not rows.any():
+        return out
+    for key, value in values.items():
+        if isinstance(value, dict):
+            out[key] = _masked(value, rows)
+        else:
+            array = np.zeros_like(value) if value.dtype != object else np.full_like(value, None)
+            array[rows] = value[rows]
+            out[key] = array
+        out[f"_{key}"] = rows.copy()
+    return out
+
+
+def _merged(first: dict[str, Any], second: dict[str, Any]) -> dict[str, Any]:
+    """Two batched infos of disjoint sub-envs (:func:`_masked`) as one: each row from the one
+    whose ``_key`` mask holds it, as Gymnasium's vector envs gather their sub-envs' infos."""
+    out: dict[str, Any] = {}
+    for key in [*first, *(k for k in second if k not in first)]:
+        if key.startswith("_"):
+            continue
+        if key not in second or key not in first:
+            source = first if key in first else second
+            out[key], out[f"_{key}"] = source[key], source[f"_{key}"]
+            continue
+        rows = second[f"_{key}"]
+        if isinstance(first[key], dict):
+            out[key] = _merged(first[key], second[key])
+        else:
+            out[key] = first[key].copy()
+            out[key][rows] = second[key][rows]
+        out[f"_{key}"] = first[f"_{key}"] | rows
+    return out
