@@ -1,5 +1,7 @@
 """Baseline policies for platoon_env, all behind the shared :class:`Policy` interface."""
 
+# First of the package's modules: keys numba's kernel cache on the source (see the module).
+import baselines._numba_cache  # noqa: F401
 from baselines.filtered_ppc import FilteredPPCPolicy, FilterParams
 from baselines.last_seen import LastSeenFOVPolicy, LastSeenParams, LastSeenPolicy
 from baselines.policy import Policy

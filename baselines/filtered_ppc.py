@@ -17,9 +17,11 @@ Per follower ``i`` (index dropped) and control step ``k`` (time ``t_k = k dt``) 
    (``o_0 = 0``) from its own commands. Each command is clipped to the action box and passed
    through the actuator model the scenario declares: the first-order lag
    ``v += (c - v)(1 - exp(-dt / lag))``, then the rate limits ``accel_max dt`` and
-   ``alpha_max dt`` (:func:`actuator_step`, the rule of :mod:`platoon_env.dynamics.actuators`).
-   The applied ``(u, omega)`` is held for ``dt`` on an exact unicycle arc (eq. 1,
-   :func:`odometry_step`). A robot knows its own drive; no ground truth is read;
+   ``alpha_max dt`` (:func:`actuator_step`: the env's rule,
+   :func:`platoon_env.dynamics.actuators.follow`). The applied ``(u, omega)`` is held for
+   ``dt`` on the exact unicycle arc of eq. 1 (:func:`odometry_step`: the env's
+   :func:`~platoon_env.dynamics.unicycle.unicycle_arc`). A robot knows its own drive; no
+   ground truth is read;
 2. **filters the camera** with a constant-velocity Kalman filter on the predecessor's position
    in its own body frame, run at the time the latest frame shows (latency compensation, below);
 3. **moves the estimate to the present**, through its own motion since then, and on by the
@@ -78,7 +80,8 @@ Frames, dropouts and latency
 The policy knows its camera's timing (``camera.frame_rate`` and ``camera.latency`` from
 ``env.scenario.config``: a robot knows its sensor's datasheet and timestamps its frames) and
 mirrors it: a frame is taken at step ``j`` when a new frame period ``1/frame_rate`` begins
-(every step without a frame rate; step 0 always, :func:`frame_due`) and is delivered
+(every step without a frame rate; step 0 always: :func:`frame_due`, the env camera's rule
+:func:`platoon_env.perception.frame_due_at`) and is delivered
 ``L = latency / dt`` steps later. The filter is therefore kept at ``t_j``, ``j = max(k - L, 0)``:
 
 * each step it is predicted from ``t_{j-1}`` to ``t_j`` with the odometry between them;
@@ -169,16 +172,20 @@ collide (39.5 s). With the full profile it collides at 3.4-4.3 s.
 Implementation
 --------------
 The pure functions (:func:`kf_predict`, :func:`kf_update`, :func:`measurement_covariance`,
-:func:`propagate_mean`, :func:`relative_pose`, :func:`odometry_step`, :func:`actuator_step`,
-:func:`frame_due`) are the equations, vectorised over followers with numpy, for tests and
-readers. :class:`FilteredPPCPolicy` runs the same equations in one compiled (numba) loop over
-the followers (:func:`_filter_step`, :func:`_dead_reckon_step`), then the inner law's own
-compiled kernel.
+:func:`propagate_mean`, :func:`relative_pose`) are the filter's equations, vectorised over
+followers with numpy, for tests and readers; :func:`odometry_step`, :func:`actuator_step` and
+:func:`frame_due` apply the env's own rules (the unicycle arc, the actuators, the camera's
+frame timing) elementwise. :class:`FilteredPPCPolicy` runs the same equations in one compiled
+(numba) loop over the followers (:func:`_filter_step`, :func:`_dead_reckon_step`, which call
+those rules and :mod:`baselines.odometry`), then the inner law's own compiled kernel. The
+filter's state is one record of named arrays (:class:`FilterState`) and its constants one
+structured record (:data:`FILTER_KERNEL_DTYPE`), both read by field name.
 """
 
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 from collections.abc import Mapping
 from dataclasses import dataclass
 from dataclasses import replace as dc_replace
@@ -188,26 +195,28 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from baselines.policy import PolicyEnv, agent_indices, sensor_part
+from baselines.odometry import body_arc, in_frame
+from baselines.policy import Followers, PolicyEnv, as_float, kernel_record
 from baselines.ppc import PPCPolicy
+from platoon_env.dynamics.actuators import follow, lag_gain
+from platoon_env.dynamics.unicycle import unicycle_arc
 from platoon_env.observation import (
     ACT_OMEGA,
     ACT_U,
-    OBS_D_SIGHT_LEFT,
-    OBS_D_SIGHT_RIGHT,
-    OBS_D_WALL_LEFT,
-    OBS_D_WALL_RIGHT,
+    OBS_CLEARANCES,
     OBS_SIZE,
     OBS_VISIBLE,
     OBS_X_REL,
     OBS_Y_REL,
 )
+from platoon_env.perception import frame_due_at
 from platoon_env.scenarios.schema import ScenarioConfig
 
 __all__ = [
     "FILTER_KERNEL_DTYPE",
     "FILTER_SIGNAL_NAMES",
     "FilterParams",
+    "FilterState",
     "FilteredPPCPolicy",
     "actuator_step",
     "frame_due",
@@ -236,30 +245,16 @@ FILTER_SIGNAL_NAMES: tuple[str, ...] = (
 )
 _FLAG_SIGNALS = ("updated", "tracked")
 
-_CLEARANCES = (OBS_D_WALL_LEFT, OBS_D_WALL_RIGHT, OBS_D_SIGHT_LEFT, OBS_D_SIGHT_RIGHT)
-
 
 # ----------------------------------------------------------------------------------------------
 # Pure functions: the equations of the module docstring, vectorised over followers
 # ----------------------------------------------------------------------------------------------
 
 
-def _f(x: ArrayLike) -> FloatArray:
-    return np.asarray(x, dtype=np.float64)
-
-
-def frame_due(step: int, control_period: float, frame_period: float) -> bool:
-    """Whether the camera takes a frame at control step ``step`` (step 0 always does).
-
-    A frame is due when a new frame period has begun, ``floor(k dt / T) > floor((k-1) dt / T)``
-    (with the env's ``1e-9`` tolerance); ``frame_period = 0`` means every step. This is the rule
-    of :func:`platoon_env.perception.frame_due`, which the env's camera follows.
-    """
-    if frame_period <= 0.0 or step == 0:
-        return True
-    now = step * control_period / frame_period
-    before = (step - 1) * control_period / frame_period
-    return math.floor(now + 1e-9) > math.floor(before + 1e-9)
+#: Whether the camera takes a frame at control step ``step`` (step 0 always does):
+#: ``frame_due(step, control_period, frame_period)``, the env camera's own rule
+#: (:func:`platoon_env.perception.frame_due_at`), under the name this module has exported.
+frame_due = frame_due_at
 
 
 def actuator_step(
@@ -269,28 +264,23 @@ def actuator_step(
 
     ``v' = clip(v + (c - v) g, v - max_change, v + max_change)``, with ``g = 1 - exp(-dt/lag)``
     (``g = 1``: no lag) and ``max_change = (accel_max dt, alpha_max dt)`` (``inf``: no limit).
-    ``applied`` and ``command`` are ``(..., 2)`` ``[u, omega]``.
+    ``applied`` and ``command`` are ``(..., 2)`` ``[u, omega]``. The env's rule
+    (:func:`platoon_env.dynamics.actuators.follow`), elementwise.
     """
-    v, c = _f(applied), _f(command)
-    target = c if lag_gain >= 1.0 else v + (c - v) * lag_gain
-    lim = _f(max_change)
-    return np.minimum(v + lim, np.maximum(v - lim, target))
+    return np.vectorize(follow, otypes=[np.float64])(applied, command, lag_gain, max_change)
 
 
 def odometry_step(pose: ArrayLike, u: ArrayLike, omega: ArrayLike, dt: float) -> FloatArray:
     r"""Dead reckoning: the pose ``(X, Y, Theta)`` (``(..., 3)``) after holding ``(u, omega)``
-    for ``dt`` on the exact unicycle arc of eq. 1.
+    for ``dt`` on the exact unicycle arc of eq. 1 (the env's
+    :func:`~platoon_env.dynamics.unicycle.unicycle_arc`, pose by pose).
 
     In its old body frame the robot moves by ``(dx, dy) = (u dt sinc(a), u dt (1 - cos a)/a)``
     and turns by ``a = omega dt``.
     """
-    o = _f(pose)
-    a = _f(omega) * dt
-    step = _f(u) * dt
-    dx = step * np.sinc(a / math.pi)  # u dt sin(a)/a
-    dy = step * np.sin(0.5 * a) * np.sinc(a / (2.0 * math.pi))  # u dt (1 - cos a)/a
-    c, s = np.cos(o[..., 2]), np.sin(o[..., 2])
-    return np.stack([o[..., 0] + c * dx - s * dy, o[..., 1] + s * dx + c * dy, o[..., 2] + a], -1)
+    o = as_float(pose)
+    arc = np.vectorize(unicycle_arc, otypes=[np.float64] * 3)
+    return np.stack(arc(o[..., 0], o[..., 1], o[..., 2], u, omega, dt), -1)
 
 
 def relative_pose(
@@ -299,7 +289,7 @@ def relative_pose(
     r"""``(D_x, D_y, A)``: the pose ``pose_to`` in the body frame of ``pose_from``
     (``o_from^{-1} o_to``): ``D = R(-Theta_from) (P_to - P_from)``, ``A = Theta_to -
     Theta_from``. A point at ``p`` in the old frame is at ``R(-A) (p - D)`` in the new one."""
-    a, b = _f(pose_from), _f(pose_to)
+    a, b = as_float(pose_from), as_float(pose_to)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     ex, ey = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
     return c * ex + s * ey, -s * ex + c * ey, b[..., 2] - a[..., 2]
@@ -325,8 +315,8 @@ def kf_predict(
     ``s`` (n, 4) ``[p_x, p_y, w_x, w_y]``, ``P`` (n, 4, 4); ``(dx, dy, a)`` (n,) the follower's
     own motion over ``dt`` (:func:`relative_pose` of consecutive odometry poses).
     """
-    ss, PP = _f(s).reshape(-1, 4), _f(P).reshape(-1, 4, 4)
-    aa = _f(a).reshape(-1)
+    ss, PP = as_float(s).reshape(-1, 4), as_float(P).reshape(-1, 4, 4)
+    aa = as_float(a).reshape(-1)
     c, sn = np.cos(aa), np.sin(aa)
     rot = np.zeros((aa.shape[0], 2, 2))  # R(-a)
     rot[:, 0, 0] = rot[:, 1, 1] = c
@@ -335,7 +325,7 @@ def kf_predict(
     F = np.zeros((aa.shape[0], 4, 4))
     F[:, 0:2, 0:2] = F[:, 2:4, 2:4] = rot
     F[:, 0:2, 2:4] = rot * dt
-    disp = np.stack([_f(dx).reshape(-1), _f(dy).reshape(-1)], -1)
+    disp = np.stack([as_float(dx).reshape(-1), as_float(dy).reshape(-1)], -1)
     s_new = np.einsum("nij,nj->ni", F, ss)
     s_new[:, 0:2] -= np.einsum("nij,nj->ni", rot, disp)
     P_new = F @ PP @ np.swapaxes(F, 1, 2) + process_noise(q, dt)
@@ -348,7 +338,7 @@ def measurement_covariance(
     r"""``R`` (n, 2, 2) of camera points ``z = (x~, y~)`` (n, 2) (module docstring):
     ``R = sigma^2 I + sigma_b^2 [[y~^2, -x~ y~], [-x~ y~, x~^2]]``,
     ``sigma = max(sigma_0 + sigma_1 |z|, sigma_floor)``."""
-    zz = _f(z).reshape(-1, 2)
+    zz = as_float(z).reshape(-1, 2)
     x, y = zz[:, 0], zz[:, 1]
     sig2 = np.maximum(sigma_0 + sigma_1 * np.hypot(x, y), sigma_floor) ** 2
     b2 = sigma_b**2
@@ -367,8 +357,8 @@ def kf_update(
 
     ``s`` (n, 4), ``P`` (n, 4, 4), ``z`` (n, 2), ``R`` (n, 2, 2).
     """
-    ss, PP = _f(s).reshape(-1, 4), _f(P).reshape(-1, 4, 4)
-    zz, RR = _f(z).reshape(-1, 2), _f(R).reshape(-1, 2, 2)
+    ss, PP = as_float(s).reshape(-1, 4), as_float(P).reshape(-1, 4, 4)
+    zz, RR = as_float(z).reshape(-1, 2), as_float(R).reshape(-1, 2, 2)
     S = PP[:, 0:2, 0:2] + RR
     K = PP[:, :, 0:2] @ np.linalg.inv(S)  # (n, 4, 2)
     s_new = ss + np.einsum("nij,nj->ni", K, zz - ss[:, 0:2])
@@ -382,11 +372,11 @@ def propagate_mean(
     r"""The filter's mean ``s`` (n, 4) moved on by ``T`` = ``elapsed`` seconds, in which the
     follower's pose changed by ``(D_x, D_y, A)`` = ``(dx, dy, a)``: ``p^ = R(-A)(p + w T - D)``,
     ``w^ = R(-A) w``. Returns ``(p^, w^)``, (n, 2) each."""
-    ss = _f(s).reshape(-1, 4)
-    c, sn = np.cos(_f(a)), np.sin(_f(a))
-    T = _f(elapsed)
-    px = ss[:, 0] + ss[:, 2] * T - _f(dx)
-    py = ss[:, 1] + ss[:, 3] * T - _f(dy)
+    ss = as_float(s).reshape(-1, 4)
+    c, sn = np.cos(as_float(a)), np.sin(as_float(a))
+    T = as_float(elapsed)
+    px = ss[:, 0] + ss[:, 2] * T - as_float(dx)
+    py = ss[:, 1] + ss[:, 3] * T - as_float(dy)
     p = np.stack([c * px + sn * py, -sn * px + c * py], -1)
     w = np.stack([c * ss[:, 2] + sn * ss[:, 3], -sn * ss[:, 2] + c * ss[:, 3]], -1)
     return p, w
@@ -512,7 +502,7 @@ class FilterParams:
             sigma_b=sb,
             u_max=float(rob.u_max),
             omega_max=float(rob.omega_max),
-            lag_gain=1.0 if rob.lag == 0 else -math.expm1(-dt / rob.lag),
+            lag_gain=lag_gain(rob.lag, dt),
             du_max=math.inf if rob.accel_max is None else float(rob.accel_max) * dt,
             dw_max=math.inf if rob.alpha_max is None else float(rob.alpha_max) * dt,
             **{k: float(v) for k, v in ov.items()},
@@ -539,7 +529,8 @@ FILTER_KERNEL_DTYPE: np.dtype[np.void] = np.dtype(
     [
         ("dt", np.float64),  # [s] control period
         ("latency_steps", np.int64),  # L
-        ("q", np.float64),  # [m^2/s^3] q of Q
+        ("frame_period", np.float64),  # [s] 1 / camera.frame_rate; 0: a frame every step
+        ("q_accel", np.float64),  # [m^2/s^3] q of Q
         ("v0_var", np.float64),  # [m^2/s^2] v0_std^2, the prior velocity variance
         ("sigma_0", np.float64),  # [m] R: sigma = max(sigma_0 + sigma_1 |z|, sigma_floor)
         ("sigma_1", np.float64),  # [m/m]
@@ -559,24 +550,28 @@ FILTER_KERNEL_DTYPE: np.dtype[np.void] = np.dtype(
 
 
 def _kernel_params(p: FilterParams) -> NDArray[np.void]:
-    out = np.zeros(1, dtype=FILTER_KERNEL_DTYPE)
-    out["dt"] = p.dt
-    out["latency_steps"] = p.latency_steps
-    out["q"] = p.q_accel
-    out["v0_var"] = p.v0_std**2
-    out["sigma_0"] = p.sigma_0
-    out["sigma_1"] = p.sigma_1
-    out["sigma_b2"] = p.sigma_b**2
-    out["sigma_floor"] = p.sigma_floor
-    out["max_coast"] = p.max_coast
-    out["clearance_gain"] = p.clearance_gain
-    out["lookahead"] = p.lookahead
-    out["u_max"] = p.u_max
-    out["omega_max"] = p.omega_max
-    out["lag_gain"] = p.lag_gain
-    out["du_max"] = p.du_max
-    out["dw_max"] = p.dw_max
-    return out
+    """The constants of the kernels from ``p``: a ``(1,)`` :data:`FILTER_KERNEL_DTYPE` array."""
+    return kernel_record(FILTER_KERNEL_DTYPE, p, v0_var=p.v0_std**2, sigma_b2=p.sigma_b**2)
+
+
+#: The filter's state of N followers (L = latency steps), advanced in place by the kernels:
+#:
+#: * ``mean`` (N, 4) and ``cov`` (N, 4, 4): the filter's ``s`` and ``P`` at ``t_j``;
+#: * ``started`` (N,) bool: had a detection (the filter is running);
+#: * ``last_update`` (N,) int64: the step ``j`` of the last measurement update;
+#: * ``odometry`` (L + 2, N, 3): the odometry poses, ``o_m`` in row ``m % (L + 2)``;
+#: * ``applied`` (N, 2): the actuator model's applied ``[u, omega]``;
+#: * ``clearances`` (N, 4): the low-passed clearances (``OBS_CLEARANCES`` order);
+#: * ``updates``, ``untracked`` (N,) int64: measurement updates, and steps the law was told
+#:   "not visible", since the reset.
+#:
+#: Like the env core's records (:mod:`platoon_env.records`), it enters compiled code as a plain
+#: tuple of its arrays (which numba types faster than a named tuple) and is named there again
+#: (``FilterState(*state)``).
+FilterState = namedtuple(
+    "FilterState",
+    "mean cov started last_update odometry applied clearances updates untracked",
+)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -588,31 +583,24 @@ _F_X, _F_Y, _F_WX, _F_WY, _F_STD, _F_COAST, _F_UPDATED, _F_TRACKED = range(8)
 
 
 @njit(cache=True)
-def _arc(u: float, omega: float, h: float) -> tuple[float, float, float]:
-    """``(dx, dy, a)`` of holding ``(u, omega)`` for ``h`` (body frame; :func:`odometry_step`)."""
-    a = omega * h
-    if abs(a) < 1e-9:
-        return u * h, 0.5 * u * h * a, a
-    return u * h * math.sin(a) / a, u * h * (1.0 - math.cos(a)) / a, a
-
-
-@njit(cache=True)
 def _relative(o_from: np.ndarray, o_to: np.ndarray) -> tuple[float, float, float]:
     """:func:`relative_pose` of two ``(3,)`` poses."""
-    c, s = math.cos(o_from[2]), math.sin(o_from[2])
-    ex, ey = o_to[0] - o_from[0], o_to[1] - o_from[1]
-    return c * ex + s * ey, -s * ex + c * ey, o_to[2] - o_from[2]
+    dx, dy = in_frame(o_to[0], o_to[1], o_from[0], o_from[1], o_from[2])
+    return dx, dy, o_to[2] - o_from[2]
 
 
 @njit(cache=True)
 def _propagate(
-    px: float, py: float, wx: float, wy: float, dx: float, dy: float, a: float, T: float
+    est: tuple[float, float, float, float], motion: tuple[float, float, float], T: float
 ) -> tuple[float, float, float, float]:
-    """:func:`propagate_mean` of one state: ``p^ = R(-a)(p + w T - D)``, ``w^ = R(-a) w``."""
-    c, s = math.cos(a), math.sin(a)
-    qx = px + wx * T - dx
-    qy = py + wy * T - dy
-    return c * qx + s * qy, -s * qx + c * qy, c * wx + s * wy, -s * wx + c * wy
+    """:func:`propagate_mean` of one estimate ``est = (p_x, p_y, w_x, w_y)`` over ``T`` seconds
+    in which the follower moved by ``motion = (D_x, D_y, A)``: ``p^ = R(-A)(p + w T - D)``,
+    ``w^ = R(-A) w``."""
+    px, py, wx, wy = est
+    dx, dy, a = motion
+    qx, qy = in_frame(px + wx * T, py + wy * T, dx, dy, a)
+    vx, vy = in_frame(wx, wy, 0.0, 0.0, a)
+    return qx, qy, vx, vy
 
 
 @njit(cache=True)
@@ -689,51 +677,41 @@ def _filter_step(
     obs: np.ndarray,
     idx: np.ndarray,
     k: int,
-    delivered: bool,
     params: np.ndarray,
-    s: np.ndarray,
-    P: np.ndarray,
-    init: np.ndarray,
-    last: np.ndarray,
-    odo: np.ndarray,
-    applied: np.ndarray,
-    clear: np.ndarray,
+    state: tuple,  # type: ignore[type-arg]
     out: np.ndarray,
-    fsig: np.ndarray,
-    updates: np.ndarray,
-    untracked: np.ndarray,
+    signals: np.ndarray,
 ) -> None:
     r"""Steps 1-4 of the module docstring for followers ``idx`` at control step ``k``.
 
-    ``obs`` (n, 7) their observations, ``delivered``: a frame taken at ``t_j``,
-    ``j = max(k - L, 0)``, arrives now (:func:`frame_due`). State of all N followers, advanced
-    in place for ``idx``: filter mean ``s`` (N, 4) and covariance ``P`` (N, 4, 4) at ``t_j``,
-    ``init`` (N,) (had a detection), ``last`` (N,) (step ``j`` of the last update), odometry
-    ring ``odo`` (L + 2, N, 3) (``o_m`` in row ``m % (L + 2)``), modelled applied velocity
-    ``applied`` (N, 2), low-passed clearances ``clear`` (N, 4). Writes the law's observation
-    rows to ``out`` (n, 7), the signals to ``fsig`` (8, N) and counts ``updates`` and
-    ``untracked`` (N,).
+    ``obs`` (n, 7) their observations; ``params`` (1,) :data:`FILTER_KERNEL_DTYPE` the
+    constants; ``state`` the :class:`FilterState` of all N followers (as a plain tuple),
+    advanced in place for ``idx``. A frame taken at ``t_j``, ``j = max(k - L, 0)``, arrives now
+    when the camera took one at step ``j`` (:func:`frame_due`; step 0's frame at once). Writes
+    the law's observation rows to ``out`` (n, 7) and the signals to ``signals`` (8, N).
     """
     p = params[0]
+    st = FilterState(*state)
     dt = p.dt
     L = p.latency_steps
-    ring = odo.shape[0]
+    ring = st.odometry.shape[0]
     j = max(k - L, 0)
+    delivered = k == 0 or (j >= 1 and frame_due_at(j, dt, p.frame_period))
     for r in range(obs.shape[0]):
         i = idx[r]
-        si = s[i]
-        Pi = P[i]
-        oj = odo[j % ring, i]
+        si = st.mean[i]
+        Pi = st.cov[i]
+        oj = st.odometry[j % ring, i]
         # 1a. predict t_{j-1} -> t_j with the odometry (once the delayed time is past step 0)
         if k - L >= 1:
-            dx, dy, a = _relative(odo[(j - 1) % ring, i], oj)
-            _predict(si, Pi, dx, dy, a, dt, p.q)
+            dx, dy, a = _relative(st.odometry[(j - 1) % ring, i], oj)
+            _predict(si, Pi, dx, dy, a, dt, p.q_accel)
         # 1b. update with a delivered frame that reports the predecessor
         upd = delivered and obs[r, OBS_VISIBLE] > 0.5
         if upd:
             zx, zy = obs[r, OBS_X_REL], obs[r, OBS_Y_REL]
             R = _covariance(zx, zy, p)
-            if init[i]:
+            if st.started[i]:
                 _update(si, Pi, zx, zy, R)
             else:  # first detection: s = [z, 0, 0], P = blockdiag(R, v0^2 I)
                 si[0], si[1], si[2], si[3] = zx, zy, 0.0, 0.0
@@ -741,75 +719,75 @@ def _filter_step(
                 Pi[0:2, 0:2] = R
                 Pi[2, 2] = p.v0_var
                 Pi[3, 3] = p.v0_var
-                init[i] = True
-            last[i] = j
-            updates[i] += 1
+                st.started[i] = True
+            st.last_update[i] = j
+            st.updates[i] += 1
         # 2. the estimate at t_k (through the odometry), then tau ahead (applied velocity held)
-        dx, dy, a = _relative(oj, odo[k % ring, i])
-        px, py, wx, wy = _propagate(si[0], si[1], si[2], si[3], dx, dy, a, (k - j) * dt)
+        est = _propagate(
+            (si[0], si[1], si[2], si[3]), _relative(oj, st.odometry[k % ring, i]), (k - j) * dt
+        )
         if p.lookahead > 0.0:
             # Only a channel the drive delays is held ahead: an instant omega (no alpha_max,
             # no lag) would be the law's own chattering command, extrapolated.
             lagged = p.lag_gain < 1.0
-            u_ahead = applied[i, ACT_U] if lagged or p.du_max < math.inf else 0.0
-            w_ahead = applied[i, ACT_OMEGA] if lagged or p.dw_max < math.inf else 0.0
-            dx, dy, a = _arc(u_ahead, w_ahead, p.lookahead)
-            px, py, wx, wy = _propagate(px, py, wx, wy, dx, dy, a, p.lookahead)
-        coast = (k - last[i]) * dt if init[i] else math.inf
-        tracked = init[i] and coast <= p.max_coast
+            u_ahead = st.applied[i, ACT_U] if lagged or p.du_max < math.inf else 0.0
+            w_ahead = st.applied[i, ACT_OMEGA] if lagged or p.dw_max < math.inf else 0.0
+            est = _propagate(est, body_arc(u_ahead, w_ahead, p.lookahead), p.lookahead)
+        px, py, wx, wy = est
+        coast = (k - st.last_update[i]) * dt if st.started[i] else math.inf
+        tracked = st.started[i] and coast <= p.max_coast
         # 4. the clearances, low-passed (the first step starts the filter)
+        clear = st.clearances[i]
         for c in range(4):
-            raw = obs[r, _CLEARANCES[c]]
-            clear[i, c] = raw if k == 0 else clear[i, c] + (raw - clear[i, c]) * p.clearance_gain
+            raw = obs[r, OBS_CLEARANCES[c]]
+            clear[c] = raw if k == 0 else clear[c] + (raw - clear[c]) * p.clearance_gain
         for c in range(OBS_SIZE):
             out[r, c] = obs[r, c]
         out[r, OBS_VISIBLE] = 1.0 if tracked else 0.0
         out[r, OBS_X_REL] = px if tracked else 0.0
         out[r, OBS_Y_REL] = py if tracked else 0.0
         for c in range(4):
-            out[r, _CLEARANCES[c]] = clear[i, c]
+            out[r, OBS_CLEARANCES[c]] = clear[c]
         if not tracked:
-            untracked[i] += 1
-        fsig[_F_X, i] = px
-        fsig[_F_Y, i] = py
-        fsig[_F_WX, i] = wx
-        fsig[_F_WY, i] = wy
-        fsig[_F_STD, i] = math.sqrt(max(Pi[0, 0] + Pi[1, 1], 0.0))
-        fsig[_F_COAST, i] = coast
-        fsig[_F_UPDATED, i] = 1.0 if upd else 0.0
-        fsig[_F_TRACKED, i] = 1.0 if tracked else 0.0
-
-
-@njit(cache=True)
-def _follow(v: float, c: float, lag_gain: float, max_change: float) -> float:
-    """:func:`actuator_step` of one velocity: the lag, then the rate limit."""
-    target = c if lag_gain >= 1.0 else v + (c - v) * lag_gain
-    return min(v + max_change, max(v - max_change, target))
+            st.untracked[i] += 1
+        signals[_F_X, i] = px
+        signals[_F_Y, i] = py
+        signals[_F_WX, i] = wx
+        signals[_F_WY, i] = wy
+        signals[_F_STD, i] = math.sqrt(max(Pi[0, 0] + Pi[1, 1], 0.0))
+        signals[_F_COAST, i] = coast
+        signals[_F_UPDATED, i] = 1.0 if upd else 0.0
+        signals[_F_TRACKED, i] = 1.0 if tracked else 0.0
 
 
 @njit(cache=True)
 def _dead_reckon_step(
-    cmd: np.ndarray, idx: np.ndarray, k: int, params: np.ndarray, applied: np.ndarray,
-    odo: np.ndarray,
-) -> None:  # fmt: skip
+    cmd: np.ndarray,
+    idx: np.ndarray,
+    k: int,
+    params: np.ndarray,
+    state: tuple,  # type: ignore[type-arg]
+) -> None:
     """Step 1 of the module docstring after the law: the applied velocity of the commands
-    ``cmd`` (n, 2) (float32, as the env receives them; clipped to the box; the actuator model)
-    and the odometry pose ``o_{k+1}`` of followers ``idx``."""
+    ``cmd`` (n, 2) (float32, as the env receives them; clipped to the box; the env's actuator
+    rule) and the odometry pose ``o_{k+1}`` of followers ``idx`` (the env's unicycle arc), in
+    their :class:`FilterState` ``state``."""
     p = params[0]
-    ring = odo.shape[0]
+    st = FilterState(*state)
+    ring = st.odometry.shape[0]
     for r in range(cmd.shape[0]):
         i = idx[r]
         c_u = min(max(float(cmd[r, ACT_U]), -p.u_max), p.u_max)
         c_w = min(max(float(cmd[r, ACT_OMEGA]), -p.omega_max), p.omega_max)
-        applied[i, ACT_U] = _follow(applied[i, ACT_U], c_u, p.lag_gain, p.du_max)
-        applied[i, ACT_OMEGA] = _follow(applied[i, ACT_OMEGA], c_w, p.lag_gain, p.dw_max)
-        dx, dy, a = _arc(applied[i, ACT_U], applied[i, ACT_OMEGA], p.dt)
-        o = odo[k % ring, i]
-        c, s = math.cos(o[2]), math.sin(o[2])
-        nxt = odo[(k + 1) % ring, i]
-        nxt[0] = o[0] + c * dx - s * dy
-        nxt[1] = o[1] + s * dx + c * dy
-        nxt[2] = o[2] + a
+        v = st.applied[i]
+        v[ACT_U] = follow(v[ACT_U], c_u, p.lag_gain, p.du_max)
+        v[ACT_OMEGA] = follow(v[ACT_OMEGA], c_w, p.lag_gain, p.dw_max)
+        o = st.odometry[k % ring, i]
+        x, y, theta = unicycle_arc(o[0], o[1], o[2], v[ACT_U], v[ACT_OMEGA], p.dt)
+        nxt = st.odometry[(k + 1) % ring, i]
+        nxt[0] = x
+        nxt[1] = y
+        nxt[2] = theta
 
 
 # ----------------------------------------------------------------------------------------------
@@ -850,7 +828,8 @@ class FilteredPPCPolicy:
        to ``t_k + tau``, low-pass the clearances;
     2. the inner law (:class:`PPCPolicy`, tightened constraints) on
        ``[tracked, x^, y^, c^_W_l, c^_W_r, c^_l, c^_r]``;
-    3. :func:`_dead_reckon_step`: the applied velocity and odometry pose after its commands.
+    3. :func:`_dead_reckon_step`: the applied velocity and odometry pose after its commands
+       (the env's actuator rule and unicycle arc).
 
     :attr:`ppc` is the inner law (its :attr:`~PPCPolicy.signals` and counters are computed on
     the estimate); :attr:`signals` holds its signals and :data:`FILTER_SIGNAL_NAMES`;
@@ -873,22 +852,27 @@ class FilteredPPCPolicy:
                 f"the tightened constraints are infeasible for the PPC law ({err}); lower "
                 "margin_sigmas or set d_col_margin, beta_margin, range_margin"
             ) from None
-        self.agents: tuple[str, ...] = tuple(env.possible_agents)
-        self._index: dict[str, int] = {a: i for i, a in enumerate(self.agents)}
-        self._all: NDArray[np.intp] = np.arange(len(self.agents), dtype=np.intp)
+        self._followers = Followers(env.possible_agents)
+        self.agents: tuple[str, ...] = self._followers.agents
         self._kernel: NDArray[np.void] = _kernel_params(self.params)
         n = len(self.agents)
-        ring = self.params.latency_steps + 2  # o_{k-L-1} .. o_k
-        self._s = np.zeros((n, 4))  # filter mean at t_j
-        self._P = np.zeros((n, 4, 4))  # filter covariance at t_j
-        self._init = np.zeros(n, dtype=np.bool_)  # had a detection
-        self._last = np.zeros(n, dtype=np.int64)  # step j of the last update
-        self._odo = np.zeros((ring, n, 3))  # odometry poses, o_m in row m % ring
-        self._applied = np.zeros((n, 2))  # the actuator model's applied [u, omega]
-        self._clear = np.zeros((n, 4))  # low-passed clearances
+        counter = np.zeros(n, dtype=np.int64)
+        self._state = FilterState(
+            mean=np.zeros((n, 4)),
+            cov=np.zeros((n, 4, 4)),
+            started=np.zeros(n, dtype=np.bool_),
+            last_update=np.zeros(n, dtype=np.int64),
+            odometry=np.zeros((self.params.latency_steps + 2, n, 3)),  # o_{k-L-1} .. o_k
+            applied=np.zeros((n, 2)),
+            clearances=np.zeros((n, 4)),
+            updates=counter,
+            untracked=counter.copy(),
+        )
+        # what the kernels take: the same arrays as a plain tuple (numba types it faster)
+        self._state_arrays: tuple[NDArray[Any], ...] = tuple(self._state)
         self._fsig = np.zeros((len(FILTER_SIGNAL_NAMES), n))
-        self.updates: NDArray[np.int64] = np.zeros(n, dtype=np.int64)
-        self.untracked_steps: NDArray[np.int64] = np.zeros(n, dtype=np.int64)
+        self.updates: NDArray[np.int64] = self._state.updates
+        self.untracked_steps: NDArray[np.int64] = self._state.untracked
         self.steps: int = 0
         self.reset()
 
@@ -899,13 +883,9 @@ class FilteredPPCPolicy:
         initial funnels) and the counters. Deterministic; ``seed`` is accepted for the
         interface."""
         self.ppc.reset(seed)
-        for a in (self._s, self._P, self._odo, self._applied, self._clear, self._fsig):
-            a[...] = 0.0
-        self._init[:] = False
-        self._last[:] = 0
+        for a in (*self._state, self._fsig):
+            a[...] = 0
         self._fsig[_F_COAST] = math.inf
-        self.updates[:] = 0
-        self.untracked_steps[:] = 0
         self.steps = 0
 
     def act(self, observations: Mapping[str, ArrayLike]) -> dict[str, NDArray[np.float32]]:
@@ -915,25 +895,16 @@ class FilteredPPCPolicy:
         policy counts its calls since :meth:`reset` as the control step ``k``: call it once per
         env step. Non-finite observation entries are read as 0.
         """
-        keys = tuple(observations)
-        obs = sensor_part(np.array(list(observations.values()), dtype=np.float64), len(keys))
-        found = agent_indices(keys, self.agents, self._index)
-        idx = self._all if found is None else found
+        keys, obs, found = self._followers.read(observations)
+        idx = self._followers.all if found is None else found
         if not np.all(np.isfinite(obs)):
             obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
-        p = self.params
         k = self.steps
-        j = max(k - p.latency_steps, 0)
-        delivered = k == 0 or (j >= 1 and frame_due(j, p.dt, p.frame_period))
         filtered = np.empty_like(obs)
-        _filter_step(
-            obs, idx, k, delivered, self._kernel, self._s, self._P, self._init, self._last,
-            self._odo, self._applied, self._clear, filtered, self._fsig, self.updates,
-            self.untracked_steps,
-        )  # fmt: skip
+        _filter_step(obs, idx, k, self._kernel, self._state_arrays, filtered, self._fsig)
         actions = self.ppc.act(dict(zip(keys, filtered, strict=False)))
         cmd = np.array(list(actions.values()), dtype=np.float32).reshape(len(keys), 2)
-        _dead_reckon_step(cmd, idx, k, self._kernel, self._applied, self._odo)
+        _dead_reckon_step(cmd, idx, k, self._kernel, self._state_arrays)
         self.steps += 1
         return actions
 
@@ -947,7 +918,7 @@ class FilteredPPCPolicy:
     @property
     def applied(self) -> FloatArray:
         """The actuator model's applied ``[u, omega]`` after the last command, (N, 2) (a copy)."""
-        return self._applied.copy()
+        return self._state.applied.copy()
 
     @property
     def signals(self) -> dict[str, NDArray[Any]]:

@@ -27,9 +27,9 @@ body frame, at distance ``rho_T = |(x_T, y_T)|`` and bearing ``phi_T = atan2(y_T
    point, the predecessor's position at the last step it was visible, and ``d_ref = 0`` (drive
    to the point itself). The point is kept in the follower's *own odometry frame*: every control
    period the follower moves its stored body-frame coordinates by its own commanded motion,
-   ``(u, omega)`` held for ``dt`` — the exact unicycle arc of eq. 1, the same motion the env
-   integrates (:func:`ego_motion`). No global position is used. When the predecessor is seen
-   again the follower returns to tracking with the new measurement.
+   ``(u, omega)`` held for ``dt`` — the exact unicycle arc of eq. 1, by the env's own rule
+   (:func:`ego_motion`, :mod:`baselines.odometry`). No global position is used. When the
+   predecessor is seen again the follower returns to tracking with the new measurement.
 3. **Arrival.** When in leader-loss mode the follower comes within ``arrive_radius`` (default
    ``d_col``: any closer would be a collision, had the predecessor still been there) of the
    last-seen point without having re-acquired its predecessor, it **stops** (``u = omega = 0``)
@@ -60,7 +60,7 @@ and ``u = omega = 0`` once arrived (3.). The choices:
   while ``|phi_T| <= beta_slow`` (default ``beta_con / 2``), none at ``|phi_T| >= beta_con``,
   so the follower turns in place towards a predecessor at the edge of its view. That is a
   choice of this project, which makes field-of-view loss structurally hard; the comparison
-  (``python -m baselines.comparison``) runs both;
+  (``python -m experiments.studies.comparison``) runs both;
 * the bearing law is **proportional** (``omega = k_beta phi_T``, default
   ``k_beta = omega_max / beta_con``: saturation exactly at the field-of-view edge), without
   PPC's feed-forward ``(u/d) sin(beta)`` (eq. 14) or its funnels: when the predecessor turns a
@@ -86,8 +86,9 @@ at ``d_des``; capped by ``robot.omega_max``), ``k_d = 4 u_max / d_des`` (the spe
 ``k_beta = omega_max / beta_con``. Every one can be overridden by keyword (:attr:`TUNABLE
 <LastSeenParams.TUNABLE>`).
 
-Where the behaviour depends on the tuning and the variant, ``python -m baselines.comparison``
-measures it on studies B and C over 20 seeds (``docs/figures/comparison.md``).
+Where the behaviour depends on the tuning and the variant, the comparison study
+(``python -m experiments.studies.comparison``) measures it on studies B and C over 20 seeds
+(``docs/figures/comparison.md``).
 """
 
 from __future__ import annotations
@@ -98,9 +99,11 @@ from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from baselines.policy import PolicyEnv, agent_indices, sensor_part
+from baselines.odometry import body_arc, in_frame
+from baselines.policy import Followers, PolicyEnv, as_float
 from platoon_env.observation import (
     OBS_D_WALL_LEFT,
     OBS_D_WALL_RIGHT,
@@ -145,8 +148,14 @@ SIGNAL_NAMES: tuple[str, ...] = (
 # ----------------------------------------------------------------------------------------------
 
 
-def _f(x: ArrayLike) -> FloatArray:
-    return np.asarray(x, dtype=np.float64)
+@njit(cache=True)
+def _ego_motion(
+    x: np.ndarray, y: np.ndarray, u: np.ndarray, omega: np.ndarray, h: float, out: np.ndarray
+) -> None:
+    """:func:`ego_motion` of 1-D arrays, into ``out`` (2, n)."""
+    for r in range(x.shape[0]):
+        dx, dy, a = body_arc(u[r], omega[r], h)
+        out[0, r], out[1, r] = in_frame(x[r], y[r], dx, dy, a)
 
 
 def ego_motion(
@@ -155,19 +164,15 @@ def ego_motion(
     r"""Body-frame coordinates of a fixed point after the follower's own motion (eq. 1).
 
     The follower holds ``(u, omega)`` for ``dt``: it moves on an exact unicycle arc by
-    ``(dx, dy) = (u dt sinc(a), u dt (1 - cos a)/a)`` in its old body frame and turns by
-    ``a = omega dt``. A point at ``(x, y)`` in the old frame is at
-    ``R(-a) ((x, y) - (dx, dy))`` in the new one. ``sinc`` keeps ``a -> 0`` exact (a straight
-    line) and finite.
+    ``(dx, dy) = (u dt sin(a)/a, u dt (1 - cos a)/a)`` in its old body frame and turns by
+    ``a = omega dt`` (the env's arc, :func:`baselines.odometry.body_arc`: a straight line as
+    ``a -> 0``). A point at ``(x, y)`` in the old frame is at ``R(-a) ((x, y) - (dx, dy))`` in
+    the new one. Elementwise on broadcast arrays.
     """
-    a = _f(omega) * dt
-    step = _f(u) * dt
-    dx = step * np.sinc(a / math.pi)  # u dt sin(a)/a
-    dy = step * np.sin(0.5 * a) * np.sinc(a / (2.0 * math.pi))  # u dt (1 - cos a)/a
-    c, s = np.cos(a), np.sin(a)
-    px = _f(x) - dx
-    py = _f(y) - dy
-    return c * px + s * py, -s * px + c * py
+    xs, ys, us, ws = np.broadcast_arrays(as_float(x), as_float(y), as_float(u), as_float(omega))
+    out = np.empty((2, xs.size))
+    _ego_motion(xs.ravel(), ys.ravel(), us.ravel(), ws.ravel(), dt, out)
+    return out[0].reshape(xs.shape), out[1].reshape(xs.shape)
 
 
 #: [m] floor on the margin ``d_W - r`` in :func:`wall_push` (bounds the push at contact).
@@ -181,7 +186,7 @@ def wall_push(d_wall: ArrayLike, r: float, margin: float) -> FloatArray:
     A potential-field term like PPC's ``F = S(m; delta)/m`` (after eq. 12), but acting
     directly on the robot's turn rate and speed; ``m`` is floored at :data:`WALL_FLOOR`.
     """
-    m = np.maximum(_f(d_wall) - r, WALL_FLOOR)
+    m = np.maximum(as_float(d_wall) - r, WALL_FLOOR)
     return np.maximum(margin / m - 1.0, 0.0)
 
 
@@ -201,10 +206,10 @@ def commands(
     module docstring. Elementwise on
     arrays; finite for finite inputs (``phi_T = 0`` for a target at the origin).
     """
-    xt, yt = _f(x_t), _f(y_t)
+    xt, yt = as_float(x_t), as_float(y_t)
     rho = np.hypot(xt, yt)
     phi = np.arctan2(yt, xt)  # 0 at the origin
-    u = np.clip(p.k_d * (rho - _f(d_ref)) * np.cos(phi), -p.u_max, p.u_max)
+    u = np.clip(p.k_d * (rho - as_float(d_ref)) * np.cos(phi), -p.u_max, p.u_max)
     if p.fov_slowdown:  # the variant LastSeenFOVPolicy only: not in the paper's description
         u *= np.clip((p.beta_con - np.abs(phi)) / (p.beta_con - p.beta_slow), 0.0, 1.0)
     push_l = wall_push(d_wall_left, p.r, p.wall_margin)
@@ -355,8 +360,8 @@ class LastSeenPolicy:
         self.params: LastSeenParams = LastSeenParams.from_config(
             env.scenario.config, float(env.control_period), **overrides
         )
-        self.agents: tuple[str, ...] = tuple(env.possible_agents)
-        self._index: dict[str, int] = {a: i for i, a in enumerate(self.agents)}
+        self._followers = Followers(env.possible_agents)
+        self.agents: tuple[str, ...] = self._followers.agents
         n = len(self.agents)
         self._target = np.zeros((2, n))  # last-seen / measured point, body frame
         self._cmd = np.zeros((2, n))  # previous command [u, omega]
@@ -399,9 +404,7 @@ class LastSeenPolicy:
         keep their state. Non-finite observation entries are treated as 0 (a NaN ``visible``
         flag as not visible, a NaN clearance as contact), so commands are always finite.
         """
-        keys = tuple(observations)
-        obs = sensor_part(np.array(list(observations.values()), dtype=np.float64), len(keys))
-        found = agent_indices(keys, self.agents, self._index)
+        keys, obs, found = self._followers.read(observations)
         idx: slice | NDArray[np.intp] = slice(None) if found is None else found
         self.steps += 1
         cmd = self._step(np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0), idx)

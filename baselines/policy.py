@@ -13,12 +13,20 @@ from collections.abc import Mapping, Sequence
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from platoon_env.observation import OBS_SIZE, OBS_SIZE_TASK
 from platoon_env.scenarios.schema import ScenarioConfig
 
-__all__ = ["Policy", "PolicyEnv", "agent_indices", "sensor_part"]
+__all__ = [
+    "Followers",
+    "Policy",
+    "PolicyEnv",
+    "agent_indices",
+    "as_float",
+    "kernel_record",
+    "sensor_part",
+]
 
 
 class _Scenario(Protocol):
@@ -77,3 +85,41 @@ def agent_indices(
         return np.array([index[a] for a in keys], dtype=np.intp)
     except KeyError as err:
         raise KeyError(f"unknown agent {err.args[0]!r}; expected some of {agents}") from None
+
+
+class Followers:
+    """The followers a policy acts for, indexed as ``env.possible_agents`` (the order of the
+    policy's state arrays), and the reading of one ``act`` call's observations."""
+
+    def __init__(self, agents: Sequence[str]) -> None:
+        #: the followers, in ``env.possible_agents`` order
+        self.agents: tuple[str, ...] = tuple(agents)
+        #: follower name -> its index
+        self.index: dict[str, int] = {a: i for i, a in enumerate(self.agents)}
+        #: the indices of all followers, ``0 .. N-1``
+        self.all: NDArray[np.intp] = np.arange(len(self.agents), dtype=np.intp)
+
+    def read(
+        self, observations: Mapping[str, ArrayLike]
+    ) -> tuple[tuple[str, ...], NDArray[np.float64], NDArray[np.intp] | None]:
+        """``(keys, obs, found)``: the agents of ``observations`` in their order, their
+        ``(n, 7)`` float64 sensor parts (:func:`sensor_part`) and :func:`agent_indices` (None
+        when they are all followers in order)."""
+        keys = tuple(observations)
+        obs = sensor_part(np.array(list(observations.values()), dtype=np.float64), len(keys))
+        return keys, obs, agent_indices(keys, self.agents, self.index)
+
+
+def as_float(x: ArrayLike) -> NDArray[np.float64]:
+    """``x`` as a float64 array (no copy when it is one): the pure functions' inputs."""
+    return np.asarray(x, dtype=np.float64)
+
+
+def kernel_record(dtype: np.dtype[np.void], source: object, **values: float) -> NDArray[np.void]:
+    """The constants of a compiled kernel: a ``(1,)`` array of the structured ``dtype`` (the
+    kernel reads its record ``[0]`` by field name), each field ``values[name]`` if given, else
+    the attribute of that name of ``source`` (a parameter dataclass)."""
+    out = np.zeros(1, dtype=dtype)
+    for name in dtype.names or ():
+        out[name] = values[name] if name in values else getattr(source, name)
+    return out

@@ -63,7 +63,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from baselines.policy import PolicyEnv, agent_indices, sensor_part
+from baselines.policy import Followers, PolicyEnv, as_float, kernel_record
 from platoon_env.observation import (
     OBS_D_SIGHT_LEFT,
     OBS_D_SIGHT_RIGHT,
@@ -146,17 +146,13 @@ SIGNAL_NAMES: tuple[str, ...] = (
 # ----------------------------------------------------------------------------------------------
 
 
-def _f(x: ArrayLike) -> FloatArray:
-    return np.asarray(x, dtype=np.float64)
-
-
 def S(x: ArrayLike, delta: float) -> FloatArray:
     r"""Activation function after eq. 12: ``S(x; delta) = 1 - x/delta`` on ``[0, delta)``, 0 on
     ``[delta, inf)``.
 
     For ``x < 0`` (outside the paper's domain) the linear branch is continued.
     """
-    return np.maximum(1.0 - _f(x) / delta, 0.0)
+    return np.maximum(1.0 - as_float(x) / delta, 0.0)
 
 
 def clearance_margin(d_sight: ArrayLike, d_wall: ArrayLike, r: float) -> FloatArray:
@@ -165,7 +161,7 @@ def clearance_margin(d_sight: ArrayLike, d_wall: ArrayLike, r: float) -> FloatAr
     ``d_sight`` is ``d_l`` (``d_r``), the clearance of the line of sight ``L_i``; ``d_wall`` is
     ``d_W_l`` (``d_W_r``), the clearance of the robot; ``r`` the robot radius.
     """
-    return np.minimum(_f(d_sight), _f(d_wall)) - r
+    return np.minimum(as_float(d_sight), as_float(d_wall)) - r
 
 
 def F(m: ArrayLike, delta: float, floor: float = CLEARANCE_FLOOR) -> FloatArray:
@@ -175,7 +171,7 @@ def F(m: ArrayLike, delta: float, floor: float = CLEARANCE_FLOOR) -> FloatArray:
     ``m`` is floored at ``floor`` (> 0) first, so ``F`` is finite: ``0 <= F <= 1/floor - 1/delta``
     (choice 2 in the module docstring). ``F = 0`` for ``m >= delta``.
     """
-    mm = np.maximum(_f(m), floor)
+    mm = np.maximum(as_float(m), floor)
     return S(mm, delta) / mm
 
 
@@ -235,7 +231,7 @@ def rho_dot(
         rho_beta_lo_dot = -lambda (rho_beta_lo + rho_beta_inf) - F_r + F_l    (12c)
         rho_beta_hi_dot = -lambda (rho_beta_hi - rho_beta_inf) - F_r + F_l    (12d)
     """
-    p, fl, fr = _f(rho), _f(F_l), _f(F_r)
+    p, fl, fr = as_float(rho), as_float(F_l), as_float(F_r)
     return np.stack(
         [
             -lambda_ * (p[0] + rho_d_inf) - fr - fl,  # (12a)
@@ -265,16 +261,16 @@ def projection(
     operator is the identity), ``f = 1`` on the bounds (an outward rate is cancelled), and
     ``f'(rho) = 4 x / ((1 - epsilon^2)(rho_max - rho_min))`` has the sign of ``x``.
     """
-    rd, lo, hi = _f(rho_dot), _f(rho_min), _f(rho_max)
-    x = (2.0 * _f(rho) - (hi + lo)) / (hi - lo)
+    rd, lo, hi = as_float(rho_dot), as_float(rho_min), as_float(rho_max)
+    x = (2.0 * as_float(rho) - (hi + lo)) / (hi - lo)
     f = (x * x - epsilon * epsilon) / (1.0 - epsilon * epsilon)
     return np.where((f > 0.0) & (rd * x > 0.0), rd * (1.0 - f), rd)
 
 
 def outside_funnel(e: ArrayLike, lo: ArrayLike, hi: ArrayLike) -> NDArray[np.bool_]:
     """True where the error has left its funnel: not ``lo < e < hi`` (eq. 10)."""
-    ee = _f(e)
-    return ~((ee > _f(lo)) & (ee < _f(hi)))
+    ee = as_float(e)
+    return ~((ee > as_float(lo)) & (ee < as_float(hi)))
 
 
 def transformed_error(
@@ -286,9 +282,9 @@ def transformed_error(
     ``|eps| <= eps_max``; outside the funnel (``e <= lo`` or ``e >= hi``) ``eps = -eps_max`` or
     ``+eps_max`` (choice 4 in the module docstring).
     """
-    ee = _f(e)
-    num = np.maximum(ee - _f(lo), _TINY)
-    den = np.maximum(_f(hi) - ee, _TINY)
+    ee = as_float(e)
+    num = np.maximum(ee - as_float(lo), _TINY)
+    den = np.maximum(as_float(hi) - ee, _TINY)
     return np.clip(np.log(num / den), -eps_max, eps_max)
 
 
@@ -304,9 +300,9 @@ def compensation(
     ``(hi_dot (hi - e) + lo_dot (e - lo)) / (hi - lo)``; with that term ``eps`` would not be
     compensated (choice 1 in the module docstring).
     """
-    ee, lo_a, hi_a = _f(e), _f(lo), _f(hi)
+    ee, lo_a, hi_a = as_float(e), as_float(lo), as_float(hi)
     width = np.maximum(hi_a - lo_a, _WIDTH_FLOOR)
-    return (_f(lo_dot) * (hi_a - ee) + _f(hi_dot) * (ee - lo_a)) / width
+    return (as_float(lo_dot) * (hi_a - ee) + as_float(hi_dot) * (ee - lo_a)) / width
 
 
 def linear_velocity(eps_d: ArrayLike, beta: ArrayLike, C_d: ArrayLike, k_d: float) -> FloatArray:
@@ -315,8 +311,8 @@ def linear_velocity(eps_d: ArrayLike, beta: ArrayLike, C_d: ArrayLike, k_d: floa
     ``C_d`` from :func:`compensation` with the distance funnel. ``cos(beta)`` is floored at
     :data:`COS_FLOOR` (only reachable with ``|beta| >= beta_con``, never while visible).
     """
-    cos_b = np.maximum(np.cos(_f(beta)), COS_FLOOR)
-    return (k_d * _f(eps_d) - _f(C_d)) / cos_b
+    cos_b = np.maximum(np.cos(as_float(beta)), COS_FLOOR)
+    return (k_d * as_float(eps_d) - as_float(C_d)) / cos_b
 
 
 def angular_velocity(
@@ -332,8 +328,9 @@ def angular_velocity(
     ``C_beta`` from :func:`compensation` with the angle-of-view funnel; ``d`` floored at
     :data:`DISTANCE_FLOOR`.
     """
-    dd = np.maximum(_f(d), DISTANCE_FLOOR)
-    return _f(u) / dd * np.sin(_f(beta)) + k_beta * _f(eps_beta) - _f(C_beta)
+    dd = np.maximum(as_float(d), DISTANCE_FLOOR)
+    sin_b = np.sin(as_float(beta))
+    return as_float(u) / dd * sin_b + k_beta * as_float(eps_beta) - as_float(C_beta)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -532,20 +529,13 @@ _C_FLOORED = 2
 def _kernel_params(p: PPCParams) -> NDArray[np.void]:
     """The scalar parameters of :func:`_ppc_step` from ``p``: a ``(1,)`` array of
     :data:`PPC_KERNEL_DTYPE` (the kernel reads its record ``[0]`` by field name)."""
-    out = np.zeros(1, dtype=PPC_KERNEL_DTYPE)
-    out["r"] = p.r
-    out["d_des"] = p.d_des
-    out["clearance_floor"] = p.clearance_floor
-    out["delta"] = p.delta
-    out["lambda_"] = p.lambda_
-    out["eps_max"] = p.eps_max
-    out["k_d"] = p.k_d
-    out["k_beta"] = p.k_beta
-    out["dt"] = p.dt
     # f(rho) = (x^2 - epsilon^2)/(1 - epsilon^2) = f_scale x^2 - f_offset
-    out["f_scale"] = 1.0 / (1.0 - p.epsilon**2)
-    out["f_offset"] = p.epsilon**2 / (1.0 - p.epsilon**2)
-    return out
+    return kernel_record(
+        PPC_KERNEL_DTYPE,
+        p,
+        f_scale=1.0 / (1.0 - p.epsilon**2),
+        f_offset=p.epsilon**2 / (1.0 - p.epsilon**2),
+    )
 
 
 def _kernel_sets(p: PPCParams) -> NDArray[np.void]:
@@ -748,9 +738,8 @@ class PPCPolicy:
         config = env.scenario.config
         period = float(env.control_period) if dt is None else float(dt)
         self.params: PPCParams = PPCParams.from_config(config, period, **overrides)
-        self.agents: tuple[str, ...] = tuple(env.possible_agents)
-        self._index: dict[str, int] = {a: i for i, a in enumerate(self.agents)}
-        self._all: NDArray[np.intp] = np.arange(len(self.agents), dtype=np.intp)
+        self._followers = Followers(env.possible_agents)
+        self.agents: tuple[str, ...] = self._followers.agents
         n = len(self.agents)
         p = self.params
         # the constants of _ppc_step, read there by field name: (1,) PPC_KERNEL_DTYPE and
@@ -788,12 +777,9 @@ class PPCPolicy:
         Agents of ``env.possible_agents`` absent from ``observations`` (e.g. terminated ones)
         keep their state and signals.
         """
-        keys = tuple(observations)
-        obs = np.array(list(observations.values()), dtype=np.float64)
-        obs = sensor_part(obs, len(keys))
+        keys, obs, found = self._followers.read(observations)
         self.steps += 1
-        found = agent_indices(keys, self.agents, self._index)
-        idx = self._all if found is None else found
+        idx = self._followers.all if found is None else found
         cmd = _ppc_step(
             obs, idx, self._kernel_params, self._kernel_sets, self._rho, self._sig, self._counts
         )

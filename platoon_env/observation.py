@@ -67,6 +67,14 @@ OBS_D_SIGHT_LEFT = 5
 OBS_D_SIGHT_RIGHT = 6
 #: Length of the default observation (the 7-vector; the compiled kernels write these columns).
 OBS_SIZE = 7
+#: The proximity sensor's four clearance columns ``d_W_l, d_W_r, d_l, d_r``, in table order: for
+#: the code that treats the four alike (copies, noise, filters them).
+OBS_CLEARANCES: tuple[int, int, int, int] = (
+    OBS_D_WALL_LEFT,
+    OBS_D_WALL_RIGHT,
+    OBS_D_SIGHT_LEFT,
+    OBS_D_SIGHT_RIGHT,
+)
 OBS_NAMES: tuple[str, ...] = ("visible", "x_rel", "y_rel", "d_W_l", "d_W_r", "d_l", "d_r")
 
 # Task-aware observations (``observation.task_aware``): the 7 above, then these.

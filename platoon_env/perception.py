@@ -32,21 +32,12 @@ import numpy as np
 from numba import njit
 
 from platoon_env.geometry.sensing import SENSE_BETA, SENSE_D
-from platoon_env.observation import (
-    OBS_D_SIGHT_LEFT,
-    OBS_D_SIGHT_RIGHT,
-    OBS_D_WALL_LEFT,
-    OBS_D_WALL_RIGHT,
-    OBS_VISIBLE,
-    OBS_X_REL,
-    OBS_Y_REL,
-)
+from platoon_env.observation import OBS_CLEARANCES, OBS_VISIBLE, OBS_X_REL, OBS_Y_REL
 from platoon_env.records import FRAME_CAPTURED, FRAME_VISIBLE, FRAME_X, FRAME_Y
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
 _MIX2 = np.uint64(0x94D049BB133111EB)
-_CLEARANCE_COLUMNS = (OBS_D_WALL_LEFT, OBS_D_WALL_RIGHT, OBS_D_SIGHT_LEFT, OBS_D_SIGHT_RIGHT)
 
 
 @njit(cache=True)
@@ -70,13 +61,27 @@ def normal(ep: np.record) -> float:
 
 
 @njit(cache=True)
-def frame_due(step: int, p: np.record) -> bool:
-    """Whether step ``step`` of an episode takes a camera frame (step 0 always does)."""
-    if p.frame_period <= 0.0 or step == 0:
+def frame_due_at(step: int, control_period: float, frame_period: float) -> bool:
+    """Whether control step ``step`` takes a camera frame, with control steps every
+    ``control_period`` and frames every ``frame_period`` seconds (0: a frame every step).
+
+    A frame is due when a new frame period has begun, ``floor(k dt / T) > floor((k-1) dt / T)``,
+    with a ``1e-9`` tolerance so that a frame period that is a whole number of control periods
+    is not lost to rounding; step 0 (the reset) always takes one. The env's camera follows it
+    (:func:`frame_due`), and so does a policy that models the camera's timing.
+    """
+    if frame_period <= 0.0 or step == 0:
         return True
-    now = step * p.control_period / p.frame_period
-    before = (step - 1) * p.control_period / p.frame_period
+    now = step * control_period / frame_period
+    before = (step - 1) * control_period / frame_period
     return math.floor(now + 1e-9) > math.floor(before + 1e-9)
+
+
+@njit(cache=True)
+def frame_due(step: int, p: np.record) -> bool:
+    """Whether step ``step`` of an episode takes a camera frame (:func:`frame_due_at` with the
+    params record ``p``'s control and frame periods)."""
+    return frame_due_at(step, p.control_period, p.frame_period)
 
 
 @njit(cache=True)
@@ -138,6 +143,6 @@ def perceive(
         obs[i, OBS_X_REL] = ring[k_ring, FRAME_X]
         obs[i, OBS_Y_REL] = ring[k_ring, FRAME_Y]
         if p.proximity_noise > 0.0:
-            for c in _CLEARANCE_COLUMNS:
+            for c in OBS_CLEARANCES:
                 value = obs[i, c] + p.proximity_noise * normal(ep)
                 obs[i, c] = min(p.proximity_range, max(0.0, value))

@@ -5,12 +5,15 @@ policy on short rollouts (ideal sensing: the plain law's commands; dropouts; the
 
 from __future__ import annotations
 
+import inspect
 import math
 from typing import Any
 
 import numpy as np
 import pytest
+from numba.core.registry import CPUDispatcher
 
+import baselines
 import platoon_env
 from baselines import FilteredPPCPolicy, Policy, PPCPolicy
 from baselines.filtered_ppc import (
@@ -20,6 +23,7 @@ from baselines.filtered_ppc import (
     _kernel_params,
     _predict,
     _update,
+    actuator_step,
     kf_predict,
     kf_update,
     measurement_covariance,
@@ -114,6 +118,28 @@ def test_odometry_moves_a_fixed_point_as_the_last_seen_baseline_does() -> None:
     p, _ = propagate_mean(point, dx, dy, a, np.zeros(3))
     ex, ey = ego_motion(point[:, 0], point[:, 1], [0.3, 0.5, -0.2], [0.0, 1.5, -2.0], 0.2)
     np.testing.assert_allclose(p, np.stack([ex, ey], -1), atol=1e-12)
+
+
+def test_actuator_step_is_the_lag_then_the_rate_limit() -> None:
+    # lag gain 0.5 halves the gap to the command; the rate limit 0.3 caps u's change, not omega's
+    applied = np.array([[1.0, -1.0]])
+    out = actuator_step(applied, [[2.0, 0.0]], 0.5, [0.3, 1.0])
+    np.testing.assert_array_equal(out, [[1.3, -0.5]])
+    np.testing.assert_array_equal(actuator_step(applied, [[2.0, 0.0]], 1.0, [np.inf] * 2), [[2, 0]])
+
+
+def test_kernels_take_at_most_eight_arguments() -> None:
+    """Every compiled function of the baselines reads its parameters from named records or
+    arrays, not from long positional lists."""
+    kernels = [
+        (f"{module.__name__}.{name}", value)
+        for module in (baselines.ppc, baselines.filtered_ppc, baselines.last_seen)
+        for name, value in vars(module).items()
+        if isinstance(value, CPUDispatcher) and value.py_func.__module__ == module.__name__
+    ]
+    assert len(kernels) >= 8
+    long = {n: len(inspect.signature(k.py_func).parameters) for n, k in kernels}
+    assert all(v <= 8 for v in long.values()), long
 
 
 # ----------------------------------------------------------------------------------------------
@@ -254,3 +280,24 @@ def test_observation_rows_handed_to_the_law() -> None:
             assert sig["x_hat"][i] == pytest.approx(float(obs[agent][OBS_X_REL]), abs=1e-6)
             assert sig["y_hat"][i] == pytest.approx(float(obs[agent][OBS_Y_REL]), abs=1e-6)
             assert sig["d"][i] == pytest.approx(math.hypot(sig["x_hat"][i], sig["y_hat"][i]))
+
+
+def test_drive_model_is_the_envs_actuators_and_arc() -> None:
+    """With a lagged, rate-limited drive the policy's model of its applied velocity is the env's
+    to the bit (the same rule on the same commands), and its odometry moves the follower as the
+    env does (the same arc, integrated in one piece instead of sub-steps)."""
+    env = platoon_env.make(
+        "study_c", robot={"lag": 0.05, "accel_max": 1.0, "alpha_max": 3.0}, terminate_on=()
+    )
+    policy = FilteredPPCPolicy(env)
+    obs, _ = env.reset(seed=0)
+    policy.reset(seed=0)
+    ring = policy._state.odometry.shape[0]
+    for k in range(120):
+        before = env.poses[1:].copy()
+        obs, *_ = env.step(policy.act(obs))
+        np.testing.assert_array_equal(policy.applied, env.applied_velocities)
+        o = policy._state.odometry
+        dx, dy, a = relative_pose(o[k % ring], o[(k + 1) % ring])
+        tx, ty, ta = relative_pose(before, env.poses[1:])
+        np.testing.assert_allclose(np.stack([dx, dy, a]), np.stack([tx, ty, ta]), atol=1e-12)

@@ -1,5 +1,6 @@
-"""numba's kernel cache is keyed on the package's source, so no edit runs stale kernels; a cache
-that cannot be written or read is a warning, never a failed import.
+"""numba's kernel cache is keyed on the package's source (and, for the baselines, on the
+packages they import from), so no edit runs stale kernels; a cache that cannot be written or
+read is a warning, never a failed import.
 
 The subprocess tests run a fresh interpreter with ``HOME``, ``XDG_CACHE_HOME`` and
 ``NUMBA_CACHE_DIR`` pointed at temporary paths (and, where the package's own directory matters,
@@ -18,10 +19,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import baselines
 import platoon_env
+from baselines import _numba_cache as baselines_cache
+from baselines import ppc
 from platoon_env import _numba_cache
 
 PACKAGE = Path(platoon_env.__file__).resolve().parent
+BASELINES = Path(baselines.__file__).resolve().parent
 
 # Calls one small kernel (compiled in about a second) and reports where its cache lives.
 KERNEL_CODE = """
@@ -64,10 +69,10 @@ def _kernel(cwd: Path, **env: str) -> tuple[list[str], str]:
     return out.stdout.splitlines(), out.stderr
 
 
-def _copy_package(root: Path) -> Path:
-    """A copy of the package (sources and data, no caches) under ``root``; returns its dir."""
-    target = root / "platoon_env"
-    shutil.copytree(PACKAGE, target, ignore=shutil.ignore_patterns("__pycache__"))
+def _copy_package(root: Path, package: Path = PACKAGE) -> Path:
+    """A copy of ``package`` (sources and data, no caches) under ``root``; returns its dir."""
+    target = root / package.name
+    shutil.copytree(package, target, ignore=shutil.ignore_patterns("__pycache__"))
     return target
 
 
@@ -249,3 +254,110 @@ def test_corrupt_cache_entry_is_recompiled(tmp_path: Path, corrupt: str) -> None
     assert lines[3] == result
     assert lines[4] == "1 0"  # the rewritten entry loads
     assert "unreadable" not in stderr
+
+
+def test_kernel_sources_follow_the_imports_of_local_packages(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A package's hash covers the packages it imports that are not installed, transitively,
+    so that an edit there (a constant its kernels inline) changes it."""
+    for name, body in {
+        "pkg_a": "import math\nfrom pkg_b.consts import C\n",
+        "pkg_b": "import numpy\n",
+        "pkg_c": "X = 1\n",
+    }.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "__init__.py").write_text(body)
+    (tmp_path / "pkg_b" / "consts.py").write_text("import pkg_c\nC = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    a, b, c = (tmp_path / n for n in ("pkg_a", "pkg_b", "pkg_c"))
+    assert _numba_cache.kernel_sources(a) == [b, c]  # numpy, math: installed
+    assert _numba_cache.kernel_sources(c) == []
+    before = _numba_cache.source_digest(a, *_numba_cache.kernel_sources(a))
+    (tmp_path / "pkg_b" / "consts.py").write_text("import pkg_c\nC = 2\n")
+    assert _numba_cache.source_digest(a, *_numba_cache.kernel_sources(a)) != before
+    # the repository: the baselines import platoon_env, which imports no local package
+    assert _numba_cache.kernel_sources(BASELINES) == [PACKAGE]
+    assert _numba_cache.kernel_sources(PACKAGE) == []
+
+
+def test_baselines_kernels_cache_in_their_source_versions_directory() -> None:
+    if baselines_cache.CACHE_DIR is None:
+        pytest.skip("no writable cache directory in this environment (caching is off)")
+    assert baselines_cache.CACHE_DIR.name == _numba_cache.source_digest(BASELINES, PACKAGE)
+    assert type(ppc._ppc_step._cache).__name__ == "PackageFunctionCache"
+    assert Path(ppc._ppc_step._cache.cache_path).is_relative_to(baselines_cache.CACHE_DIR)
+
+
+# One step of the PPC law's kernel, which reads the observation columns of
+# platoon_env/observation.py, on a row [visible, x~, y~, clearances]; it reports where its cache
+# lives, the command and whether it was loaded from the cache (hits) or compiled (misses).
+PPC_CODE = """
+import numpy as np
+from baselines import _numba_cache as c, ppc
+p = ppc.PPCParams(r=0.15, d_des=1.0, d_col=0.3, d_con=1.5, beta_con=0.4, lambda_=0.5,
+                  rho_d_inf=0.05, rho_beta_inf=0.1, k_d=1.0, k_beta=2.0, delta=0.5,
+                  epsilon=0.75, dt=0.01)
+obs = np.array([[1.0, 1.1, 0.05, 0.6, 0.6, 0.6, 0.6]])
+rho = p.initial_rho()[:, None].copy()
+sig = np.zeros((len(ppc.SIGNAL_NAMES), 1))
+counts = np.zeros((3, 1), dtype=np.int64)
+k = ppc._ppc_step
+cmd = k(obs, np.zeros(1, dtype=np.intp), ppc._kernel_params(p), ppc._kernel_sets(p), rho, sig,
+        counts)
+print(c.CACHE_DIR)
+print(type(k._cache).__name__)
+print(repr(float(cmd[0, 0])), repr(float(cmd[0, 1])))
+print(sum(k._cache_hits.values()), sum(k._cache_misses.values()))
+"""
+
+
+def _ppc_kernel(cwd: Path, **env: str) -> tuple[list[str], str]:
+    """Run :data:`PPC_CODE`; its output lines and its stderr (the run must succeed)."""
+    out = _run(PPC_CODE, cwd, **env)
+    assert out.returncode == 0, out.stderr
+    return out.stdout.splitlines(), out.stderr
+
+
+def test_an_edit_of_an_imported_constant_reaches_the_baselines_kernel(tmp_path: Path) -> None:
+    """The bug this fixes: numba keyed the baselines' cached kernels on their own file only, so
+    after an edit of observation.py's columns the PPC kernel kept reading the old ones."""
+    src = tmp_path / "src"
+    _copy_package(src, PACKAGE)
+    _copy_package(src, BASELINES)
+    env = {"PYTHONPATH": str(src), "HOME": str(tmp_path), "NUMBA_CACHE_DIR": str(tmp_path / "nc")}
+    first, _ = _ppc_kernel(tmp_path, **env)
+    assert first[1] == "PackageFunctionCache"
+    assert first[3] == "0 1"  # compiled and saved
+    again, _ = _ppc_kernel(tmp_path, **env)
+    assert again[2] == first[2] and again[3] == "1 0"  # loaded
+    layout = src / "platoon_env" / "observation.py"
+    columns, swapped = "OBS_X_REL = 1\nOBS_Y_REL = 2\n", "OBS_X_REL = 2\nOBS_Y_REL = 1\n"
+    text = layout.read_text()
+    assert columns in text
+    layout.write_text(text.replace(columns, swapped))
+    edited, _ = _ppc_kernel(tmp_path, **env)
+    assert edited[0] != first[0]  # another source version, another directory
+    assert edited[3] == "0 1", "the cached kernel was loaded after its constants changed"
+    assert edited[2] != first[2]  # it reads x~ = 0.05, y~ = 1.1 now
+    # the edited columns, computed without any cache, give the same command
+    fresh, _ = _ppc_kernel(tmp_path, **{**env, "NUMBA_CACHE_DIR": str(tmp_path / "fresh")})
+    assert fresh[2] == edited[2]
+
+
+def test_corrupt_baselines_cache_entry_is_recompiled(tmp_path: Path) -> None:
+    """A baselines kernel's unreadable cache file is a warning naming it and a recompilation,
+    not a traceback."""
+    env = {"NUMBA_CACHE_DIR": str(tmp_path / "nc"), "HOME": str(tmp_path)}
+    lines, _ = _ppc_kernel(tmp_path, **env)
+    assert lines[3] == "0 1"
+    files = list(Path(lines[0]).rglob("ppc._ppc_step-*.nb[ic]"))
+    assert {p.suffix for p in files} == {".nbi", ".nbc"}
+    for path in files:
+        path.write_bytes(b"\x80\x05 this is not a pickle")
+    again, stderr = _ppc_kernel(tmp_path, **env)
+    assert again[2] == lines[2] and again[3] == "0 1"  # recompiled, same command
+    assert "ignoring an unreadable numba cache entry" in stderr
+    assert "ppc._ppc_step-" in stderr  # names the file
+    third, stderr = _ppc_kernel(tmp_path, **env)
+    assert third[3] == "1 0" and "unreadable" not in stderr
