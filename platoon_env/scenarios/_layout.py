@@ -153,15 +153,85 @@ TIERS: dict[str, Difficulty] = {
 }
 
 
-def difficulty(tier: str | None) -> Difficulty:
+@dataclass(frozen=True)
+class SharpDifficulty:
+    """The parameters of a family of layouts with the paper studies' geometry: sharp corners
+    inside narrow passages, doors followed by a turn (:mod:`~platoon_env.scenarios.sharp_layouts`).
+
+    The leader's path is a polyline with sharp vertices, which the leader takes as a robot
+    would (pure pursuit with a small ``leader.lookahead`` turns on a radius of about
+    ``u / leader.max_turn_rate``; with ``timed_rooms``, a rooms layout's leader stops and turns
+    in place, a planner's ``leader.trajectory``). Ranges are drawn as in :class:`Difficulty`.
+    Widths are *gaps*: the width minus the robot's diameter ``2 r``, so that a gap means the same
+    room to manoeuvre for any robot; lengths along the path scale with ``d_des``.
+    """
+
+    # corridor layouts: a passage along a polyline with sharp corners
+    corners: tuple[int, int]  # number of sharp corners
+    corner_turn: tuple[float, float]  # [rad] turn magnitude of each corner
+    leg: tuple[float, float]  # length of a leg between two corners, in units of d_des
+    passage_gap: tuple[float, float]  # [m] passage width minus 2 r
+    # rooms layouts: rooms in a row, a door in each wall, the path turning right after it
+    rooms: tuple[int, int]  # number of rooms
+    door_gap: tuple[float, float]  # [m] door width minus 2 r
+    door_turn: tuple[float, float]  # [rad] the turn right after a door (at most 90 deg)
+    door_turn_after: tuple[float, float]  # [m] from the wall to that turn, beyond r + 0.3 m
+    obstacles: tuple[int, int]  # free-standing obstacles (at least ``obstacles[0]`` placed)
+    obstacle_size: tuple[float, float]  # size of an obstacle's bounding square
+    obstacle_beside: float  # probability that an obstacle is placed beside the path
+    obstacle_offset: tuple[float, float]  # extra gap of an obstacle beside the path
+    timed_rooms: bool  # rooms: the leader drives a stop-and-turn timed trajectory
+
+
+#: The tiers with the paper studies' geometry (``generator.tier``), after the three of
+#: :data:`TIERS` (``docs/scenarios.md#tiers-with-the-studies-geometry``). For study C's robots
+#: (``r = 0.15``) ``sharp`` has passages of 1.2-1.4 m and doors of 0.9-1.0 m, ``paper``
+#: passages of 1.0-1.2 m, doors of 0.8-0.9 m and, in rooms, a leader that stops and turns in
+#: place.
+SHARP_TIERS: dict[str, SharpDifficulty] = {
+    "sharp": SharpDifficulty(
+        corners=(3, 6),
+        corner_turn=(math.radians(75.0), math.radians(95.0)),
+        leg=(2.0, 3.5),
+        passage_gap=(0.9, 1.1),
+        rooms=(2, 4),
+        door_gap=(0.6, 0.7),
+        door_turn=(math.radians(60.0), math.radians(90.0)),
+        door_turn_after=(0.15, 0.5),
+        obstacles=(2, 4),
+        obstacle_size=(0.9, 1.8),
+        obstacle_beside=0.6,
+        obstacle_offset=(0.3, 1.0),
+        timed_rooms=False,
+    ),
+    "paper": SharpDifficulty(
+        corners=(4, 8),
+        corner_turn=(math.radians(75.0), math.radians(110.0)),
+        leg=(1.6, 3.0),
+        passage_gap=(0.7, 0.9),
+        rooms=(3, 5),
+        door_gap=(0.5, 0.6),
+        door_turn=(math.radians(75.0), math.radians(90.0)),
+        door_turn_after=(0.05, 0.35),
+        obstacles=(3, 6),
+        obstacle_size=(1.0, 2.2),
+        obstacle_beside=0.8,
+        obstacle_offset=(0.0, 0.6),
+        timed_rooms=True,
+    ),
+}
+
+
+def difficulty(tier: str | None) -> Difficulty | SharpDifficulty:
     """The parameters of ``tier`` (:data:`DEFAULT_DIFFICULTY` for None); ``ValueError`` for an
     unknown tier."""
     if tier is None:
         return DEFAULT_DIFFICULTY
+    if tier in SHARP_TIERS:
+        return SHARP_TIERS[tier]
     if tier not in TIERS:
-        raise ValueError(
-            f"generator.tier must be one of {', '.join(TIERS)} (or absent), got {tier!r}"
-        )
+        names = ", ".join([*TIERS, *SHARP_TIERS])
+        raise ValueError(f"generator.tier must be one of {names} (or absent), got {tier!r}")
     return TIERS[tier]
 
 
@@ -185,6 +255,11 @@ class Params:
         ``generator.tier``)."""
         gen = template.generator
         level = difficulty(None if gen is None else gen.tier)
+        if not isinstance(level, Difficulty):
+            raise ValueError(
+                "generator.tier: a tier with the studies' geometry has its own parameters "
+                "(platoon_env.scenarios.sharp_layouts.SharpParams)"
+            )
         r = template.robot.radius
         d_des = template.formation.d_des
         beta_con = template.camera.half_angle
@@ -212,6 +287,9 @@ class Layout:
     kind: str
     free_space: Polygon
     path: np.ndarray  # (M, 2) leader path
+    #: (T, 4) ``[t, x, y, theta]``: a timed trajectory the leader replays along ``path``
+    #: (``leader.trajectory``; its first sample is where the leader starts); None: pure pursuit
+    trajectory: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

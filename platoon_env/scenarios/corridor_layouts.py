@@ -58,6 +58,44 @@ def _corridor_clearances(rng: np.random.Generator, n: int, p: Params) -> np.ndar
     return out
 
 
+def corridor_polygon(
+    lines: list[list[np.ndarray]],
+    half: np.ndarray,
+    headings: np.ndarray,
+    pockets: list[list[np.ndarray] | None],
+) -> tuple[Polygon, list[Polygon]] | None:
+    """The corridor around the polylines ``lines`` (piece ``k`` runs from split ``k - 1`` to
+    split ``k`` at half-width ``half[k]``; segment ``k`` of the corridor's centre line has
+    heading ``headings[k]``), each piece joined with the buffer of ``pockets[k]`` (if any), and
+    the pieces; None when the corridor would run into itself or is not one simple polygon.
+
+    Flat caps and mitred joins: every wall corner is sharp. At each split the narrower piece
+    reaches a little into its neighbour, so that the union has no crack along the common cap.
+    """
+    overlap = 0.05
+    for k in range(len(lines) - 1):
+        u = unit(float(headings[k])) * overlap
+        if half[k] <= half[k + 1]:
+            lines[k][-1] = lines[k][-1] + u
+        else:
+            lines[k + 1][0] = lines[k + 1][0] - u
+    buf = {"cap_style": "flat", "join_style": "mitre", "mitre_limit": 10.0}
+    pieces = []
+    for k, pts_k in enumerate(lines):
+        piece = LineString(pts_k).buffer(half[k], **buf)
+        if pockets[k] is not None:
+            piece = piece.union(LineString(pockets[k]).buffer(half[k], **buf))
+        pieces.append(piece)
+    for i in range(len(pieces)):
+        for j in range(i + 2, len(pieces)):
+            if pieces[i].distance(pieces[j]) < _WALL_GAP:
+                return None  # the corridor would run into itself
+    corridor = shapely.union_all(pieces)
+    if not isinstance(corridor, Polygon) or len(corridor.interiors) > 0:
+        return None
+    return corridor, pieces
+
+
 def sample_corridor(rng: np.random.Generator, p: Params) -> Layout | None:
     """One corridor layout, or None when the draw does not fit (self-contact, too large)."""
     level = p.difficulty
@@ -111,35 +149,17 @@ def sample_corridor(rng: np.random.Generator, p: Params) -> Layout | None:
         splits.append(a + float(rng.uniform(0.3, 0.7)) * (b - a))
     start_ext = pts[0] - (p.r + 0.45) * unit(float(headings[0]))
     end_ext = pts[-1] + (p.r + float(rng.uniform(0.5, 1.0))) * unit(float(headings[-1]))
-    # Piece k runs from split k - 1 to split k. At each split the narrower piece reaches a
-    # little into its neighbour, so that the union has no crack along the common cap.
-    overlap = 0.05
     lines: list[list[np.ndarray]] = [[start_ext, splits[0]]]
     for k in range(1, n_seg):
         lines.append([splits[k - 1], *corners[k - 1].arc, splits[k]])
     lines.append([splits[-1], end_ext])
-    for k in range(n_seg):
-        u = unit(float(headings[k])) * overlap
-        if half[k] <= half[k + 1]:
-            lines[k][-1] = lines[k][-1] + u
-        else:
-            lines[k + 1][0] = lines[k + 1][0] - u
-    buf = {"cap_style": "flat", "join_style": "mitre", "mitre_limit": 10.0}
-    pieces = []
-    for k, pts_k in enumerate(lines):
-        piece = LineString(pts_k).buffer(half[k], **buf)
-        if 1 <= k < n_seg:  # the sharp outer corner of the turn
-            c = corners[k - 1]
-            pocket = LineString([splits[k - 1], c.vertex, splits[k]]).buffer(half[k], **buf)
-            piece = piece.union(pocket)
-        pieces.append(piece)
-    for i in range(len(pieces)):
-        for j in range(i + 2, len(pieces)):
-            if pieces[i].distance(pieces[j]) < _WALL_GAP:
-                return None  # the corridor would run into itself
-    corridor = shapely.union_all(pieces)
-    if not isinstance(corridor, Polygon) or len(corridor.interiors) > 0:
+    # the sharp outer corner of each turn
+    turns_at = [[splits[k - 1], c.vertex, splits[k]] for k, c in enumerate(corners, 1)]
+    pockets: list[list[np.ndarray] | None] = [None, *turns_at, None]
+    built = corridor_polygon(lines, half, headings, pockets)
+    if built is None:
         return None
+    corridor, pieces = built
     corridor = corridor.simplify(1e-6, preserve_topology=True)
     for _ in range(level.pillars):
         if rng.random() < level.pillar_fraction:

@@ -74,16 +74,19 @@ import numbers
 import numpy as np
 from shapely.geometry import box
 
-from platoon_env.scenarios import corridor_layouts, room_layouts
+from platoon_env.scenarios import corridor_layouts, room_layouts, sharp_layouts
 from platoon_env.scenarios._layout import (
     BOUNDS_MARGIN,
     DEFAULT_DIFFICULTY,
     LAYOUT_BOUNDS,
     PATH_CLEARANCE,
+    SHARP_TIERS,
     TIERS,
     Difficulty,
     Layout,
     Params,
+    SharpDifficulty,
+    difficulty,
 )
 from platoon_env.scenarios.scenario import Scenario, build_scenario
 from platoon_env.scenarios.schema import (
@@ -94,7 +97,9 @@ from platoon_env.scenarios.schema import (
     ScenarioConfig,
     ScenarioError,
     WorkspaceConfig,
+    trajectory_mean_speed,
 )
+from platoon_env.scenarios.sharp_layouts import SharpParams
 
 # LAYOUT_BOUNDS, PATH_CLEARANCE, Difficulty, DEFAULT_DIFFICULTY and TIERS are defined (and
 # documented) in _layout, where the kinds can reach them without importing this module; this is
@@ -105,10 +110,12 @@ __all__ = [
     "LAYOUT_BOUNDS",
     "MAX_ATTEMPTS",
     "PATH_CLEARANCE",
+    "SHARP_TIERS",
     "SPLIT_OFFSETS",
     "TIERS",
     "TIER_OFFSETS",
     "Difficulty",
+    "SharpDifficulty",
     "generate_scenario",
     "layout_kind",
     "layout_seed",
@@ -204,12 +211,16 @@ def generate_scenario(template: ScenarioConfig, index: int) -> Scenario:
         raise ValueError(
             f"generator.kind must be one of {', '.join(GENERATOR_KINDS)}, got {gen.kind!r}"
         )
-    params = Params.from_template(template)
+    level = difficulty(gen.tier)
+    params: Params | SharpParams
+    if isinstance(level, SharpDifficulty):
+        params = SharpParams.from_template(template, level)
+    else:
+        params = Params.from_template(template)
     rng = np.random.default_rng(seed)
     kind = _draw_kind(rng, gen.kind)
-    sampler = corridor_layouts.sample_corridor if kind == "corridor" else room_layouts.sample_rooms
     for _ in range(MAX_ATTEMPTS):
-        layout = sampler(rng, params)
+        layout = _sample(rng, kind, params)
         if layout is None:
             continue
         try:
@@ -226,6 +237,17 @@ def generate_scenario(template: ScenarioConfig, index: int) -> Scenario:
 
 def _generator(template: ScenarioConfig) -> GeneratorConfig:
     return template.generator if template.generator is not None else GeneratorConfig()
+
+
+def _sample(rng: np.random.Generator, kind: str, params: Params | SharpParams) -> Layout | None:
+    """One layout of ``kind`` from the sampler of the family ``params`` belongs to."""
+    if isinstance(params, SharpParams):
+        if kind == "corridor":
+            return sharp_layouts.sample_sharp_corridor(rng, params)
+        return sharp_layouts.sample_sharp_rooms(rng, params)
+    if kind == "corridor":
+        return corridor_layouts.sample_corridor(rng, params)
+    return room_layouts.sample_rooms(rng, params)
 
 
 def _draw_kind(rng: np.random.Generator, kind: str) -> str:
@@ -261,6 +283,19 @@ def _layout_config(template: ScenarioConfig, layout: Layout) -> ScenarioConfig:
             holes=tuple(ring(h.coords) for h in free.interiors),
         )
     )
+    if layout.trajectory is not None:
+        # a timed trajectory (study B's planner): times to the microsecond, poses as the path
+        timed = np.column_stack(
+            [
+                np.round(layout.trajectory[:, 0], 6),
+                np.round(layout.trajectory[:, 1:], _COORD_DECIMALS),
+            ]
+        )
+        samples = tuple((float(t), float(x), float(y), float(th)) for t, x, y, th in timed)
+        leader = dataclasses.replace(
+            template.leader, path=(), trajectory=samples, speed=trajectory_mean_speed(samples)
+        )
+        return dataclasses.replace(template, workspace=workspace, leader=leader)
     path = np.round(layout.path, _COORD_DECIMALS)
     keep = np.ones(path.shape[0], dtype=bool)
     keep[1:] = np.any(np.diff(path, axis=0) != 0.0, axis=1)
@@ -270,7 +305,7 @@ def _layout_config(template: ScenarioConfig, layout: Layout) -> ScenarioConfig:
     return dataclasses.replace(template, workspace=workspace, leader=leader)
 
 
-def _straight_corridor(p: Params) -> Layout:
+def _straight_corridor(p: Params | SharpParams) -> Layout:
     """The fallback: a straight corridor, ``r + 1`` m of clearance on each side, in the middle
     of :data:`LAYOUT_BOUNDS`. Feasible for any template whose platoon fits in the box."""
     bx0, by0, bx1, by1 = LAYOUT_BOUNDS

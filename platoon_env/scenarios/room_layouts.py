@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 import shapely
@@ -104,6 +105,74 @@ def place(shape: np.ndarray, centre: np.ndarray, angle: float) -> Polygon:
     return Polygon(xy)
 
 
+class ObstacleRanges(Protocol):
+    """Where a family of layouts draws its free-standing obstacles (a
+    :class:`~platoon_env.scenarios._layout.Difficulty` or a
+    :class:`~platoon_env.scenarios._layout.SharpDifficulty`)."""
+
+    @property
+    def obstacles(self) -> tuple[int, int]: ...  # how many (at least the first placed)
+    @property
+    def obstacle_size(self) -> tuple[float, float]: ...  # size of the bounding square [m]
+    @property
+    def obstacle_beside(self) -> float: ...  # probability of a place beside the path
+    @property
+    def obstacle_offset(self) -> tuple[float, float]: ...  # extra gap beside the path [m]
+
+
+def place_obstacles(
+    rng: np.random.Generator,
+    free: Polygon,
+    line: LineString,
+    level: ObstacleRanges,
+    r: float,
+    size: tuple[float, float],
+) -> Polygon | None:
+    """``free`` (a rooms layout of ``size = (width, height)`` from the origin) with
+    free-standing non-convex obstacles (:data:`_OBSTACLE_SHAPES`) as holes, off the leader's
+    path ``line`` by ``r + OBSTACLE_PATH_CLEARANCE`` and :data:`_OBSTACLE_GAP` apart from the
+    walls and each other; None when fewer than ``level.obstacles[0]`` fit."""
+    total_width, height = size
+    n_obstacles = int(rng.integers(*level.obstacles))
+    placed = 0
+    for _ in range(12 * n_obstacles):
+        if placed == n_obstacles:
+            break
+        shape_fn = _OBSTACLE_SHAPES[int(rng.integers(len(_OBSTACLE_SHAPES)))]
+        size_k = float(rng.uniform(*level.obstacle_size))
+        shape = shape_fn(rng, size_k)
+        if rng.random() < level.obstacle_beside:  # mostly beside the path, where it matters
+            extra = float(rng.uniform(*level.obstacle_offset))
+            offset = r + OBSTACLE_PATH_CLEARANCE + 0.6 * size_k + extra
+            centre = beside(rng, line, offset)
+        else:
+            centre = rng.uniform([0.5, 0.5], [total_width - 0.5, height - 0.5])
+        obstacle = place(shape, centre, float(rng.uniform(0.0, 2.0 * math.pi)))
+        if (
+            free.contains(obstacle)
+            and obstacle.distance(line) >= r + OBSTACLE_PATH_CLEARANCE
+            and obstacle.distance(free.boundary) >= _OBSTACLE_GAP
+        ):
+            free = Polygon(
+                free.exterior.coords,
+                [*(h.coords for h in free.interiors), obstacle.exterior.coords],
+            )
+            placed += 1
+    if placed < level.obstacles[0]:
+        return None
+    return free
+
+
+def random_orientation(rng: np.random.Generator) -> np.ndarray:
+    """A quarter turn times 0..3, mirrored with even odds: the linear map of a rooms layout."""
+    q = int(rng.integers(4))
+    c, s = round(math.cos(q * math.pi / 2)), round(math.sin(q * math.pi / 2))
+    matrix = np.array([[c, -s], [s, c]], dtype=np.float64)
+    if rng.random() < 0.5:
+        matrix = matrix @ np.diag([1.0, -1.0])
+    return matrix
+
+
 def sample_rooms(rng: np.random.Generator, p: Params) -> Layout | None:
     """One rooms layout, or None when the draw does not fit (tight corner, blocked door)."""
     r = p.r
@@ -187,40 +256,10 @@ def sample_rooms(rng: np.random.Generator, p: Params) -> Layout | None:
     free = box(0.0, 0.0, total_width, height).difference(shapely.union_all(walls))
     if not isinstance(free, Polygon) or not path_is_clear(free, path, r):
         return None
-    line = LineString(path)
-    n_obstacles = int(rng.integers(*level.obstacles))
-    placed = 0
-    for _ in range(12 * n_obstacles):
-        if placed == n_obstacles:
-            break
-        shape_fn = _OBSTACLE_SHAPES[int(rng.integers(len(_OBSTACLE_SHAPES)))]
-        size = float(rng.uniform(*level.obstacle_size))
-        shape = shape_fn(rng, size)
-        if rng.random() < level.obstacle_beside:  # mostly beside the path, where it matters
-            extra = float(rng.uniform(*level.obstacle_offset))
-            offset = r + OBSTACLE_PATH_CLEARANCE + 0.6 * size + extra
-            centre = beside(rng, line, offset)
-        else:
-            centre = rng.uniform([0.5, 0.5], [total_width - 0.5, height - 0.5])
-        obstacle = place(shape, centre, float(rng.uniform(0.0, 2.0 * math.pi)))
-        if (
-            free.contains(obstacle)
-            and obstacle.distance(line) >= r + OBSTACLE_PATH_CLEARANCE
-            and obstacle.distance(free.boundary) >= _OBSTACLE_GAP
-        ):
-            free = Polygon(
-                free.exterior.coords,
-                [*(h.coords for h in free.interiors), obstacle.exterior.coords],
-            )
-            placed += 1
-    if placed < level.obstacles[0]:
+    free = place_obstacles(rng, free, LineString(path), level, r, (total_width, height))
+    if free is None:
         return None
-    # Orientation: a quarter turn times 0..3, possibly mirrored.
-    q = int(rng.integers(4))
-    c, s = round(math.cos(q * math.pi / 2)), round(math.sin(q * math.pi / 2))
-    matrix = np.array([[c, -s], [s, c]], dtype=np.float64)
-    if rng.random() < 0.5:
-        matrix = matrix @ np.diag([1.0, -1.0])
+    matrix = random_orientation(rng)
     fitted = fit_in_bounds(rng, free, path, matrix)
     if fitted is None:
         return None
