@@ -41,7 +41,7 @@ import numpy as np
 from numba import njit
 
 if TYPE_CHECKING:
-    from platoon_env.scenarios.schema import ScenarioConfig
+    from platoon_env.config import ScenarioConfig
 
 _F8 = np.float64
 _I8 = np.int64

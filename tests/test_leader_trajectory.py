@@ -19,7 +19,8 @@ import pytest
 
 import platoon_env
 from platoon_env.batched import BatchedPlatoon
-from platoon_env.scenarios import schema
+from platoon_env.dynamics.leader import trajectory_velocities
+from platoon_env.scenarios import trajectory
 from platoon_env.scenarios.schema import ScenarioError, config_to_mapping, parse_scenario
 
 R = 0.15
@@ -249,6 +250,8 @@ def _modified(**changes: Any) -> dict[str, Any]:
 
 
 SAMPLES = unicycle_samples()
+#: The heading of a straight drive from the origin into the obstacle at (8, 8).
+HEADING_TO_WALL = math.atan2(7.9, 8.5)
 
 
 @pytest.mark.parametrize(
@@ -288,7 +291,7 @@ SAMPLES = unicycle_samples()
             r"speed times 1 \+ leader\.speed_variation would be 0\.57",
         ),
         (
-            {"leader__trajectory": [[0, 0, 0, 0], [10, 8.5, 7.9, 0]]},
+            {"leader__trajectory": [[0, 0, 0, HEADING_TO_WALL], [10, 8.5, 7.9, HEADING_TO_WALL]]},
             r"leader\.trajectory: the leader's path comes within",
         ),
     ],
@@ -299,7 +302,7 @@ def test_invalid_trajectories_name_the_field(changes: dict[str, Any], message: s
 
 
 def test_size_bound_and_procedural_refusal(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(schema, "MAX_TRAJECTORY_SAMPLES", 50)
+    monkeypatch.setattr(trajectory, "MAX_TRAJECTORY_SAMPLES", 50)
     with pytest.raises(ScenarioError, match=r"at most 50 samples \(MAX_TRAJECTORY_SAMPLES\)"):
         parse_scenario(scenario())
     parse_scenario(scenario(SAMPLES[:50]))
@@ -317,3 +320,92 @@ def test_the_fastest_segment_bounds_the_leaders_travel() -> None:
     assert bool(p["leader_replay"])
     assert p["leader_speed_bound"] == pytest.approx(0.5, rel=1e-6)
     assert p["leader_speed"] == pytest.approx(env.scenario.config.leader.speed)
+
+
+# ------------------------------------------------------------------------------------------
+# The heading rule: a unicycle moves along its heading (no sliding sideways)
+# ------------------------------------------------------------------------------------------
+
+
+def straight_samples(heading: float, direction: float = 0.0, n: int = 40) -> list[list[float]]:
+    """A leader driving 0.3 m/s along ``direction`` [rad] from the origin, sampled every 0.1 s,
+    each sample with the heading ``heading``."""
+    step = 0.03
+    return [
+        [
+            round(0.1 * k, 10),
+            k * step * math.cos(direction),
+            k * step * math.sin(direction),
+            heading,
+        ]
+        for k in range(n)
+    ]
+
+
+def test_study_b_trajectory_drives_along_its_heading() -> None:
+    """The shipped planner's trajectory (turns in place at its sharp vertices, rounded to
+    0.1 mm and 0.1 mrad) keeps the rule, with room to spare."""
+    cfg = platoon_env.scenarios.load_config("study_b")
+    route = trajectory.trajectory_route(cfg.leader.trajectory)
+    _, omega = trajectory_velocities(route)
+    sideways, allowed = trajectory.sideways_slip(route, omega)
+    assert np.all(sideways <= 0.5 * allowed)
+
+
+@pytest.mark.parametrize(
+    ("samples", "sample"),
+    [
+        (straight_samples(0.0, direction=math.pi / 2), 1),  # a crab: heading x, moving y
+        (straight_samples(0.07), 1),  # the heading 0.07 rad off the motion all along
+        # the heading drifts at 0.1 rad/s from a straight motion: segment 6 to 7 is the first
+        # whose mean heading, 0.065 rad, lies beyond 0.005 + 0.05 rad (a half-turn and the
+        # tolerance) of the chord
+        ([[t, x, y, 0.1 * t] for t, x, y, _ in straight_samples(0.0)], 7),
+    ],
+    ids=["crab", "offset", "drift"],
+)
+def test_sliding_sideways_is_an_error_naming_the_sample(
+    samples: list[list[float]], sample: int
+) -> None:
+    with pytest.raises(
+        ScenarioError,
+        match=rf"leader\.trajectory\[{sample}\]: the heading does not match the motion: from "
+        rf"sample {sample - 1} to {sample} the leader moves .* m sideways of its heading",
+    ):
+        parse_scenario(scenario(samples))
+
+
+def _sampled_unicycle(u_of_t: Any, omega: float, period: float, duration: float) -> list[Any]:
+    """A unicycle with speed ``u_of_t(t)`` and turn rate ``omega``, integrated in 1 ms arcs and
+    sampled every ``period`` [s] (positions and headings rounded as a log writes them)."""
+    h = 1e-3
+    x = y = th = 0.0
+    out = [[0.0, 0.0, 0.0, 0.0]]
+    every = round(period / h)
+    for k in range(round(duration / h)):
+        u = u_of_t(k * h)
+        x += u * h * math.cos(th + 0.5 * omega * h)
+        y += u * h * math.sin(th + 0.5 * omega * h)
+        th += omega * h
+        if (k + 1) % every == 0:
+            out.append([round((k + 1) * h, 10), round(x, 4), round(y, 4), round(th, 4)])
+    return out
+
+
+@pytest.mark.parametrize(
+    "samples",
+    [
+        straight_samples(0.04),  # within TRAJECTORY_HEADING_TOLERANCE of the motion
+        straight_samples(0.0, direction=math.pi),  # reversing along its heading
+        straight_samples(math.pi / 2, direction=-math.pi / 2),  # reversing, another heading
+        # accelerating from rest through a turn, sampled coarsely: the chord leans towards the
+        # later headings, but stays among the headings held
+        _sampled_unicycle(lambda t: min(0.3, 0.3 * t), omega=1.0, period=0.5, duration=3.0),
+        # a slow leader (1 mm per sample) whose positions are rounded to 0.1 mm
+        _sampled_unicycle(lambda t: 0.01, omega=0.2, period=0.1, duration=10.0),
+    ],
+    ids=["tolerance", "reverse", "reverse-y", "coarse-turn", "slow-rounded"],
+)
+def test_driving_along_the_heading_passes(samples: list[list[float]]) -> None:
+    cfg = parse_scenario(scenario(samples))
+    assert cfg.leader.trajectory[-1][1:3] == tuple(samples[-1][1:3])

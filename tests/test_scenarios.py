@@ -195,6 +195,29 @@ def test_unsafe_yaml_tag_is_never_executed(tmp_path: Path) -> None:
     assert not marker.exists()
 
 
+@pytest.mark.parametrize("char", ["\x00", "\x01", "\x07", "\x1b", "\x7f", "\ufffe"])
+def test_control_characters_are_an_error_naming_the_file(tmp_path: Path, char: str) -> None:
+    """YAML allows printable characters, tab, line feed and carriage return only: any other
+    (a stray control character, say) is a ScenarioError naming the file, the line and the
+    character, not PyYAML's ReaderError."""
+    path = tmp_path / "control.yaml"
+    path.write_text(f"name: x\ndescription: a{char}b\nfollowers: 2\n", encoding="utf-8")
+    with pytest.raises(
+        ScenarioError,
+        match=rf"control\.yaml:2: malformed YAML: character U\+{ord(char):04X} is not allowed",
+    ):
+        load_scenario(path)
+
+
+def test_control_characters_in_a_trajectory_file_name_that_file(tmp_path: Path) -> None:
+    (tmp_path / "t.yaml").write_text("- [0, 0, 0, 0]\n- [1, 0.3, 0, 0\x01]\n", encoding="utf-8")
+    path = tmp_path / "s.yaml"
+    path.write_text("name: x\nleader: {trajectory_file: t.yaml}\n", encoding="utf-8")
+    message = r"s\.yaml -> t\.yaml:2: malformed YAML: character U\+0001"
+    with pytest.raises(ScenarioError, match=message):
+        load_config(path)
+
+
 def test_unknown_scenario_name() -> None:
     with pytest.raises(ScenarioError, match="unknown scenario"):
         load_scenario("study_z")

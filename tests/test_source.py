@@ -6,7 +6,6 @@ import ast
 import dataclasses
 import subprocess
 import sys
-import types
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -18,6 +17,7 @@ from gymnasium.utils import seeding
 from shapely.geometry import box
 
 import platoon_env
+from platoon_env import config
 from platoon_env.scenarios import (
     FixedSource,
     ProceduralSource,
@@ -30,7 +30,11 @@ from platoon_env.scenarios import (
     load_config,
     load_scenario,
     scenario_source,
+    schema,
+    trajectory,
+    validate,
 )
+from platoon_env.scenarios import source as source_module
 from platoon_env.scenarios.procedural import LAYOUT_BOUNDS, LAYOUTS_PER_SPLIT, generate_scenario
 
 SCENARIOS = list_scenarios()
@@ -211,9 +215,7 @@ def fake_options(monkeypatch: pytest.MonkeyPatch) -> list[tuple[dict[str, Any], 
         calls.append((dict(overrides), where))
         return dataclasses.replace(cfg, **overrides)
 
-    module = types.ModuleType("platoon_env.scenarios.options")
-    module.apply_overrides = apply_overrides  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "platoon_env.scenarios.options", module)
+    monkeypatch.setattr(source_module, "apply_overrides", apply_overrides)
     return calls
 
 
@@ -284,35 +286,68 @@ def test_custom_source(fake_options: list[Any]) -> None:
 
 
 # ------------------------------------------------------------------------------------------
-# Imports run one way: procedural/source -> scenario, never the reverse
+# Imports run one way: plain types (platoon_env.config) -> geometry, dynamics, records ->
+# the trajectory rules and the validator -> scenario building -> procedural/source
 # ------------------------------------------------------------------------------------------
 
 _ISOLATED_IMPORT = """
 import importlib.util, sys, types
 # Bare parent packages, so that their __init__ (which imports the env and every source) does
-# not run: only what scenario.py itself imports is loaded.
+# not run: only what the module itself imports is loaded.
 root = importlib.util.find_spec("platoon_env").submodule_search_locations[0]
 for name, path in (("platoon_env", root), ("platoon_env.scenarios", root + "/scenarios")):
     pkg = types.ModuleType(name)
     pkg.__path__ = [path]
     sys.modules[name] = pkg
-import platoon_env.scenarios.{module}
-print(sorted(m for m in sys.modules if m.startswith("platoon_env.scenarios.")))
+import {module}
+print(sorted(m for m in sys.modules if m.startswith("platoon_env.")))
 """
 
 
-@pytest.mark.parametrize("module", ["scenario", "loader"])
-def test_scenario_does_not_import_procedural(module: str) -> None:
+def _loaded_by(module: str) -> set[str]:
+    """The package's modules that importing ``module`` alone loads."""
     out = subprocess.run(
         [sys.executable, "-c", _ISOLATED_IMPORT.format(module=module)],
         capture_output=True,
         text=True,
         check=True,
     ).stdout
-    loaded = set(ast.literal_eval(out.strip()))
+    return set(ast.literal_eval(out.strip())) - {"platoon_env.scenarios"}  # the bare package
+
+
+@pytest.mark.parametrize("module", ["scenario", "loader"])
+def test_scenario_does_not_import_procedural(module: str) -> None:
+    loaded = _loaded_by(f"platoon_env.scenarios.{module}")
     assert f"platoon_env.scenarios.{module}" in loaded
     for other in ("procedural", "source", "_layout", "corridor_layouts", "room_layouts"):
         assert f"platoon_env.scenarios.{other}" not in loaded, other
+
+
+@pytest.mark.parametrize(
+    "module",
+    [
+        "platoon_env.config",
+        "platoon_env.geometry.workspace",
+        "platoon_env.records",
+        "platoon_env.dynamics.leader",
+    ],
+)
+def test_plain_types_geometry_and_dynamics_import_no_scenario_module(module: str) -> None:
+    """The layers below scenario building reach none of it (the config types and the error
+    they need are in platoon_env.config, which imports nothing of the package but the
+    violation causes)."""
+    loaded = _loaded_by(module)
+    assert module in loaded
+    assert not {m for m in loaded if m.startswith("platoon_env.scenarios")}, module
+    if module == "platoon_env.config":
+        assert loaded == {"platoon_env.config", "platoon_env.violations"}
+
+
+@pytest.mark.parametrize("module", ["trajectory", "validate", "schema"])
+def test_the_schema_does_not_import_scenario_building(module: str) -> None:
+    loaded = _loaded_by(f"platoon_env.scenarios.{module}")
+    for upper in ("scenario", "loader", "options", "profiles", "procedural", "source"):
+        assert f"platoon_env.scenarios.{upper}" not in loaded, (module, upper)
 
 
 def test_plain_import_of_scenario_works() -> None:
@@ -332,10 +367,74 @@ def _imported_modules(path: Path) -> set[str]:
 
 
 @pytest.mark.parametrize(
-    "module", ["scenario", "loader", "schema", "_layout", "corridor_layouts", "room_layouts"]
+    "module",
+    [
+        "scenario",
+        "loader",
+        "schema",
+        "validate",
+        "trajectory",
+        "_layout",
+        "corridor_layouts",
+        "room_layouts",
+    ],
 )
 def test_no_module_imports_upwards(module: str) -> None:
     """Neither at module level nor in a function (which would hide a cycle)."""
     imported = _imported_modules(SCENARIOS_DIR / f"{module}.py")
     for upper in ("procedural", "source"):
         assert f"platoon_env.scenarios.{upper}" not in imported, (module, upper)
+
+
+def _local_imports(path: Path) -> list[str]:
+    """``line: statement`` of every import that is neither at module level nor under ``if
+    TYPE_CHECKING:`` (an import in a function, which would hide a cycle)."""
+    tree = ast.parse(path.read_text())
+    allowed: list[ast.stmt] = []
+    for stmt in tree.body:
+        type_checking = isinstance(stmt, ast.If) and ast.unparse(stmt.test) == "TYPE_CHECKING"
+        allowed.extend(stmt.body if type_checking else [stmt])  # type: ignore[attr-defined]
+    top = {id(n) for n in allowed if isinstance(n, (ast.Import, ast.ImportFrom))}
+    return [
+        f"{node.lineno}: {ast.unparse(node)}"
+        for node in ast.walk(tree)
+        if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in top
+    ]
+
+
+_LAYER_FILES = sorted(
+    [
+        *SCENARIOS_DIR.glob("*.py"),
+        *(SCENARIOS_DIR.parent / name for name in ("config.py", "records.py")),
+        SCENARIOS_DIR.parent / "geometry" / "workspace.py",
+        SCENARIOS_DIR.parent / "dynamics" / "leader.py",
+    ]
+)
+
+
+@pytest.mark.parametrize("path", _LAYER_FILES, ids=lambda p: p.name)
+def test_no_function_local_imports(path: Path) -> None:
+    assert _local_imports(path) == []
+
+
+def test_schema_reexports_every_name_it_exported() -> None:
+    """``platoon_env.scenarios.schema`` stays the public home of the schema: every name it
+    exported before the split, as the same object as in the module that defines it."""
+    names = {
+        config: "CameraConfig CameraNoiseConfig FormationConfig FreeSpaceConfig GeneratorConfig "
+        "GENERATOR_KINDS GENERATOR_SPLITS GENERATOR_TIERS InitialConfig LeaderConfig "
+        "ObservationConfig Point Polygon PPCConfig ProximityConfig RewardConfig RobotConfig "
+        "SafetyConfig ScenarioConfig ScenarioError SimulationConfig TrajectorySample "
+        "WorkspaceConfig field_error has_realism latency_steps VIOLATION_CAUSES",
+        validate: "ACTION_BOUND_RANGE MAX_CONTROL_PERIOD MAX_COORDINATE MAX_EPISODE_STEPS "
+        "MAX_FOLLOWERS MAX_LATENCY_STEPS MAX_PHYSICS_SUBSTEPS MAX_SETTLE_TIME MAX_SPEED_VARIATION "
+        "MIN_CONTROL_PERIOD check_ranges",
+        trajectory: "MAX_TRAJECTORY_DURATION MAX_TRAJECTORY_SAMPLES MIN_TRAJECTORY_INTERVAL "
+        "TRAJECTORY_LIMIT_TOLERANCE check_trajectory_times trajectory_mean_speed "
+        "trajectory_route",
+        schema: "config_to_mapping parse_scenario parse_section",
+    }
+    for home, listed in names.items():
+        for name in listed.split():
+            assert getattr(schema, name) is getattr(home, name), name
+            assert name in schema.__all__, name

@@ -14,8 +14,8 @@ from shapely.geometry import LineString, MultiPolygon, Point, Polygon, box
 from shapely.ops import nearest_points
 from shapely.validation import explain_validity
 
+from platoon_env.config import ScenarioError, WorkspaceConfig
 from platoon_env.geometry.sensing import edge_boxes
-from platoon_env.scenarios.schema import ScenarioError, WorkspaceConfig
 
 #: Extra clearance beyond ``r`` that the leader's path must keep from every obstacle.
 LEADER_PATH_MARGIN = 0.05

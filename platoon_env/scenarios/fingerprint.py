@@ -6,6 +6,14 @@ overrides and the sensor profile are applied), not the name or path it was given
 ``./x.yaml`` and ``x.yaml`` are one scenario, an edited ``x.yaml`` is another. The fingerprint
 is the SHA-256 of the canonical JSON of :func:`~platoon_env.scenarios.schema.config_to_mapping`
 (keys sorted, no whitespace, floats in Python's shortest round-trip form).
+
+That mapping is canonical: a number where the schema's type is float is written as a float
+(``accel_max=1`` and ``accel_max=1.0`` are one scenario), and a field at its default is left out
+unless it is identity-bearing (:func:`platoon_env.config.identity`: the fields that were written
+out at their defaults when fingerprints were first recorded). So a field added to the schema
+with a default changes no stored fingerprint; it joins the fingerprint of a scenario only where
+that scenario sets it to another value. ``tests/test_fingerprints.py`` pins the fingerprints of
+the shipped scenarios and models.
 """
 
 from __future__ import annotations

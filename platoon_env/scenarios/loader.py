@@ -18,8 +18,9 @@ Reading YAML (:func:`read_yaml`) is strict, so that no input escapes the schema'
 * **No duplicate keys.** A key given twice in one mapping is an error naming the key and both
   lines (PyYAML silently keeps the last one).
 * **Safe tags only.** Tags that would build Python objects (``!!python/...``) are rejected,
-  never executed; a file must be UTF-8. Every error is a
-  :class:`~platoon_env.scenarios.schema.ScenarioError` naming the file and line.
+  never executed; a file must be UTF-8 and may hold no control characters but tab, line feed
+  and carriage return (YAML's printable set). Every error is a
+  :class:`~platoon_env.config.ScenarioError` naming the file and line.
 """
 
 from __future__ import annotations
@@ -35,9 +36,11 @@ from yaml.composer import ComposerError
 from yaml.constructor import ConstructorError
 from yaml.events import AliasEvent
 from yaml.nodes import MappingNode, Node, ScalarNode
+from yaml.reader import ReaderError
 
+from platoon_env.config import ScenarioConfig, ScenarioError
 from platoon_env.scenarios.scenario import Scenario, build_scenario
-from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError, parse_scenario
+from platoon_env.scenarios.schema import parse_scenario
 
 _DATA = "platoon_env.scenarios.data"
 
@@ -191,7 +194,12 @@ def read_yaml(text: str, source: str) -> Any:
             f"{source}: {len(text)} characters, more than the limit of {MAX_YAML_BYTES} "
             "(MAX_YAML_BYTES)"
         )
-    loader = _ScenarioLoader(text)
+    try:
+        # The reader checks the characters as the loader is made: a control character is a
+        # ReaderError from here, not from the parse.
+        loader = _ScenarioLoader(text)
+    except ReaderError as exc:
+        raise _unreadable(exc, text, source) from exc
     try:
         return loader.get_single_data()
     except yaml.YAMLError as exc:
@@ -203,6 +211,17 @@ def read_yaml(text: str, source: str) -> Any:
         raise ScenarioError(f"{source}: malformed YAML: nested too deeply") from exc
     finally:
         loader.dispose()
+
+
+def _unreadable(exc: ReaderError, text: str, source: str) -> ScenarioError:
+    """The :class:`ScenarioError` of a character YAML does not allow (a control character,
+    say), naming ``source``, the line and the character."""
+    line = text.count("\n", 0, exc.position) + 1
+    code = exc.character if isinstance(exc.character, int) else ord(exc.character)
+    return ScenarioError(
+        f"{source}:{line}: malformed YAML: character U+{code:04X} is not allowed (YAML allows "
+        "printable characters, tab, line feed and carriage return; no other control character)"
+    )
 
 
 def _read_text(path: Path) -> str:

@@ -26,7 +26,7 @@ Two kinds of option:
 
 A value of None, for either kind, means "not overridden".
 
-Errors: a bad value is a :class:`~platoon_env.scenarios.schema.ScenarioError` (a
+Errors: a bad value is a :class:`~platoon_env.config.ScenarioError` (a
 ``ValueError``) whose message starts with ``where`` and names the option as passed, then the
 file path in parentheses, e.g. ``make(): physics_substeps: expected an integer, got 1.5
 (scenario.simulation.physics_substeps)``. An unknown option name is a ``TypeError``, as Python
@@ -45,13 +45,10 @@ from typing import Any
 
 import numpy as np
 
-from platoon_env.scenarios.schema import (
-    VIOLATION_CAUSES,
-    ScenarioConfig,
-    ScenarioError,
-    config_to_mapping,
-    parse_scenario,
-)
+from platoon_env.config import ScenarioConfig, ScenarioError
+from platoon_env.scenarios.profiles import load_profile
+from platoon_env.scenarios.schema import config_to_mapping, parse_scenario
+from platoon_env.violations import VIOLATION_CAUSES
 
 #: Shortcut option -> (block, key) of the field it sets; block None is a top-level field.
 _SHORTCUT_FIELDS: dict[str, tuple[str | None, str]] = {
@@ -198,8 +195,6 @@ def apply_overrides(
     data = config_to_mapping(cfg)
     labels: dict[str, str] = {}  # file path -> option label, to reword parse errors
     if PROFILE_OPTION in given:
-        from platoon_env.scenarios.profiles import load_profile  # TODO(lead): top-level import
-
         profile = load_profile(given[PROFILE_OPTION])
         for name, fields in profile.items():
             data[name] = _merged(data.get(name, {}), fields)

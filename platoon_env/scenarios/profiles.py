@@ -26,14 +26,15 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from platoon_env.scenarios.loader import read_yaml
-from platoon_env.scenarios.schema import (
+from platoon_env.config import (
     CameraConfig,
     CameraNoiseConfig,
     ProximityConfig,
     RobotConfig,
     ScenarioError,
+    field_key,
 )
+from platoon_env.scenarios.loader import read_yaml
 
 #: The package whose ``profiles/`` folder holds the shipped profiles.
 _PACKAGE = "platoon_env.scenarios"
@@ -73,7 +74,7 @@ def list_profiles() -> list[str]:
 
 def _keys_of(section: type) -> list[str]:
     assert is_dataclass(section)
-    return sorted(str(f.metadata.get("key", f.name)) for f in fields(section))
+    return sorted(field_key(f) for f in fields(section))
 
 
 def _shipped() -> str:

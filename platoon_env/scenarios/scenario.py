@@ -8,17 +8,14 @@ from dataclasses import dataclass
 import numpy as np
 from shapely.geometry import Polygon
 
+from platoon_env.config import ScenarioConfig, ScenarioError
 from platoon_env.dynamics.leader import path_arclength, point_at
 from platoon_env.geometry.grid import EdgeGrid
 from platoon_env.geometry.workspace import Workspace, build_free_space, check_leader_path
 from platoon_env.records import PATH_T, PATH_THETA, PATH_X, PATH_Y, constraint_params
 from platoon_env.safety import configuration_problems
-from platoon_env.scenarios.schema import (
-    ScenarioConfig,
-    ScenarioError,
-    check_ranges,
-    trajectory_route,
-)
+from platoon_env.scenarios.trajectory import trajectory_route
+from platoon_env.scenarios.validate import check_ranges, default_max_steps
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,14 +69,6 @@ class Scenario:
     def n_followers(self) -> int:
         """Number of followers ``N``."""
         return self.config.followers
-
-
-def default_max_steps(cfg: ScenarioConfig, path_length: float) -> int:
-    """Steps for twice the slowest leader's driving time (speed ``leader.speed * (1 -
-    leader.speed_variation)``; a trajectory: its mean speed), its settle time and 10 s more."""
-    slowest = cfg.leader.speed * (1.0 - cfg.leader.speed_variation)
-    seconds = 2.0 * path_length / slowest + cfg.leader.settle_time + 10.0
-    return math.ceil(seconds / cfg.simulation.control_period)
 
 
 def default_initial_poses(

@@ -25,8 +25,8 @@ Typical use in an env::
     sc = source.sample(self.np_random)  # at each reset: this episode's scenario
 
 Imports run one way: this module imports :mod:`~platoon_env.scenarios.procedural`,
-:mod:`~platoon_env.scenarios.loader` and :mod:`~platoon_env.scenarios.scenario`; none of them
-imports it.
+:mod:`~platoon_env.scenarios.loader`, :mod:`~platoon_env.scenarios.options` and
+:mod:`~platoon_env.scenarios.scenario`; none of them imports it.
 """
 
 from __future__ import annotations
@@ -38,10 +38,12 @@ from typing import Any, Protocol, TypeAlias, runtime_checkable
 
 import numpy as np
 
+from platoon_env.config import ScenarioConfig, ScenarioError
 from platoon_env.scenarios.loader import ScenarioLike, load_config
+from platoon_env.scenarios.options import apply_overrides
 from platoon_env.scenarios.procedural import LAYOUT_BOUNDS, LAYOUTS_PER_SPLIT, generate_scenario
 from platoon_env.scenarios.scenario import Scenario, build_scenario
-from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError, check_ranges
+from platoon_env.scenarios.validate import check_ranges
 
 __all__ = [
     "FixedSource",
@@ -246,7 +248,7 @@ def scenario_source(
         if not overrides:
             return scenario
         if isinstance(scenario, FixedSource):
-            cfg = _apply_overrides(scenario.config, overrides, where)
+            cfg = apply_overrides(scenario.config, overrides, where=where)
             return FixedSource(_rebuild(scenario.scenario, cfg))
         base = scenario.config
     elif isinstance(scenario, ScenarioSource):
@@ -261,23 +263,12 @@ def scenario_source(
             "scenario must be a name, a path, a mapping, a ScenarioConfig, a Scenario or a "
             f"ScenarioSource, got {type(scenario).__name__}"
         )
-    cfg = _apply_overrides(base, overrides, where) if overrides else base
+    cfg = apply_overrides(base, overrides, where=where) if overrides else base
     if cfg.generator is not None:
         return ProceduralSource(cfg)
     if fixed is not None:
         return FixedSource(_rebuild(fixed, cfg))
     return FixedSource(build_scenario(cfg))
-
-
-def _apply_overrides(
-    cfg: ScenarioConfig, overrides: Mapping[str, Any], where: str
-) -> ScenarioConfig:
-    # Imported on first use, only when there are overrides to apply (options imports only
-    # schema, so a module-level import would not create a cycle either).
-    from platoon_env.scenarios.options import apply_overrides
-
-    out: ScenarioConfig = apply_overrides(cfg, overrides, where=where)
-    return out
 
 
 def _rebuild(scenario: Scenario, cfg: ScenarioConfig) -> Scenario:
