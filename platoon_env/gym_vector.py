@@ -157,6 +157,8 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         # Violation masks of the state on show (the last step's, zero after a reset): render().
         self._masks = np.zeros(self.num_envs, dtype=np.int64)
+        # Each sub-env's d_des (info["e_d"]); a procedural layout sets its own at reset.
+        self._d_des = np.zeros(self.num_envs)
         self._renderers: list[Any] = [None] * self.num_envs
         self._drawn: list[Any] = [None] * self.num_envs  # the scenario each renderer draws
 
@@ -189,7 +191,7 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         seeds = self._seeds(seed)
         idx = np.flatnonzero(mask)
         obs = self.batch.reset([seeds[i] for i in idx], envs=idx, perturb=perturb)
-        self._masks[idx] = 0
+        self._restarted(idx)
         return obs[:, 0], _masked(self._info_values(self._masks), mask)
 
     def step(
@@ -214,7 +216,7 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         final_obs = _objects([obs[i] if end else None for i, end in enumerate(ended.tolist())])
         final_info = _masked(values, ended)
         obs = self.batch.reset([None] * len(idx), envs=idx)[:, 0]
-        self._masks[idx] = 0
+        self._restarted(idx)
         infos = _merged(_masked(values, ~ended), _masked(self._info_values(self._masks), ended))
         infos["final_obs"], infos["_final_obs"] = final_obs, ended.copy()
         infos["final_info"], infos["_final_info"] = final_info, ended.copy()
@@ -292,6 +294,12 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
             raise ValueError(f"need one seed per sub-env ({self.num_envs}), got {len(seed)}")
         return [None if s is None else _check_seed(s) for s in seed]
 
+    def _restarted(self, idx: np.ndarray) -> None:
+        """Note the new episodes of sub-envs ``idx``: no violation on show, their d_des."""
+        self._masks[idx] = 0
+        scenarios = self.batch.scenarios
+        self._d_des[idx] = [scenarios[i].config.formation.d_des for i in idx.tolist()]
+
     def _info_values(self, masks: np.ndarray, terms: np.ndarray | None = None) -> dict[str, Any]:
         """The single env's info entries of every sub-env, as arrays over the sub-envs (or, for
         ``reward_terms``, a dict of them): ``masks`` their violation masks, ``terms`` their
@@ -304,10 +312,9 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         }
         if self.diagnostics:
             sensed = self.batch.sensed[:, 0]
-            d_des = np.array([s.config.formation.d_des for s in self.batch.scenarios])
             for name in _SENSE_INFO:
                 values[name] = sensed[:, SENSE_NAMES.index(name)]
-            values["e_d"] = values["d"] - d_des
+            values["e_d"] = values["d"] - self._d_des
             values["e_beta"] = values["beta"]
             values["visible"] = sensed[:, SENSE_VISIBLE] > 0.0
             values["reward_terms"] = (

@@ -102,9 +102,9 @@ def test_make_vec_every_id(env_id: str) -> None:
 @pytest.mark.parametrize("env_id", [STUDY_C, PROCEDURAL_ARUCO])
 @pytest.mark.parametrize("normalize_actions", [False, True])
 def test_equals_single_env_through_autoresets(env_id: str, normalize_actions: bool) -> None:
-    """Random actions over several short episodes (truncations and, with the wide physical
-    Box, violations): every return equals the single envs', ``final_obs``/``final_info``
-    included, and some sub-envs ended on their own (a mixed step)."""
+    """Random actions over several short episodes: every return equals the single envs',
+    ``final_obs``/``final_info`` included (the sub-envs of a procedural source draw their own
+    layouts, those of the aruco profile their own sensor noise)."""
     kwargs = {"max_episode_steps": 7, "normalize_actions": normalize_actions}
     space = gym.make_vec(env_id, num_envs=3, **kwargs).action_space
     space.seed(4)
