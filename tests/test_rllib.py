@@ -6,6 +6,7 @@ Skipped unless Ray RLlib is installed: ``bash scripts/test_rllib.sh`` makes ``.v
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -25,6 +26,7 @@ from ray.rllib.core.columns import Columns
 from ray.rllib.env.multi_agent_env_runner import MultiAgentEnvRunner
 
 import platoon_env
+from training.config import TrainConfig
 from training.policies import LearnedPolicy, MLPActor
 from training.rllib import (
     MODULE_ID,
@@ -36,7 +38,8 @@ from training.rllib import (
     ppo_config,
     seed_sub_envs,
 )
-from training.train import TrainConfig
+from training.run import LOCK_FILE
+from training.train import cli_args
 from training.vec_env import ActionRange, observation_scale
 
 REPO = Path(__file__).resolve().parents[1]
@@ -149,6 +152,11 @@ def test_derived_seeds_are_distinct_where_rllibs_collide() -> None:
     assert len(set(ours)) == len(ours)
     assert derived_seed(seed, 1, 0) != derived_seed(seed, 1, 0, evaluation=True)
     assert derived_seed(1, 1, 0) != derived_seed(0, 1, 0)
+    # a resumed run (segment 1) continues on new streams, not its first segment's
+    resumed = [
+        derived_seed(seed, w, j, segment=1) for w in range(1, runners + 1) for j in range(envs)
+    ]
+    assert not set(resumed) & set(ours) and len(set(resumed)) == len(resumed)
     # Runner 1's sub-env 1 and runner 2's sub-env 0 share RLlib's seed (seed + 2) and so the
     # procedural layout; with the derived seeds they start differently.
     a, b = env(scenario="procedural_train"), env(scenario="procedural_train")
@@ -176,6 +184,16 @@ def test_callback_assigns_seeds_by_place() -> None:
         sub.reset(seed=7 + 2 + j)  # what RLlib passes; replaced by the derived seed
         assert sub.seeded_with == derived_seed(7, 2, j)
         assert (sub.worker_index, sub.vector_index) == (2, j)
+    # the envs of a resumed segment (ppo_config(cfg, segment) passes it in env_config)
+    config = ppo_config(rllib_config(seed=7), segment=3).env_config
+    assert config["seed_segment"] == 3
+
+    class Resumed:
+        envs = [PlatoonMultiAgentEnv(config)]
+
+    seed_sub_envs(env_runner=Runner(), env=Resumed())
+    Resumed.envs[0].reset(seed=9)
+    assert Resumed.envs[0].seeded_with == derived_seed(7, 2, 0, segment=3)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -282,32 +300,10 @@ def test_cli_run_checkpoint_evaluates_and_resumes(tmp_path: Path) -> None:
     from experiments.studies.evaluate import main as evaluate_main
 
     out = tmp_path / "run"
-    cmd = [
-        sys.executable,
-        "-m",
-        "training.train",
-        "--engine",
-        "rllib",
-        "--num-env-runners",
-        "2",
-        "--n-envs",
-        "2",
-        "--n-steps",
-        "128",
-        "--batch-size",
-        "256",
-        "--n-epochs",
-        "2",
-        "--checkpoint-every",
-        "1000",
-        "--scenario",
-        "study_c",
-        "--seed",
-        "0",
-        "--out",
-        str(out),
-        "--no-progress-bar",
-    ]
+    cfg = rllib_config(
+        num_env_runners=2, n_steps=128, batch_size=256, checkpoint_every=1000, seed=0, out=str(out)
+    )
+    cmd = [sys.executable, "-m", "training.train", *cli_args(**dataclasses.asdict(cfg))]
     res = subprocess.run(
         [*cmd, "--timesteps", "3000"], cwd=REPO, capture_output=True, text=True, timeout=600
     )
@@ -377,3 +373,4 @@ def test_cli_run_checkpoint_evaluates_and_resumes(tmp_path: Path) -> None:
     assert "resuming from" in res.stderr
     resumed = json.loads((out / "model.json").read_text())
     assert resumed["timesteps"] >= 5000 and resumed["started_at"] >= meta["started_at"]
+    assert len(resumed["segments"]) == 2 and not (out / LOCK_FILE).exists()

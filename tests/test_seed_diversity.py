@@ -173,3 +173,87 @@ def test_zero_variation_changes_nothing() -> None:
         "procedural_test", 1, steps=150, leader={"speed_variation": 0.0}
     )
     assert platoon_env.make("study_b").source.config.leader.speed_variation == 0.2
+
+
+# ------------------------------------------------------------------------------------------------
+# Training runs: every env of every run on its own stream (training/seeding.py)
+# ------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def procedural_venv() -> Any:
+    """The training adapter of ``platoon-train --scenario procedural_train --n-envs 8``."""
+    pytest.importorskip("stable_baselines3")
+    from training.config import TrainConfig
+    from training.train import build_vec_env
+
+    return build_vec_env(TrainConfig(scenario="procedural_train", n_envs=8))
+
+
+def _first_layouts(venv: Any, seed: int, segment: int = 0) -> list[int]:
+    """The layout each env of ``venv`` draws first when a run seeded ``seed`` starts segment
+    ``segment``."""
+    venv.seed_segment = segment
+    venv.seed(seed)
+    venv.reset()
+    return [int(env.layout_index) for env in venv.envs]
+
+
+def test_training_seeds_share_no_env_stream(procedural_venv: Any) -> None:
+    """Seeds 0-4 x 8 envs: 40 distinct first layouts (with env j seeded seed + j, seeds 0 and
+    1 shared 7 of their 8 envs' layouts, and the 40 envs drew only 12)."""
+    layouts = [layout for seed in range(5) for layout in _first_layouts(procedural_venv, seed)]
+    assert len(set(layouts)) == 40
+    # the streams are the run seed's, not the adapter's: the same seed draws them again
+    assert _first_layouts(procedural_venv, 3) == layouts[24:32]
+
+
+def test_a_resumed_segment_draws_new_episodes(procedural_venv: Any) -> None:
+    """Segment 1 of a run (its first --resume) starts other layouts than segment 0, and the
+    envs of a fixed workspace start other perturbed configurations."""
+    first, resumed = _first_layouts(procedural_venv, 0), _first_layouts(procedural_venv, 0, 1)
+    assert not set(first) & set(resumed) and len(set(resumed)) == 8
+    from training.config import TrainConfig
+    from training.train import build_vec_env
+
+    starts = []
+    for segment in (0, 1):
+        venv = build_vec_env(TrainConfig(scenario="study_c", n_envs=2))
+        venv.seed_segment = segment
+        venv.seed(0)
+        starts.append(venv.reset())
+    assert not np.any(np.all(starts[0] == starts[1], axis=1))  # no follower starts alike
+
+
+@pytest.mark.usefixtures("one_torch_thread")
+def test_platoon_train_resume_seeds_its_segment(
+    tmp_path: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``platoon-train`` then ``--resume``: the first segment's envs get the seeds of segment 0,
+    the resumed one's those of segment 1 (what SB3 asks the adapter for on load)."""
+    pytest.importorskip("stable_baselines3")
+    from training.seeding import env_seeds
+    from training.train import cli_args, main
+    from training.vec_env import SlotVecEnv
+
+    given: list[list[int | None]] = []
+    seed = SlotVecEnv.seed
+
+    def spy(self: SlotVecEnv, value: int | None = None) -> Any:
+        given.append(list(seed(self, value)))
+        return given[-1]
+
+    monkeypatch.setattr(SlotVecEnv, "seed", spy)
+    argv = cli_args(
+        n_envs=2,
+        n_steps=64,
+        batch_size=64,
+        n_epochs=1,
+        net_arch=[8],
+        seed=5,
+        out=tmp_path / "r",
+        progress_bar=False,
+    )
+    assert main([*argv, "--timesteps", "256"]) == 0
+    assert given and all(g == env_seeds(5, 2, segment=0) for g in given)
+    given.clear()
+    assert main([*argv, "--timesteps", "512", "--resume"]) == 0
+    assert given and all(g == env_seeds(5, 2, segment=1) for g in given)

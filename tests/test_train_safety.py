@@ -5,8 +5,14 @@ range check (an ``argparse`` error, nothing written)."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -19,32 +25,32 @@ import platoon_env
 from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping, file_sha256
 from training import LearnedPolicy
 from training.policies import OBSERVATION_LAYOUT, save_model
-from training.train import TrainConfig, build_model, build_vec_env, main, run_metadata
+from training.run import LOCK_FILE, hold_run, holds_run, read_holder, run_status
+from training.train import (
+    TrainConfig,
+    build_model,
+    build_vec_env,
+    cli_args,
+    main,
+    run_metadata,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 #: A PPO run whose rollout is 256 follower transitions (1 env x 2 followers x 128 steps).
-TINY = [
-    "--algo",
-    "ppo",
-    "--scenario",
-    "study_c",
-    "--seed",
-    "0",
-    "--n-envs",
-    "1",
-    "--n-steps",
-    "128",
-    "--batch-size",
-    "64",
-    "--n-epochs",
-    "1",
-    "--net-arch",
-    "16",
-    "16",
-    "--checkpoint-every",
-    "256",
-    "--no-progress-bar",
-]
+TINY = cli_args(
+    algo="ppo",
+    scenario="study_c",
+    seed=0,
+    n_envs=1,
+    n_steps=128,
+    batch_size=64,
+    n_epochs=1,
+    net_arch=[16, 16],
+    checkpoint_every=256,
+    progress_bar=False,
+)
+#: Long enough for the tests that stop a run from outside to find it running.
+FOREVER = ["--timesteps", "10000000"]
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -227,6 +233,145 @@ def test_resume_continues_from_the_newer_of_checkpoint_and_model(run: Path) -> N
 
 
 # ------------------------------------------------------------------------------------------------
+# One owner per folder
+# ------------------------------------------------------------------------------------------------
+def train_cmd(out: Path, *extra: str) -> list[str]:
+    """The command of ``platoon-train`` (the tiny run, ``extra`` appended) into ``out``."""
+    return [sys.executable, "-m", "training.train", *TINY, "--out", str(out), *extra]
+
+
+def start_training(out: Path, *extra: str) -> subprocess.Popen[str]:
+    """:func:`train_cmd` in a child process."""
+    return subprocess.Popen(
+        train_cmd(out, *extra),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # pytest-xdist workers ignore SIGINT and children inherit that: restore the default so
+        # that Ctrl-C (SIGINT) reaches the trainer as KeyboardInterrupt.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+
+
+def wait_for(proc: subprocess.Popen[str], ready: Callable[[], bool]) -> None:
+    """Wait until ``ready()`` while ``proc`` runs (generous: a fresh clone compiles the numba
+    kernels on first use)."""
+    deadline = time.monotonic() + 900
+    while not ready():
+        assert proc.poll() is None, proc.communicate()[1][-2000:]
+        assert time.monotonic() < deadline, "the run never got there"
+        time.sleep(0.2)
+
+
+def stop(proc: subprocess.Popen[str], sig: int) -> str:
+    """Send ``sig`` to ``proc``, wait for it; returns its stderr."""
+    try:
+        os.kill(proc.pid, sig)
+        return proc.communicate(timeout=120)[1]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused(tmp_path: Path) -> None:
+    """Two processes, one folder: the second (even with --force, which would discard the
+    first's files) is refused with the holder's name and how to release it; the first runs on
+    and finishes its own model."""
+    out = tmp_path / "run"
+    first = start_training(out, *FOREVER)
+    try:
+        # training (its first checkpoint written), not still starting up
+        wait_for(first, lambda: (out / "checkpoint.json").is_file())
+        assert getattr(read_holder(out / LOCK_FILE), "pid", 0) == first.pid
+        assert run_status(out).state == "running"
+        second = subprocess.run(
+            train_cmd(out, "--timesteps", "256", "--force"),
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            timeout=900,  # generous: a loaded machine, maybe compiling the numba kernels
+        )
+        assert second.returncode == 2, second.stderr[-2000:]
+        err = second.stderr
+        assert "argument --out" in err and "in use by another platoon-train run" in err
+        assert f"pid {first.pid} on " in err and str(out / LOCK_FILE) in err
+        assert f"kill -INT {first.pid}" in err and "Traceback" not in err
+        assert first.poll() is None  # untouched
+    finally:
+        stderr = stop(first, signal.SIGINT)
+    assert first.returncode == 130, stderr[-2000:]
+    m = meta(out)
+    assert m["interrupted"] is True and len(m["segments"]) == 1
+    assert m["segments"][0]["command"][-len(FOREVER) :] == FOREVER
+    assert not (out / LOCK_FILE).exists() and run_status(out).state == "interrupted"
+
+
+def test_a_killed_run_is_reported_killed_and_resumed(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``kill -9`` leaves the lock file but not the lock: the folder is reported killed (not
+    running), and the next run takes it over, saying so."""
+    out = tmp_path / "run"
+    victim = start_training(out, *FOREVER)
+    try:
+        wait_for(victim, lambda: (out / "checkpoint.json").is_file())
+    finally:
+        stop(victim, signal.SIGKILL)
+    status = run_status(out)
+    assert status.state == "killed", status
+    assert status.holder is not None and status.holder.pid == victim.pid
+    assert status.timesteps is not None and status.timesteps >= 256
+    assert train(out, status.timesteps + 256, "--resume") == 0
+    err = capsys.readouterr().err
+    assert f"pid {victim.pid}" in err and "was killed" in err
+    assert run_status(out).state == "finished" and not (out / LOCK_FILE).exists()
+
+
+def test_holding_a_folder_is_reentrant_and_a_refused_run_leaves_nothing(tmp_path: Path) -> None:
+    out = tmp_path / "new" / "run"
+    with hold_run(out):
+        assert holds_run(out) and read_holder(out / LOCK_FILE) is not None
+        assert read_holder(out / LOCK_FILE).pid == os.getpid()  # type: ignore[union-attr]
+        assert train(out, 256, "--checkpoint-every", "0") == 0  # main takes it again
+        assert holds_run(out)
+    assert not holds_run(out) and not (out / LOCK_FILE).exists()
+    assert meta(out)["timesteps"] == 256
+    with hold_run(tmp_path / "other" / "run"):
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new"]
+
+
+def test_an_empty_out_is_an_argparse_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.chdir(tmp_path)  # Path("") is the working directory
+    err = refused(capsys, [*TINY, "--timesteps", "256", "--out", ""])
+    assert "argument --out: must name a directory, got ''" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("where", ["under a file", "read-only folder"])
+def test_an_unwritable_out_is_an_argparse_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], where: str
+) -> None:
+    if where == "under a file":
+        (tmp_path / "file").write_text("not a folder")
+        out = tmp_path / "file" / "run"
+    else:
+        if os.geteuid() == 0:
+            pytest.skip("root writes into read-only folders")
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        out = locked / "run"
+    before = snapshot(tmp_path)
+    err = refused(capsys, [*TINY, "--timesteps", "256", "--out", str(out)])
+    assert f"argument --out: cannot write to {out}" in err and "Traceback" not in err
+    assert snapshot(tmp_path) == before and not out.exists()
+
+
+# ------------------------------------------------------------------------------------------------
 # model.json
 # ------------------------------------------------------------------------------------------------
 def test_model_json_records_the_resolved_scenario_and_the_zip_hash(finished_run: Path) -> None:
@@ -360,6 +505,7 @@ def test_shipped_models_load_and_pass_the_checks() -> None:
 BAD_OPTIONS = [
     (["--timesteps", "-5"], "--timesteps"),
     (["--timesteps", "0"], "--timesteps"),
+    (["--timesteps", "2.5e0"], "--timesteps"),  # not an integer
     (["--gamma", "5"], "--gamma"),
     (["--gamma", "-0.1"], "--gamma"),
     (["--gamma", "nan"], "--gamma"),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -21,10 +22,12 @@ import platoon_env
 from baselines.policy import Policy
 from training import ActionRange, LearnedPolicy, PlatoonVecEnv
 from training.policies import save_model
+from training.seeding import env_seeds
 from training.train import (
     TrainConfig,
     build_model,
     build_vec_env,
+    cli_args,
     parse_args,
     run_metadata,
 )
@@ -116,9 +119,9 @@ def test_truncation_flags_and_auto_reset() -> None:
     reference = platoon_env.make("study_c", control_period=PERIOD, max_episode_steps=steps)
     scale = venv.obs_scale
     assert scale is not None
-    venv.seed(11)
+    (seed,) = venv.seed(11)  # env 0's own seed of SeedSequence(11)
     obs = venv.reset()
-    ref_obs, _ = reference.reset(seed=11)
+    ref_obs, _ = reference.reset(seed=seed)
     np.testing.assert_array_equal(obs[0], ref_obs["follower_1"] / scale)
     stand_still = np.tile(np.array([-0.5, 0.0], dtype=np.float32), (2, 1))  # u = 0, omega = 0
     physical = {a: np.zeros(2, dtype=np.float32) for a in reference.possible_agents}
@@ -159,7 +162,8 @@ def test_termination_flags() -> None:
 
 
 def test_seeded_reproducibility() -> None:
-    """Same seed + same actions -> identical observations; env j is seeded with seed + j."""
+    """Same seed + same actions -> identical observations; env j is reset with its own seed of
+    ``SeedSequence(seed)`` (training.seeding)."""
     rng = np.random.default_rng(5)
     actions = rng.uniform(-1, 1, size=(150, 4, 2)).astype(np.float32)
     runs = []
@@ -175,10 +179,10 @@ def test_seeded_reproducibility() -> None:
     venv = make_venv(n_envs=2)
     scale = venv.obs_scale
     assert scale is not None
-    venv.seed(123)
+    assert list(venv.seed(123)) == env_seeds(123, 2)
     obs = venv.reset()
     for j in range(2):
-        ref, _ = platoon_env.make("study_c", control_period=PERIOD).reset(seed=123 + j)
+        ref, _ = platoon_env.make("study_c", control_period=PERIOD).reset(seed=env_seeds(123, 2)[j])
         np.testing.assert_array_equal(obs[2 * j], ref["follower_1"] / scale)
     assert not np.array_equal(obs[0:2], obs[2:4])  # the seeded perturbations differ
 
@@ -204,6 +208,45 @@ def test_parse_args_matches_config() -> None:
     )
     assert cfg.algo == "sac" and cfg.net_arch == [32, 32] and cfg.progress_bar is False
     assert cfg.control_period == 0.02 and cfg.max_episode_steps == 100
+
+
+def test_numbers_are_read_as_yaml_writes_them(capsys: pytest.CaptureFixture[str]) -> None:
+    """Integer options take an integral number in exponent form (``2e3``), floats ``5e-2``;
+    a fractional value of an integer option is an argparse error naming it."""
+    cfg = parse_args(["--timesteps", "2e3", "--checkpoint-every", "1.5E3", "--cost-budget", "5e-2"])
+    assert cfg.timesteps == 2000 and type(cfg.timesteps) is int
+    assert cfg.checkpoint_every == 1500 and cfg.cost_budget == 0.05
+    assert parse_args(["--timesteps", "1e12"]).timesteps == 10**12  # the largest, exactly
+    for bad in ("2.5", "1e-3", "nan", "inf", "ten"):
+        with pytest.raises(SystemExit) as info:
+            parse_args(["--timesteps", bad])
+        assert info.value.code == 2
+        assert "argument --timesteps: expected an integer" in capsys.readouterr().err
+
+
+def test_cli_args_is_the_inverse_of_parse_args() -> None:
+    cfg = TrainConfig(
+        algo="sac",
+        seed=7,
+        out="runs/x",
+        net_arch=[32, 16],
+        progress_bar=False,
+        batched=True,
+        control_period=0.02,
+        max_episode_steps=300,
+        learning_rate=5e-4,
+    )
+    assert parse_args(cli_args(**dataclasses.asdict(cfg))) == cfg
+    assert cli_args(seed=0, net_arch=[16, 16], progress_bar=False, out=None) == [
+        "--seed",
+        "0",
+        "--net-arch",
+        "16",
+        "16",
+        "--no-progress-bar",
+    ]
+    with pytest.raises(TypeError, match="no_such_option"):
+        cli_args(no_such_option=1)
 
 
 def _tiny_ppo_params(cfg: TrainConfig) -> dict[str, torch.Tensor]:
@@ -283,20 +326,8 @@ def test_learned_policy_needs_metadata(tmp_path: Path) -> None:
 
 
 def _train_cmd(out: Path, *extra: str) -> list[str]:
-    return [
-        sys.executable,
-        "-m",
-        "training.train",
-        "--algo",
-        "ppo",
-        "--scenario",
-        "study_c",
-        "--seed",
-        "0",
-        "--out",
-        str(out),
-        *extra,
-    ]
+    options = cli_args(algo="ppo", scenario="study_c", seed=0, out=out)
+    return [sys.executable, "-m", "training.train", *options, *extra]
 
 
 def test_train_cli_smoke(tmp_path: Path) -> None:
@@ -361,25 +392,7 @@ def test_train_resume_continues_to_the_total(tmp_path: Path) -> None:
     from training.train import main as train_main
 
     out = tmp_path / "run"
-    common = [
-        "--algo",
-        "ppo",
-        "--scenario",
-        "study_c",
-        "--n-envs",
-        "1",
-        "--n-steps",
-        "128",
-        "--batch-size",
-        "64",
-        "--checkpoint-every",
-        "256",
-        "--seed",
-        "0",
-        "--out",
-        str(out),
-        "--no-progress-bar",
-    ]
+    common = cli_args(**dataclasses.asdict(tiny_config(checkpoint_every=256, seed=0, out=str(out))))
     assert train_main([*common, "--timesteps", "512"]) == 0
     first = json.loads((out / "model.json").read_text())["timesteps"]
     assert train_main([*common, "--timesteps", "1024", "--resume"]) == 0

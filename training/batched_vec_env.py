@@ -34,7 +34,7 @@ from platoon_env.batched import BatchedPlatoon
 from platoon_env.observation import ACT_SIZE
 from platoon_env.scenarios.loader import ScenarioLike
 from platoon_env.violations import VIOLATION_INFO
-from training.vec_env import ActionRange, SlotVecEnv, observation_scale
+from training.vec_env import ActionRange, SlotVecEnv, slot_spaces
 
 __all__ = ["BatchedPlatoonVecEnv"]
 
@@ -45,10 +45,11 @@ class BatchedPlatoonVecEnv(SlotVecEnv):
     Args:
         scenario: a shipped name, YAML path, dict or :class:`~platoon_env.Scenario`.
         n_envs: number of envs (``num_envs = n_envs * N`` slots).
-        n_threads: numba threads stepping the envs (see :class:`BatchedPlatoon`).
-        normalize_observations: divide observations by :func:`observation_scale`.
         action_range: the physical range of the normalised action (the action space is then
             ``Box(-1, 1, (2,))``); ``None`` passes physical actions through.
+        normalize_observations: divide observations by
+            :func:`~training.vec_env.observation_scale`.
+        n_threads: numba threads stepping the envs (see :class:`BatchedPlatoon`).
         **env_kwargs: overrides as :func:`platoon_env.make` (``control_period``,
             ``max_episode_steps``, ``terminate_on``, ...).
     """
@@ -61,40 +62,22 @@ class BatchedPlatoonVecEnv(SlotVecEnv):
         scenario: ScenarioLike = "study_c",
         n_envs: int = 1,
         *,
-        n_threads: int = 1,
-        normalize_observations: bool = True,
         action_range: ActionRange | None = None,
+        normalize_observations: bool = True,
+        n_threads: int = 1,
         **env_kwargs: Any,
     ) -> None:
         self.core = BatchedPlatoon(
             scenario, n_envs, n_threads=n_threads, auto_reset=False, **env_kwargs
         )
         self.n_followers = self.core.n_followers
-        obs_space = self.core.single_observation_space
         self.action_range = action_range
-        self.obs_scale: NDArray[np.float32] | None = (
-            observation_scale(obs_space) if normalize_observations else None
+        self.obs_scale, observation_space, action_space = slot_spaces(
+            self.core.single_observation_space,
+            {"the env": self.core.single_action_space},
+            normalize_observations=normalize_observations,
+            action_range=action_range,
         )
-        if self.obs_scale is not None:
-            observation_space = spaces.Box(
-                low=obs_space.low / self.obs_scale,
-                high=obs_space.high / self.obs_scale,
-                dtype=np.float32,
-            )
-        else:
-            observation_space = spaces.Box(obs_space.low, obs_space.high, dtype=np.float32)
-        if action_range is not None:
-            phys = self.core.single_action_space
-            lo = np.array([action_range.u_low, -action_range.omega_high])
-            hi = np.array([action_range.u_high, action_range.omega_high])
-            if np.any(lo < phys.low - 1e-6) or np.any(hi > phys.high + 1e-6):
-                raise ValueError(
-                    f"{action_range} exceeds the env's actuator limits {phys}; "
-                    "raise u_max/omega_max or narrow the range"
-                )
-            action_space: spaces.Box = spaces.Box(-1.0, 1.0, (ACT_SIZE,), dtype=np.float32)
-        else:
-            action_space = self.core.single_action_space
         self._env_seeds: list[int | None] = [None] * self.n_envs
         self._env_perturb: list[bool | None] = [None] * self.n_envs
         self._actions: NDArray[np.float32] | None = None

@@ -18,8 +18,11 @@ found and checked on RLlib 2.60, see ``docs/rllib.md``):
 * **Distinct seeds for every sub-env.** RLlib seeds sub-env ``j`` of env runner ``w`` with
   ``seed + w + j``, so runners replay each other's starts and procedural layouts.
   :func:`seed_sub_envs` (installed by :func:`ppo_config` as the ``on_environment_created``
-  callback) gives each sub-env ``derived_seed(seed, w, j)``, drawn from
-  ``numpy.random.SeedSequence(seed, spawn_key=(w, j, evaluation))``.
+  callback) gives each sub-env ``derived_seed(seed, w, j, segment=s)``, drawn from
+  ``numpy.random.SeedSequence(seed, spawn_key=(s, w, j, evaluation))`` where ``s`` is the
+  training segment (0 for a new run, one more per ``--resume``: a resumed run continues with
+  fresh streams instead of replaying its first episodes). The rule is the SB3 engine's
+  (:mod:`training.seeding`); it changes which layouts a new training run sees, not evaluation.
 * **Deterministic agent order** (``possible_agents`` order, not a set's) and a working
   :meth:`~PlatoonMultiAgentEnv.render`.
 * **The SB3 adapter's scaling** (:mod:`training.vec_env`): observations divided by their Box
@@ -38,16 +41,14 @@ loads without Ray, so ``platoon-evaluate --policy NAME=DIR`` evaluates it like a
 from __future__ import annotations
 
 import dataclasses
-import datetime as dt
 import math
 import os
-import platform
 import shutil
 import sys
-import time
 from collections.abc import Mapping
+from contextlib import closing
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -69,13 +70,23 @@ from ray.rllib.env.multi_agent_env import MultiAgentEnv  # type: ignore[import-n
 from ray.tune.registry import register_env  # type: ignore[import-not-found]
 
 import platoon_env
+from platoon_env.action_range import ActionRange, check_action_range, normalised_action_space
 from platoon_env.env import PlatoonParallelEnv
 from platoon_env.observation import ACT_SIZE, OBS_SIZE
+from training.config import TrainConfig, checked, env_metadata, env_overrides, net_arch
 from training.policies import save_exported_policy
-from training.vec_env import ActionRange, observation_scale
-
-if TYPE_CHECKING:
-    from training.train import RunPlan, TrainConfig
+from training.run import (
+    RLLIB_CHECKPOINT,
+    RunPlan,
+    Segment,
+    finished_run,
+    hold_run,
+    library_versions,
+    open_run,
+    report_interrupt,
+)
+from training.seeding import stream_seed
+from training.vec_env import normalised_box, observation_scale
 
 __all__ = [
     "CRITICS",
@@ -99,22 +110,27 @@ ENV_NAME = "platoon_env"
 MODULE_ID = "shared_follower"
 #: What the critic reads: the follower's observation, or MAPPO's observation + global state.
 CRITICS = ("local", "central")
-#: Where ``platoon-train --engine rllib`` keeps the full RLlib algorithm checkpoint in ``--out``.
-RLLIB_CHECKPOINT = "rllib_checkpoint"
 
 
 # ------------------------------------------------------------------------------------------------
 # Seeds
 # ------------------------------------------------------------------------------------------------
-def derived_seed(seed: int, worker_index: int, vector_index: int, evaluation: bool = False) -> int:
-    """The reset seed of sub-env ``vector_index`` of env runner ``worker_index``.
+def derived_seed(
+    seed: int,
+    worker_index: int,
+    vector_index: int,
+    evaluation: bool = False,
+    *,
+    segment: int = 0,
+) -> int:
+    """The reset seed of sub-env ``vector_index`` of env runner ``worker_index`` in training
+    segment ``segment`` (:mod:`training.seeding`).
 
-    Drawn from ``SeedSequence(seed, spawn_key=(worker_index, vector_index, evaluation))``:
-    distinct, well-mixed streams for every (runner, sub-env) pair, unlike RLlib's
-    ``seed + worker_index + vector_index``.
+    Drawn from ``SeedSequence(seed, spawn_key=(segment, worker_index, vector_index,
+    evaluation))``: distinct, well-mixed streams for every (segment, runner, sub-env), unlike
+    RLlib's ``seed + worker_index + vector_index``.
     """
-    seq = np.random.SeedSequence(int(seed), spawn_key=(worker_index, vector_index, int(evaluation)))
-    return int(seq.generate_state(1, dtype=np.uint64)[0])
+    return stream_seed(seed, segment, worker_index, vector_index, int(evaluation))
 
 
 def seed_sub_envs(
@@ -159,7 +175,9 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
     (default True), ``action_range`` (an :class:`ActionRange` dict; default
     ``ActionRange()``; None for physical actions in the env's box), ``critic`` (``"local"``
     or ``"central"``: the latter appends the normalised ``env.state()`` and a one-hot of the
-    follower's index to every observation, for :class:`PlatoonPPOModule`'s critic).
+    follower's index to every observation, for :class:`PlatoonPPOModule`'s critic),
+    ``seed_segment`` (default 0: the training segment whose streams :meth:`assign_seed`
+    draws, see :func:`derived_seed`).
 
     Per-agent observation: the follower's 7 normalised observations (then, with the central
     critic, the state and the one-hot). Per-agent action: ``[-1, 1]^2``.
@@ -177,6 +195,7 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
             "normalize_observations",
             "action_range",
             "critic",
+            "seed_segment",
         }
         if unknown:
             raise ValueError(f"unknown env_config key(s): {', '.join(sorted(unknown))}")
@@ -204,19 +223,11 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
         act = cfg.get("action_range", ActionRange().to_dict())
         self.action_range: ActionRange | None = None if act is None else ActionRange(**act)
         if self.action_range is not None:
-            phys = env.action_space(self.possible_agents[0])
-            r = self.action_range
-            if (
-                r.u_low < phys.low[0] - 1e-6
-                or r.u_high > phys.high[0] + 1e-6
-                or r.omega_high > phys.high[1] + 1e-6
-            ):
-                raise ValueError(
-                    f"{r} exceeds the actuator limits {phys}; raise u_max/omega_max or narrow it"
-                )
-        low, high = obs_space.low, obs_space.high
-        if self.obs_scale is not None:
-            low, high = low / self.obs_scale, high / self.obs_scale
+            check_action_range(
+                self.action_range, env.action_space(self.possible_agents[0]), "the env"
+            )
+        scaled = normalised_box(obs_space, self.obs_scale)
+        low, high = scaled.low, scaled.high
         n = len(self.possible_agents)
         self._state_centre, self._state_half = _state_normaliser(env.state_space)
         if self.critic == "central":
@@ -226,7 +237,7 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
         self._one_hot = np.eye(n, dtype=np.float32)
         obs_box = spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
         act_box = (
-            spaces.Box(-1.0, 1.0, (ACT_SIZE,), dtype=np.float32)
+            normalised_action_space()
             if self.action_range is not None
             else env.action_space(self.possible_agents[0])
         )
@@ -239,6 +250,7 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
         self.observation_space = spaces.Dict(self.observation_spaces)
         self.action_space = spaces.Dict(self.action_spaces)
         self._assigned_seed: int | None = None
+        self.seed_segment = int(cfg.get("seed_segment", 0))
         self.worker_index, self.vector_index = 0, 0
         #: The seed of the last seeded reset (None: never seeded).
         self.seeded_with: int | None = None
@@ -252,11 +264,15 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
         vector_index: int,
         evaluation: bool = False,
     ) -> None:
-        """Use :func:`derived_seed` in place of the seed RLlib passes to a seeded reset
-        (``seed`` None: keep RLlib's, which is then None too)."""
+        """Use :func:`derived_seed` (of this env's ``seed_segment``) in place of the seed RLlib
+        passes to a seeded reset (``seed`` None: keep RLlib's, which is then None too)."""
         self.worker_index, self.vector_index = worker_index, vector_index
         self._assigned_seed = (
-            None if seed is None else derived_seed(seed, worker_index, vector_index, evaluation)
+            None
+            if seed is None
+            else derived_seed(
+                seed, worker_index, vector_index, evaluation, segment=self.seed_segment
+            )
         )
 
     # -- MultiAgentEnv API ---------------------------------------------------------------------
@@ -426,10 +442,9 @@ def learner_weights(algo: Any) -> Mapping[str, Any]:
 # ------------------------------------------------------------------------------------------------
 # Config and training
 # ------------------------------------------------------------------------------------------------
-def env_config(cfg: TrainConfig) -> dict[str, Any]:
-    """The ``env_config`` of the training envs: the same env as the SB3 path's."""
-    from training.train import env_overrides
-
+def env_config(cfg: TrainConfig, segment: int = 0) -> dict[str, Any]:
+    """The ``env_config`` of the training envs of segment ``segment``: the same env as the SB3
+    path's."""
     overrides = env_overrides(cfg)
     overrides.pop("sensor_profile", None)
     return {
@@ -439,6 +454,7 @@ def env_config(cfg: TrainConfig) -> dict[str, Any]:
         "normalize_observations": cfg.normalize_observations,
         "action_range": cfg.action_range.to_dict(),
         "critic": cfg.critic,
+        "seed_segment": segment,
     }
 
 
@@ -446,9 +462,10 @@ def _policy_mapping(agent_id: Any, episode: Any = None, **kwargs: Any) -> str:
     return MODULE_ID
 
 
-def ppo_config(cfg: TrainConfig) -> PPOConfig:
+def ppo_config(cfg: TrainConfig, segment: int = 0) -> PPOConfig:
     """RLlib PPO (new API stack) for ``cfg``: the registered env, ``cfg.num_env_runners``
-    runners of ``cfg.n_envs`` sub-envs each, derived seeds, one shared
+    runners of ``cfg.n_envs`` sub-envs each, derived seeds (of training segment ``segment``),
+    one shared
     :class:`PlatoonPPOModule`, and SB3's hyper-parameters (``n_steps`` env steps per sub-env
     per rollout, ``batch_size`` follower transitions per minibatch, no KL penalty, no value
     clipping)."""
@@ -462,14 +479,14 @@ def ppo_config(cfg: TrainConfig) -> PPOConfig:
     module = RLModuleSpec(
         module_class=PlatoonPPOModule,
         model_config={
-            "hidden": list(cfg.net_arch or [64, 64]),
+            "hidden": net_arch(cfg),
             "obs_dim": OBS_SIZE,
             "critic": cfg.critic,
         },
     )
     return (
         PPOConfig()
-        .environment(ENV_NAME, env_config=env_config(cfg))
+        .environment(ENV_NAME, env_config=env_config(cfg, segment))
         .framework("torch", torch_compile_learner=False)
         .env_runners(
             num_env_runners=cfg.num_env_runners,
@@ -539,65 +556,44 @@ def train_rllib(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bo
     """``platoon-train --engine rllib``: train as ``cfg`` says; returns ``(model.zip,
     interrupted)``. ``--timesteps`` counts follower transitions, as for SB3.
 
-    ``plan``: :func:`training.train.plan_run`'s decision for ``--out`` (computed here if None):
-    the same ``--out``/``--resume``/``--force`` rules as the SB3 engine; a resume restores
-    ``rllib_checkpoint/`` and continues ``checkpoint.json``'s counts and segments.
+    ``plan``: :func:`training.run.plan_run`'s decision for ``--out`` (computed here if None):
+    the same ``--out``/``--resume``/``--force`` rules and folder lock as the SB3 engine
+    (:mod:`training.run`); a resume restores ``rllib_checkpoint/`` and continues
+    ``checkpoint.json``'s counts and segments, with the env streams of its own segment.
     """
-    from training.train import (
-        check_config,
-        env_metadata,
-        finished_run,
-        git_commit,
-        segment_metadata,
-        settle_plan,
-        start_run,
-        timing_metadata,
-    )
-
-    errors = check_config(cfg)
-    if errors:
-        raise ValueError("; ".join(errors))
+    checked(cfg)
     out = cfg.out_dir
-    probe = PlatoonMultiAgentEnv(env_config(cfg))
-    try:
-        plan = settle_plan(cfg, probe.env, plan)
-    except BaseException:
-        probe.close()
-        raise
-    if plan.mode == "finished":
-        probe.close()
-        return finished_run(plan)
-    start_run(cfg, plan)
-    torch.set_num_threads(cfg.torch_threads)
-    init_ray(cfg.address, num_cpus=max(2, cfg.num_env_runners + cfg.num_learners))
-    algo = ppo_config(cfg).build_algo()
+    with closing(PlatoonMultiAgentEnv(env_config(cfg))) as probe, hold_run(out):
+        plan = open_run(cfg, probe.env, plan)
+        if plan.mode == "finished":
+            return finished_run(plan)
+        torch.set_num_threads(cfg.torch_threads)
+        init_ray(cfg.address, num_cpus=max(2, cfg.num_env_runners + cfg.num_learners))
+        algo = ppo_config(cfg, segment=plan.segment_index).build_algo()
+        try:
+            return _train_algo(cfg, plan, algo, probe)
+        finally:
+            algo.stop()
+
+
+def _train_algo(
+    cfg: TrainConfig, plan: RunPlan, algo: Any, probe: PlatoonMultiAgentEnv
+) -> tuple[Path, bool]:
+    """:func:`train_rllib`'s loop on the built ``algo``, in the prepared ``--out``."""
+    out = cfg.out_dir
     ckpt_dir = out / RLLIB_CHECKPOINT
     timesteps = env_steps = 0
-    resumed_from: str | None = None
     if plan.mode == "resume":
         assert plan.source is not None
         algo.restore_from_path(str(plan.source.resolve()))
         timesteps = plan.timesteps
         env_steps = int(plan.stored.get("env_steps", 0) or 0)
-        resumed_from = plan.source.name
         print(plan.message, file=sys.stderr)
-    commit = git_commit()
-    started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
-    t0 = time.perf_counter()
-    start_steps = timesteps
-    previous = plan.segments
+    segment = Segment(plan, timesteps)
     last_result: dict[str, Any] = {}
 
     def metadata(**extra: Any) -> dict[str, Any]:
-        segment = segment_metadata(
-            started_at=started,
-            wall_time_s=time.perf_counter() - t0,
-            timesteps_start=start_steps,
-            timesteps_end=timesteps,
-            resumed_from=resumed_from,
-            commit=commit,
-        )
-        timing = timing_metadata([*previous, segment], timesteps)
+        timing = segment.metadata(timesteps)
         wall = timing["wall_time_s"]
         return {
             "engine": "rllib",
@@ -611,7 +607,7 @@ def train_rllib(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bo
             "actor": {
                 "type": "mlp",
                 "activation": "tanh",
-                "hidden": list(cfg.net_arch or [64, 64]),
+                "hidden": net_arch(cfg),
             },
             "critic": cfg.critic,
             "timesteps": timesteps,
@@ -621,21 +617,13 @@ def train_rllib(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bo
             "num_envs_per_env_runner": cfg.n_envs,
             "num_learners": cfg.num_learners,
             "rllib_checkpoint": RLLIB_CHECKPOINT,
-            **commit,
             **timing,
             "env_steps_per_s": round(env_steps / wall, 1) if wall > 0 else None,
             "episode_return_mean": last_result.get("env_runners", {}).get("episode_return_mean"),
             "episode_len_mean": last_result.get("env_runners", {}).get("episode_len_mean"),
             **extra,
             "config": dataclasses.asdict(cfg),
-            "versions": {
-                "platoon_env": platoon_env.__version__,
-                "ray": ray.__version__,
-                "torch": torch.__version__,
-                "gymnasium": gym.__version__,
-                "numpy": np.__version__,
-                "python": platform.python_version(),
-            },
+            "versions": library_versions(ray, torch, gym),
             "command": sys.argv,
         }
 
@@ -654,10 +642,8 @@ def train_rllib(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bo
         while timesteps < cfg.timesteps:
             result = algo.train()
             last_result = result
-            agent = _sampled(result, "num_agent_steps_sampled")
-            envs = _sampled(result, "num_env_steps_sampled")
-            timesteps += agent
-            env_steps += envs
+            timesteps += _sampled(result, "num_agent_steps_sampled")
+            env_steps += _sampled(result, "num_env_steps_sampled")
             if bar is not None:
                 bar.n = min(timesteps, cfg.timesteps)
                 bar.refresh()
@@ -674,14 +660,9 @@ def train_rllib(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bo
                 save("checkpoint")
     except KeyboardInterrupt:
         interrupted = True
-        print(
-            f"\ninterrupted after {timesteps} timesteps; saving the model so far", file=sys.stderr
-        )
+        report_interrupt(timesteps)
     if bar is not None:
         bar.close()
     _atomic_dir(lambda p: algo.save_to_path(str(p.resolve())), ckpt_dir)
     save("checkpoint")
-    path = save("model", interrupted=interrupted)
-    algo.stop()
-    probe.close()
-    return path, interrupted
+    return save("model", interrupted=interrupted), interrupted

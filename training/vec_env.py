@@ -13,13 +13,18 @@ them from a handful of numbers (see :mod:`training.policies`):
   (``[1, d_con, d_con, prox, prox, prox, prox]``; with task-aware observations six 1s follow,
   for values already in ``[0, 1]``), so every component lies in ``[-1, 1]``.
 * **Action rescaling**: the policy acts in ``[-1, 1]^2``, mapped affinely to the physical range
-  ``[u_low, u_high] x [-omega_high, omega_high]`` (see :class:`ActionRange`).
+  ``[u_low, u_high] x [-omega_high, omega_high]`` (see :class:`ActionRange`, the rule of
+  :mod:`platoon_env.action_range`, shared with the Gymnasium ids' ``normalize_actions``).
+
+Seeds: :meth:`SlotVecEnv.seed` gives env ``j`` its own stream of
+``numpy.random.SeedSequence(seed)`` (:func:`training.seeding.env_seeds`, keyed by the
+adapter's :attr:`~SlotVecEnv.seed_segment`), not ``seed + j`` as before, so two training seeds
+share no env and a resumed run does not replay its first episodes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -29,43 +34,18 @@ from numpy.typing import NDArray
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
 
+from platoon_env.action_range import ActionRange, check_action_range, normalised_action_space
 from platoon_env.env import PlatoonParallelEnv
-from platoon_env.observation import ACT_OMEGA, ACT_SIZE, ACT_U
+from platoon_env.observation import ACT_SIZE
+from training.seeding import env_seeds
 
-__all__ = ["ActionRange", "PlatoonVecEnv", "observation_scale"]
-
-
-@dataclass(frozen=True)
-class ActionRange:
-    """The physical range that the normalised action ``a in [-1, 1]^2`` maps to.
-
-    ``u = u_low + (a_0 + 1) / 2 * (u_high - u_low)`` [m/s] and ``omega = a_1 * omega_high``
-    [rad/s]. The defaults suit followers that mostly drive forwards at the speed scale of
-    study C (leader at 0.25 m/s): some reverse to back off, three times the leader speed forward
-    to catch up after a corner, and 2 rad/s to turn.
-    """
-
-    u_low: float = -0.5  # [m/s]
-    u_high: float = 1.5  # [m/s]
-    omega_high: float = 2.0  # [rad/s]
-
-    def __post_init__(self) -> None:
-        if not self.u_low < self.u_high:
-            raise ValueError(f"ActionRange needs u_low < u_high, got {self.u_low}, {self.u_high}")
-        if not self.omega_high > 0:
-            raise ValueError(f"ActionRange needs omega_high > 0, got {self.omega_high}")
-
-    def to_physical(self, action: NDArray[Any]) -> NDArray[np.float32]:
-        """Map normalised actions ``(..., 2)`` (clipped to ``[-1, 1]``) to ``[u, omega]``."""
-        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-        out = np.empty(a.shape, dtype=np.float32)
-        out[..., ACT_U] = self.u_low + 0.5 * (a[..., ACT_U] + 1.0) * (self.u_high - self.u_low)
-        out[..., ACT_OMEGA] = a[..., ACT_OMEGA] * self.omega_high
-        return out
-
-    def to_dict(self) -> dict[str, float]:
-        """JSON-friendly form (inverse: ``ActionRange(**d)``)."""
-        return asdict(self)
+__all__ = [
+    "ActionRange",
+    "PlatoonVecEnv",
+    "normalised_box",
+    "observation_scale",
+    "slot_spaces",
+]
 
 
 def observation_scale(space: spaces.Box) -> NDArray[np.float32]:
@@ -76,8 +56,39 @@ def observation_scale(space: spaces.Box) -> NDArray[np.float32]:
     return scale
 
 
+def normalised_box(space: spaces.Box, scale: NDArray[np.float32] | None) -> spaces.Box:
+    """``space`` divided by ``scale`` (None: ``space`` itself), as a float32 Box."""
+    if scale is None:
+        return spaces.Box(space.low, space.high, dtype=np.float32)
+    return spaces.Box(low=space.low / scale, high=space.high / scale, dtype=np.float32)
+
+
+def slot_spaces(
+    observation: spaces.Box,
+    actuators: Mapping[str, spaces.Box],
+    *,
+    normalize_observations: bool,
+    action_range: ActionRange | None,
+) -> tuple[NDArray[np.float32] | None, spaces.Box, spaces.Box]:
+    """``(obs_scale, observation_space, action_space)`` of a slot, for both adapters.
+
+    ``observation``: a follower's observation Box; ``actuators``: the physical action Box of
+    each env (by the name an error gives it), checked against ``action_range``. With
+    ``normalize_observations`` the observations are divided by :func:`observation_scale`;
+    with an ``action_range`` the policy acts in ``Box(-1, 1, (2,))``, else in the first
+    env's own action Box.
+    """
+    scale = observation_scale(observation) if normalize_observations else None
+    if action_range is None:
+        return scale, normalised_box(observation, scale), next(iter(actuators.values()))
+    for what, physical in actuators.items():
+        check_action_range(action_range, physical, what)
+    return scale, normalised_box(observation, scale), normalised_action_space()
+
+
 class SlotVecEnv(VecEnv):
-    """What both platoon adapters share: one slot per follower, env ``j`` seeded ``seed + j``.
+    """What both platoon adapters share: one slot per follower, env ``j`` on its own stream
+    (:meth:`seed`).
 
     Subclasses define :attr:`n_envs` and keep ``_env_seeds`` (one pending seed per env),
     ``action_range`` and ``_actions`` (the physical actions stored by :meth:`step_async`).
@@ -86,6 +97,9 @@ class SlotVecEnv(VecEnv):
     _env_seeds: list[int | None]
     action_range: ActionRange | None
     _actions: NDArray[np.float32] | None
+    #: The training segment whose env streams :meth:`seed` gives (0: a new run; ``platoon-train
+    #: --resume`` sets the number of segments before it, see :mod:`training.seeding`).
+    seed_segment: int = 0
 
     @property
     def n_envs(self) -> int:  # pragma: no cover - defined by every subclass
@@ -115,10 +129,12 @@ class SlotVecEnv(VecEnv):
             raise IndexError(f"slot {k} out of range [0, {self.num_envs})")
 
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
-        """Seed env ``j`` with ``seed + j`` at the next :meth:`reset`; returns those seeds."""
+        """Seed env ``j`` with ``env_seeds(seed, n_envs, segment=seed_segment)[j]`` (its own
+        stream of ``SeedSequence(seed)``, :mod:`training.seeding`) at the next :meth:`reset`;
+        returns those seeds. ``None``: a run seed drawn from fresh entropy."""
         if seed is None:
-            seed = int(np.random.default_rng().integers(np.iinfo(np.uint32).max))
-        self._env_seeds = [seed + j for j in range(self.n_envs)]
+            seed = int(np.random.SeedSequence().generate_state(1, dtype=np.uint32)[0])
+        self._env_seeds = list(env_seeds(seed, self.n_envs, segment=self.seed_segment))
         return list(self._env_seeds)
 
     def step(
@@ -138,8 +154,9 @@ class PlatoonVecEnv(SlotVecEnv):
       normalised observation) and ``infos[k]["TimeLimit.truncated"] = truncated and not
       terminated``; the env is reset at once and the slots return the reset observation.
       ``dones[k] = terminated or truncated``.
-    * :meth:`seed`: env ``j`` is reset with ``seed + j`` on the first :meth:`reset` after it;
-      later auto-resets continue each env's own RNG (so a seeded run is reproducible).
+    * :meth:`seed`: env ``j`` is reset with its own seed drawn from ``SeedSequence(seed)``
+      (:mod:`training.seeding`) on the first :meth:`reset` after it; later auto-resets
+      continue each env's own RNG (so a seeded run is reproducible).
     * ``get_attr``/``set_attr``/``env_method`` take *slot* indices and act on the envs owning
       those slots, each env once; results are returned per slot.
 
@@ -181,32 +198,17 @@ class PlatoonVecEnv(SlotVecEnv):
                         "parameter sharing needs one observation space"
                     )
         self.action_range = action_range
-        self.obs_scale: NDArray[np.float32] | None = (
-            observation_scale(obs_space) if normalize_observations else None
+        self.obs_scale, observation_space, action_space = slot_spaces(
+            obs_space,
+            {
+                f"env {j}": env.action_space(env.possible_agents[0])
+                for j, env in enumerate(self.envs)
+            },
+            normalize_observations=normalize_observations,
+            action_range=action_range,
         )
         self._offsets = np.cumsum([0] + [len(e.possible_agents) for e in self.envs]).tolist()
         num_slots = int(self._offsets[-1])
-        if self.obs_scale is not None:
-            observation_space = spaces.Box(
-                low=obs_space.low / self.obs_scale,
-                high=obs_space.high / self.obs_scale,
-                dtype=np.float32,
-            )
-        else:
-            observation_space = spaces.Box(obs_space.low, obs_space.high, dtype=np.float32)
-        if action_range is not None:
-            for j, env in enumerate(self.envs):
-                phys = env.action_space(env.possible_agents[0])
-                lo = np.array([action_range.u_low, -action_range.omega_high])
-                hi = np.array([action_range.u_high, action_range.omega_high])
-                if np.any(lo < phys.low - 1e-6) or np.any(hi > phys.high + 1e-6):
-                    raise ValueError(
-                        f"{action_range} exceeds env {j}'s actuator limits {phys}; "
-                        "raise u_max/omega_max or narrow the range"
-                    )
-            action_space: spaces.Box = spaces.Box(-1.0, 1.0, (ACT_SIZE,), dtype=np.float32)
-        else:
-            action_space = first.action_space(first.possible_agents[0])
         self._env_seeds: list[int | None] = [None] * len(self.envs)
         self._env_options: list[dict[str, Any]] = [{} for _ in self.envs]
         self._obs = np.zeros((num_slots, *observation_space.shape), dtype=np.float32)
