@@ -10,7 +10,9 @@ the comparison, the paper figures, the frontiers, ...) describes what it wants a
 2. claims the unfinished cells (others may be running in another evaluator), runs them in
    ``workers`` spawned processes, and writes each outcome in its own transaction as it
    arrives (a failing cell is recorded as ``failed`` with its traceback, and the rest go on);
-3. waits for the cells another live run holds, and takes over those of a run that died;
+3. waits for the cells another live run holds, and takes over those of a run that died; a
+   wait with no progress is bounded (``claim_timeout``): then a
+   :class:`~experiments.store.ClaimTimeout` names the holders and how to release them;
 4. returns every cell's record, and the episodes it was asked to keep (for figures).
 
 Workers exit when their parent does, however it ends (``SIGKILL`` included): on Linux through
@@ -40,7 +42,7 @@ from typing import Any
 from tqdm import tqdm
 
 from experiments.policies import PolicySpec, build_policy
-from experiments.store import FINISHED, EpisodeKey, EpisodeRecord, Store
+from experiments.store import FINISHED, ClaimTimeout, EpisodeKey, EpisodeRecord, Store
 from platoon_env.scenarios.fingerprint import (
     canonical_json,
     config_fingerprint,
@@ -49,14 +51,18 @@ from platoon_env.scenarios.fingerprint import (
 )
 
 __all__ = [
+    "DEFAULT_CLAIM_TIMEOUT",
     "DEFAULT_MEASURE",
     "Cell",
     "CellResult",
     "GridResult",
     "ResolvedCell",
+    "merge_overrides",
     "resolve_cells",
     "run_cell",
     "run_grid",
+    "store_file",
+    "store_path",
 ]
 
 #: The measure of a cell unless it names another: ``platoon_env.rollout.episode_metrics``.
@@ -64,6 +70,11 @@ DEFAULT_MEASURE = "platoon_env.rollout:episode_metrics"
 #: How often a broken worker pool (a worker killed, out of memory) is replaced before the
 #: remaining cells are recorded as failed.
 MAX_POOL_RESTARTS = 3
+#: How long [s] a run waits for cells another run holds while none of them finishes, before a
+#: :class:`~experiments.store.ClaimTimeout`: far longer than one episode of this benchmark, so
+#: a live evaluator's cells are waited for, and a claim of a stopped process or of a run on
+#: another host (a copied store) ends the wait with the holder's name instead of a hang.
+DEFAULT_CLAIM_TIMEOUT = 600.0
 #: Options of ``make()`` that do not change an episode (left out of the fingerprints).
 _PRESENTATION_OPTIONS = frozenset({"render_mode", "diagnostics"})
 
@@ -96,8 +107,26 @@ class Cell:
         return cls(policy, scenario, int(seed), canonical_json(dict(overrides or {})), **options)
 
     def make_kwargs(self) -> dict[str, Any]:
-        """The keyword arguments of ``platoon_env.make`` for this cell."""
-        return {**self.policy.env_overrides(), **json.loads(self.overrides)}
+        """The keyword arguments of ``platoon_env.make`` for this cell: the policy's own
+        (:meth:`PolicySpec.env_overrides`: a model's control period and observation) and the
+        cell's overrides. An override that contradicts the policy's is a ``ValueError`` naming
+        both (a model evaluated at another control period than it was trained at would be
+        another policy, stored under its fingerprint)."""
+        return merge_overrides(self.policy, json.loads(self.overrides))
+
+
+def merge_overrides(policy: PolicySpec, overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """``policy.env_overrides()`` with ``overrides`` added; a key both set to different values
+    is a ``ValueError`` naming the policy, the key and both values."""
+    own = policy.env_overrides()
+    for key in sorted(set(own) & set(overrides)):
+        if canonical_json(own[key]) != canonical_json(overrides[key]):
+            raise ValueError(
+                f"{key}={json.dumps(overrides[key])} contradicts policy {policy.name!r}, which "
+                f"runs at {key}={json.dumps(own[key])} (what it was trained with, its "
+                "model.json): leave the option out, or evaluate such models separately"
+            )
+    return {**own, **overrides}
 
 
 @dataclass(frozen=True)
@@ -206,7 +235,8 @@ def run_cell(resolved: ResolvedCell, keep: bool = False) -> CellResult:
                 f"({resolved.key.scenario[:12]}): did {cell.scenario!r} change on disk?"
             )
         try:
-            policy = build_policy(cell.policy, env)
+            # the model's files are checked against the fingerprint the row is keyed by
+            policy = build_policy(cell.policy, env, planned=resolved.key.policy)
         except ValueError as exc:
             return CellResult(
                 "refused", {}, f"{type(exc).__name__}: {exc}", time.perf_counter() - start
@@ -296,19 +326,26 @@ def run_grid(
     keep: Callable[[Cell], bool] | None = None,
     progress: bool = True,
     poll: float = 1.0,
+    claim_timeout: float = DEFAULT_CLAIM_TIMEOUT,
 ) -> GridResult:
     """Run every unfinished cell of ``cells`` into ``store``; see the module docstring.
 
     ``keep(cell)`` says which episodes to return (they are run again if the store already
     has them, since episodes are not stored). ``stamp`` (:func:`experiments.stamp.metadata_stamp`)
-    is recorded with the run. ``workers <= 1`` runs in this process.
+    is recorded with the run. ``workers <= 1`` runs in this process. Cells held by another
+    live run are waited for, polling every ``poll`` s, until ``claim_timeout`` s pass without
+    one of them finishing: then :class:`~experiments.store.ClaimTimeout` (after every other
+    cell is done and stored), naming the holders and how to release their claims.
     """
     own = not isinstance(store, Store)
     db = Store(store) if not isinstance(store, Store) else store
     resolved: list[ResolvedCell] = [c for c in cells if isinstance(c, ResolvedCell)]
     if len(resolved) != len(cells):
         resolved = resolve_cells(c for c in cells if isinstance(c, Cell))
-    resolved = list({rc.key: rc for rc in resolved}.values())  # a key runs once
+    first: dict[EpisodeKey, ResolvedCell] = {}
+    for rc in resolved:  # a key runs once, under the first cell naming it (as resolve_cells)
+        first.setdefault(rc.key, rc)
+    resolved = list(first.values())
     keep = keep or (lambda cell: False)
     start = time.perf_counter()
     run_id = db.begin_run(tool, stamp)
@@ -337,12 +374,15 @@ def run_grid(
     try:
         queue = [rc.key for rc in resolved]
         busy: list[EpisodeKey] = []
+        waiting_since: float | None = None  # since when busy cells made no progress
         # Claim a few cells at a time, so that evaluators sharing the store share the work.
         capacity = max(1, workers)
         while queue or pending or busy:
             while queue and len(pending) < capacity:
                 chunk, queue = queue[: capacity - len(pending)], queue[capacity - len(pending) :]
                 claim = db.claim(chunk, run_id, names)
+                if claim.mine or claim.finished:
+                    waiting_since = None
                 reused += len(claim.finished)
                 bar.update(len(claim.finished))
                 busy.extend(claim.busy)
@@ -388,6 +428,10 @@ def run_grid(
                     ran += 1
                     bar.update()
             elif busy and not queue:
+                now = time.monotonic()
+                waiting_since = now if waiting_since is None else waiting_since
+                if now - waiting_since >= claim_timeout:
+                    raise ClaimTimeout(db.holders_message(busy, now - waiting_since))
                 bar.set_postfix_str(f"waiting for {len(busy)} held by another run")
                 time.sleep(poll)
                 queue, busy = busy, []
@@ -457,6 +501,17 @@ def _stop_pool(pool: ProcessPoolExecutor, wait_for_workers: bool) -> None:
         proc.join(timeout=5)
 
 
+#: The file name of the store in an output folder.
+STORE_NAME = "results.sqlite"
+
+
 def store_path(out: str | Path) -> Path:
     """The store of an output folder: ``OUT/results.sqlite``."""
-    return Path(out) / "results.sqlite"
+    return Path(out) / STORE_NAME
+
+
+def store_file(given: str | Path) -> Path:
+    """The store a ``--store`` option names: an existing file, or a path ending in ``.sqlite``,
+    is the store itself; anything else is a folder holding ``results.sqlite``."""
+    path = Path(given)
+    return path if path.is_file() or path.suffix == ".sqlite" else store_path(path)

@@ -16,24 +16,29 @@ policy; the same model under another name is the same one.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib
+import io
 import json
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from platoon_env.provenance import REPO_ROOT
-from platoon_env.scenarios.fingerprint import canonical_json, file_sha256, text_sha256
+from platoon_env.scenarios.fingerprint import canonical_json, text_sha256
 
 __all__ = [
     "MODEL",
     "REGISTRY",
     "STUDY_DRIVERS",
+    "PolicyFileChanged",
     "PolicyKind",
     "PolicySpec",
     "analytic_policies",
     "build_policy",
     "default_models_dir",
+    "load_model",
     "register_policy",
     "shipped_models",
 ]
@@ -120,6 +125,37 @@ def register_policy(name: str, kind: PolicyKind) -> None:
     REGISTRY[name] = kind
 
 
+class PolicyFileChanged(RuntimeError):
+    """A model file read by a worker is not the one the evaluation planned (replaced or edited
+    since): the cell fails (it is not a refusal), rather than storing the new file's episodes
+    under the old file's fingerprint."""
+
+
+def _model_description(zip_bytes: bytes, meta_bytes: bytes | None, path: Path) -> dict[str, Any]:
+    """What a model's fingerprint hashes, from the bytes of its ``model.zip`` and ``model.json``
+    (None: absent). The JSON is hashed as its text, read as ``Path.read_text`` reads it, so that
+    the fingerprints of existing stores stay the same."""
+    meta = "" if meta_bytes is None else io.TextIOWrapper(io.BytesIO(meta_bytes)).read()
+    return {
+        "kind": MODEL,
+        "zip_sha256": hashlib.sha256(zip_bytes).hexdigest(),
+        "model_json_sha256": text_sha256(meta),
+        "path": str(path),
+    }
+
+
+def _read_model(zip_path: Path) -> tuple[bytes, bytes | None]:
+    """The bytes of ``model.zip`` and of the ``model.json`` beside it (None if absent)."""
+    meta_path = zip_path.with_suffix(".json")
+    return zip_path.read_bytes(), meta_path.read_bytes() if meta_path.is_file() else None
+
+
+def _fingerprint(description: dict[str, Any]) -> str:
+    """The fingerprint of a policy description (its ``path`` left out: the same files
+    elsewhere are the same model)."""
+    return text_sha256(canonical_json({k: v for k, v in description.items() if k != "path"}))
+
+
 def _resolve(factory: str) -> Any:
     module, _, attr = factory.partition(":")
     return getattr(importlib.import_module(module), attr)
@@ -167,7 +203,12 @@ class PolicySpec:
         name). A missing file is a ``ValueError``."""
         p = Path(path)
         zip_path = p if p.suffix == ".zip" else p / "model.zip"
-        if not zip_path.is_file():
+        try:
+            found = zip_path.is_file()
+        except (OSError, ValueError) as exc:  # a name too long, a NUL byte
+            shown = str(zip_path) if len(str(zip_path)) <= 120 else str(zip_path)[:117] + "..."
+            raise ValueError(f"no model file at {shown} ({exc.__class__.__name__})") from None
+        if not found:
             raise ValueError(f"no model file at {zip_path}")
         zip_path = zip_path.resolve()
         return cls(name or zip_path.parent.name, MODEL, zip_path)
@@ -238,22 +279,13 @@ class PolicySpec:
             return {"kind": self.kind, "factory": self.factory, "params": self.kwargs}
         if "description" not in self._memo:
             assert self.path is not None
-            meta_path = self.path.with_suffix(".json")
-            meta = meta_path.read_text() if meta_path.is_file() else ""
-            self._memo["description"] = {
-                "kind": MODEL,
-                "zip_sha256": file_sha256(self.path),
-                "model_json_sha256": text_sha256(meta),
-                "path": str(self.path),
-            }
+            self._memo["description"] = _model_description(*_read_model(self.path), self.path)
         return dict(self._memo["description"])
 
     def fingerprint(self) -> str:
         """The hex SHA-256 identifying the policy (computed once per spec object)."""
         if "fingerprint" not in self._memo:
-            desc = self.description()
-            desc.pop("path", None)  # the same files elsewhere are the same model
-            self._memo["fingerprint"] = text_sha256(canonical_json(desc))
+            self._memo["fingerprint"] = _fingerprint(self.description())
         out: str = self._memo["fingerprint"]
         return out
 
@@ -264,13 +296,52 @@ class PolicySpec:
         return kind is not None and kind.signals
 
 
-def build_policy(spec: PolicySpec, env: Any) -> Any:
-    """The policy of ``spec`` for ``env`` (in the process that runs the episode)."""
-    if spec.kind == MODEL:
-        from training.policies import LearnedPolicy
+def load_model(spec: PolicySpec, planned: str | None = None) -> Any:
+    """The ``LearnedPolicy`` of a model spec, loaded from the files' bytes only after they are
+    checked against ``planned`` (a fingerprint; default: the spec's, as first computed).
 
-        assert spec.path is not None
-        policy = LearnedPolicy.load(spec.path)
+    The bytes are read once, hashed, and the policy is loaded from a private copy of exactly
+    those bytes, so a file replaced at any moment gives either the planned model or a
+    :class:`PolicyFileChanged` naming the file; never the new model under the old fingerprint.
+    Errors of the files themselves (a malformed ``model.json``) are also ``PolicyFileChanged``'s
+    kin: a ``RuntimeError``, since a ``ValueError`` of :func:`build_policy` means a refusal.
+    """
+    from training.policies import LearnedPolicy
+
+    assert spec.path is not None
+    planned = planned or spec.fingerprint()
+    zip_bytes, meta_bytes = _read_model(spec.path)
+    actual = _model_description(zip_bytes, meta_bytes, spec.path)
+    if _fingerprint(actual) != planned:
+        before = spec.description()
+        changed = [
+            f"{name} (SHA-256 planned {before[field][:12]}, read {actual[field][:12]})"
+            for name, field in (("model.zip", "zip_sha256"), ("model.json", "model_json_sha256"))
+            if before.get(field) != actual[field]
+        ] or ["its files (the fingerprint differs)"]
+        raise PolicyFileChanged(
+            f"{spec.path.parent}: {', '.join(changed)} changed after the evaluation was planned; "
+            "nothing of this cell was stored under the old fingerprint: re-run to evaluate the "
+            "new files"
+        )
+    with tempfile.TemporaryDirectory(prefix="platoon-model-") as tmp:
+        copy = Path(tmp) / "model.zip"
+        copy.write_bytes(zip_bytes)
+        if meta_bytes is not None:
+            copy.with_suffix(".json").write_bytes(meta_bytes)
+        try:
+            return LearnedPolicy.load(copy)
+        except (OSError, ValueError) as exc:
+            message = str(exc).replace(str(copy.parent), str(spec.path.parent))
+            raise RuntimeError(f"{spec.path}: cannot be loaded: {message}") from None
+
+
+def build_policy(spec: PolicySpec, env: Any, planned: str | None = None) -> Any:
+    """The policy of ``spec`` for ``env`` (in the process that runs the episode). A model is
+    loaded by :func:`load_model` (its files checked against ``planned``); a ``ValueError`` from
+    here is the policy refusing the configuration (``check_env``, a law's constructor)."""
+    if spec.kind == MODEL:
+        policy = load_model(spec, planned)
         check = getattr(policy, "check_env", None)
         if check is not None:
             check(env)

@@ -8,8 +8,10 @@ from those rows, never from what the command line asked for.
 from __future__ import annotations
 
 import csv
+import hashlib
 import math
 import os
+import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -20,6 +22,7 @@ from experiments.stamp import stamp_markdown
 from experiments.store import EpisodeRecord, Store
 
 __all__ = [
+    "file_stem",
     "format_value",
     "mean_ci",
     "provenance_markdown",
@@ -28,6 +31,29 @@ __all__ = [
     "write_csv",
     "write_csv_stamp",
 ]
+
+
+#: Characters a file-name stem keeps; every other run of characters becomes ``_``.
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
+#: The longest stem :func:`file_stem` gives (file systems allow 255 bytes per name; room is
+#: left for the suffixes the drivers add).
+MAX_STEM = 80
+
+
+def file_stem(name: str) -> str:
+    """The file-name stem of a display name (a policy, a scenario, a condition): the one rule for
+    every name that becomes part of a file name.
+
+    Only ASCII letters, digits, ``_``, ``.`` and ``-``; never empty, never starting with ``.``
+    (no ``..``, no hidden file), at most :data:`MAX_STEM` characters; so it never leaves the
+    folder it is joined to. A name that had to change gets 8 hex digits of its SHA-256, so that
+    two distinct names never share a file.
+    """
+    stem = _UNSAFE.sub("_", name).lstrip(".")[:MAX_STEM]
+    if stem == name and stem:
+        return stem
+    digest = hashlib.sha256(name.encode("utf-8", "surrogatepass")).hexdigest()[:8]
+    return f"{stem[: MAX_STEM - 9] or 'x'}-{digest}"
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -152,8 +178,11 @@ def provenance_markdown(store: Store, records: Iterable[EpisodeRecord], this_run
         if k in runs:
             st = runs[k]["stamp"]
             dirty = " + uncommitted changes" if st.get("modified") else ""
+            state = runs[k].get("state", runs[k]["status"])
+            if state == "killed":
+                state = "killed: its process is gone and it never recorded its end"
             lines.append(
-                f"  - run {k} ({runs[k]['status']}, {st.get('time', '?')}, code "
+                f"  - run {k} ({state}, {st.get('time', '?')}, code "
                 f"{str(st.get('commit', '?'))[:12]}{dirty}): {used[k]} rows"
             )
     if len(commits) > 1:

@@ -17,9 +17,16 @@ Safety rules:
 * WAL journal, ``synchronous=FULL`` and one transaction per episode: a killed evaluator loses
   at most the episodes in flight, and a reader never sees half a row.
 * Before running a cell, a run **claims** it (status ``running``, with its ``run_id``). Another
-  run skips cells claimed by a live run and waits for them; the claims of a run whose process
-  is gone (killed, crashed) are taken over. A finished row is never overwritten: two
-  evaluators into one store give one row per episode.
+  run skips cells claimed by a live run and waits for them, for a bounded time
+  (:func:`experiments.grid.run_grid`'s ``claim_timeout``); the claims of a run whose process
+  is gone from this host (killed, crashed) are taken over at once. A claim of a run on another
+  host, or of a stopped process, ends the wait with a :class:`ClaimTimeout` naming the holder
+  and how to release it (:meth:`Store.release_run`, ``python -m experiments.store STORE
+  --release RUN``). A finished row is never overwritten: two evaluators into one store give one
+  row per episode.
+* A file that is not an evaluation store (another SQLite database, a damaged one) is refused
+  before anything is written into it; a damaged page or an unreadable row met later is a
+  :class:`StoreError` naming the file (and the row), never a raw ``sqlite3`` error.
 * ``failed`` rows (the episode raised) are retried by the next run; ``refused`` rows (the
   policy declined the configuration, e.g. the filtered PPC without a feasible funnel) are a
   result, like ``done``.
@@ -30,10 +37,13 @@ is refused with the reason. ``docs/results.md`` describes the tables.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
+import shlex
 import socket
 import sqlite3
+import sys
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -45,7 +55,9 @@ __all__ = [
     "FINISHED",
     "SCHEMA_VERSION",
     "STATUSES",
+    "TABLES",
     "Claim",
+    "ClaimTimeout",
     "EpisodeKey",
     "EpisodeRecord",
     "Store",
@@ -107,8 +119,21 @@ CREATE TABLE IF NOT EXISTS episodes (
 """
 
 
+#: The tables of a store (``sqlite_sequence`` is SQLite's own, for ``AUTOINCREMENT``): a
+#: database holding any other table is not an evaluation store, and is refused untouched.
+TABLES: frozenset[str] = frozenset(
+    {"meta", "runs", "policies", "scenarios", "overrides", "episodes", "sqlite_sequence"}
+)
+
+
 class StoreError(RuntimeError):
-    """A store that cannot be used: not a database, another schema version, locked too long."""
+    """A store that cannot be used: not a database, not ours, another schema version, damaged,
+    locked too long, or a row that cannot be read."""
+
+
+class ClaimTimeout(StoreError):
+    """Cells held by another run that made no progress for the whole allowed wait; the
+    message names each holder (run, tool, host, pid) and how to release its claims."""
 
 
 class EpisodeKey(NamedTuple):
@@ -167,6 +192,44 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _proc_state(pid: int) -> str:
+    """The state letter of process ``pid`` (``/proc/PID/stat`` field 3: ``T`` stopped, ``Z``
+    zombie, ...), "" where it cannot be read."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return ""
+    return text.rsplit(")", 1)[1].split()[0]
+
+
+def _check_own(db: sqlite3.Connection, path: Path) -> None:
+    """Refuse, before anything is written, a database that is not an evaluation store (another
+    program's tables) or is damaged (``PRAGMA quick_check``). Only reads."""
+    tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    foreign = sorted(tables - TABLES)
+    if tables and not foreign:
+        try:
+            versioned = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
+        except sqlite3.OperationalError:  # a "meta" table of another layout
+            versioned = None
+        foreign = [] if versioned is not None else sorted(tables)
+    if foreign:
+        shown = ", ".join(foreign[:8]) + (", ..." if len(foreign) > 8 else "")
+        raise StoreError(
+            f"{path}: not an evaluation store (an SQLite database with the tables {shown}); "
+            "it was left untouched: give another path"
+        )
+    try:
+        problems = [str(r[0]) for r in db.execute("PRAGMA quick_check").fetchall()]
+    except sqlite3.DatabaseError as exc:  # too damaged to be checked
+        problems = [str(exc)]
+    if problems != ["ok"]:
+        raise StoreError(
+            f"{path}: the database is damaged ({'; '.join(problems[:3])}); it was left "
+            "untouched: restore it from a copy, or give another path"
+        )
+
+
 class Store:
     """An evaluation store at ``path`` (created if absent); see the module docstring.
 
@@ -178,18 +241,32 @@ class Store:
         self.path = Path(path)
         if self.path.exists() and not self.path.is_file():
             raise StoreError(f"{self.path}: not a file")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StoreError(
+                f"{self.path}: cannot create its folder {self.path.parent} ({exc.strerror or exc})"
+            ) from None
+        if not self.path.exists() and not os.access(self.path.parent, os.W_OK | os.X_OK):
+            raise StoreError(f"{self.path}: cannot create the store ({self.path.parent} is not "
+                             "writable)")  # fmt: skip
         try:
             self._db = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
             self._db.row_factory = sqlite3.Row
+            # Look before writing: the WAL pragma and the tables below change the file.
+            _check_own(self._db, self.path)
             mode = self._db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
         except sqlite3.DatabaseError as exc:
+            self._close_quietly()
             raise StoreError(f"{self.path}: not an evaluation store ({exc})") from None
+        except StoreError:
+            self._close_quietly()
+            raise
         if str(mode).lower() != "wal":
             raise StoreError(f"{self.path}: SQLite refused the WAL journal (got {mode!r})")
-        self._db.execute("PRAGMA synchronous=FULL")
-        self._db.execute("PRAGMA foreign_keys=ON")
         self._host = socket.gethostname()
+        self._db.execute("PRAGMA synchronous=FULL")
+        self._db.execute("PRAGMA foreign_keys=ON")  # a no-op inside a transaction
         with self.transaction():
             for statement in _SCHEMA.split(";"):
                 if statement.strip():
@@ -210,11 +287,30 @@ class Store:
         """Close the connection."""
         self._db.close()
 
+    def _close_quietly(self) -> None:
+        db = getattr(self, "_db", None)
+        if db is not None:
+            db.close()
+
     def __enter__(self) -> Store:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    @contextmanager
+    def _errors(self) -> Iterator[None]:
+        """SQLite's errors as a :class:`StoreError` naming the file (a damaged page, a full disk,
+        a lock held too long)."""
+        try:
+            yield
+        except sqlite3.OperationalError as exc:
+            raise StoreError(f"{self.path}: {exc}") from None
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(
+                f"{self.path}: the database is damaged ({exc}); restore it from a copy, or use "
+                "another path"
+            ) from None
 
     @contextmanager
     def transaction(self) -> Iterator[sqlite3.Connection]:
@@ -224,13 +320,33 @@ class Store:
             self._db.execute("BEGIN IMMEDIATE")
         except sqlite3.OperationalError as exc:
             raise StoreError(f"{self.path}: could not lock the store ({exc})") from None
+        with self._errors():
+            try:
+                yield self._db
+            except BaseException:
+                if self._db.in_transaction:
+                    self._db.execute("ROLLBACK")
+                raise
+            else:
+                self._db.execute("COMMIT")
+
+    def _rows(self, sql: str, params: Sequence[Any] = ()) -> list[sqlite3.Row]:
+        """The rows of a read (errors as :class:`StoreError`)."""
+        with self._errors():
+            return self._db.execute(sql, params).fetchall()
+
+    def _json(self, text: str | None, what: str) -> Any:
+        """A JSON column's value; a value that does not parse is a :class:`StoreError` naming
+        the row (``what``) and the file."""
+        if not text:
+            return None
         try:
-            yield self._db
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
-        else:
-            self._db.execute("COMMIT")
+            return json.loads(text)
+        except ValueError as exc:
+            raise StoreError(
+                f"{self.path}: {what} is not readable JSON ({exc}); it was not written by this "
+                "code: delete the row (sqlite3) to run it again"
+            ) from None
 
     # --- runs ---------------------------------------------------------------------------------
 
@@ -257,26 +373,100 @@ class Store:
             )
 
     def runs(self, run_ids: Iterable[int] | None = None) -> list[dict[str, Any]]:
-        """The ``runs`` rows (all, or those of ``run_ids``), their stamps parsed."""
-        rows = self._db.execute("SELECT * FROM runs ORDER BY run_id").fetchall()
+        """The ``runs`` rows (all, or those of ``run_ids``), their stamps parsed, each with its
+        ``state``: the stored ``status``, except ``killed`` for a ``running`` run whose process
+        is gone from this host (``kill -9``, a crash: it never recorded its end)."""
+        rows = self._rows("SELECT * FROM runs ORDER BY run_id")
         wanted = None if run_ids is None else set(run_ids)
         return [
-            {**dict(r), "stamp": json.loads(r["stamp"])}
+            {
+                **dict(r),
+                "stamp": self._json(r["stamp"], f"the stamp of run {r['run_id']}") or {},
+                "state": self._run_state(r),
+            }
             for r in rows
             if wanted is None or r["run_id"] in wanted
         ]
+
+    def _run_state(self, run: sqlite3.Row) -> str:
+        """``running``, ``killed`` (a running run gone from this host), ``stopped`` (its process
+        is stopped, e.g. by Ctrl-Z or ``kill -STOP``), or the status it recorded."""
+        if run["status"] != "running":
+            return str(run["status"])
+        if not self._run_alive(run):
+            return "killed"
+        if run["host"] == self._host and _proc_state(int(run["pid"])) == "T":
+            return "stopped"
+        return "running"
 
     def _run_alive(self, run: sqlite3.Row) -> bool:
         """Whether the run that holds a claim may still finish it."""
         if run["status"] != "running":
             return False
         if run["host"] != self._host:
-            return True  # cannot look at another machine's processes: trust it
+            return True  # cannot look at another machine's processes: trust it, for a while
         pid = int(run["pid"])
-        if not _pid_alive(pid):
+        if not _pid_alive(pid) or _proc_state(pid) == "Z":
             return False
         start = _proc_start(pid)
         return not (start and run["proc_start"] and start != run["proc_start"])
+
+    def holders(self, keys: Iterable[EpisodeKey]) -> list[dict[str, Any]]:
+        """The runs holding claims (``running`` rows) on ``keys``: each run's row (with its
+        ``state``, as :meth:`runs`) and ``held``, how many of ``keys`` it holds."""
+        held: dict[int, int] = {}
+        for key in keys:
+            for r in self._rows(
+                "SELECT run_id FROM episodes WHERE policy = ? AND scenario = ? AND overrides = ? "
+                "AND seed = ? AND measure = ? AND status = 'running'",
+                key,
+            ):
+                held[r["run_id"]] = held.get(r["run_id"], 0) + 1
+        return [{**run, "held": held[run["run_id"]]} for run in self.runs(held)]
+
+    def holders_message(self, keys: Iterable[EpisodeKey], waited: float) -> str:
+        """Why the cells of ``keys`` cannot be run yet, and how to release them: a line per
+        holding run (run, tool, host, pid, state)."""
+        lines = []
+        for run in self.holders(keys):
+            where = "this host" if run["host"] == self._host else f"host {run['host']}"
+            why = {
+                "stopped": f"its process is stopped: `kill -CONT {run['pid']}` lets it go on",
+                "running": (
+                    "it is running on this host: wait for it, or end it"
+                    if run["host"] == self._host
+                    else "this host cannot see whether it is still alive (a copied store?)"
+                ),
+            }.get(run["state"], run["state"])
+            lines.append(
+                f"  run {run['run_id']} ({run['tool']}, {where}, pid {run['pid']}, started "
+                f"{time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(run['started']))}) holds "
+                f"{run['held']} cell(s): {why}"
+            )
+        release = f"python -m experiments.store {shlex.quote(str(self.path))}"
+        return (
+            f"{self.path}: cells held by another run made no progress for {waited:.0f} s:\n"
+            + "\n".join(lines)
+            + f"\nIf that run is gone, release its claims: {release} --release RUN_ID "
+            "(its unfinished cells are then run by the next evaluator)"
+        )
+
+    def release_run(self, run_id: int) -> int:
+        """Release the claims of run ``run_id`` (gone, on another host, or stopped for good):
+        its ``running`` rows are dropped, and a run still marked ``running`` becomes
+        ``released``. Returns the number of claims dropped; finished rows are kept."""
+        with self.transaction() as db:
+            if db.execute("SELECT 1 FROM runs WHERE run_id = ?", (run_id,)).fetchone() is None:
+                raise StoreError(f"{self.path}: no run {run_id}")
+            cur = db.execute(
+                "DELETE FROM episodes WHERE run_id = ? AND status = 'running'", (run_id,)
+            )
+            db.execute(
+                "UPDATE runs SET status = 'released', finished = ? "
+                "WHERE run_id = ? AND status = 'running'",
+                (time.time(), run_id),
+            )
+        return cur.rowcount
 
     # --- what the fingerprints stand for ------------------------------------------------------
 
@@ -307,12 +497,10 @@ class Store:
 
     def scenario_config(self, fingerprint: str) -> dict[str, Any]:
         """The resolved config a scenario fingerprint stands for."""
-        row = self._db.execute(
-            "SELECT config FROM scenarios WHERE fingerprint = ?", (fingerprint,)
-        ).fetchone()
-        if row is None:
+        rows = self._rows("SELECT config FROM scenarios WHERE fingerprint = ?", (fingerprint,))
+        if not rows:
             raise KeyError(fingerprint)
-        out: dict[str, Any] = json.loads(row["config"])
+        out: dict[str, Any] = self._json(rows[0]["config"], f"scenario {fingerprint[:12]}") or {}
         return out
 
     # --- episodes -----------------------------------------------------------------------------
@@ -403,20 +591,25 @@ class Store:
     def episodes(self, keys: Iterable[EpisodeKey] | None = None) -> dict[EpisodeKey, EpisodeRecord]:
         """The rows of ``keys`` that exist (all rows if None), by key."""
         if keys is None:
-            rows = self._db.execute("SELECT * FROM episodes").fetchall()
+            rows = self._rows("SELECT * FROM episodes")
         else:
             rows = []
             for key in keys:
-                row = self._db.execute(
+                rows += self._rows(
                     "SELECT * FROM episodes WHERE policy = ? AND scenario = ? AND overrides = ? "
                     "AND seed = ? AND measure = ?",
                     key,
-                ).fetchone()
-                if row is not None:
-                    rows.append(row)
+                )
         out = {}
         for r in rows:
             key = EpisodeKey(r["policy"], r["scenario"], r["overrides"], r["seed"], r["measure"])
+            what = (
+                f"the metrics of the episode of {r['policy_name']} on {r['scenario_name']}, seed "
+                f"{r['seed']} (policy {r['policy'][:12]})"
+            )
+            metrics = self._json(r["metrics"], what) or {}
+            if not isinstance(metrics, dict):
+                raise StoreError(f"{self.path}: {what} are not a JSON object: {r['metrics']!r}")
             out[key] = EpisodeRecord(
                 key=key,
                 status=r["status"],
@@ -425,12 +618,50 @@ class Store:
                 scenario_name=r["scenario_name"],
                 updated=r["updated"],
                 wall_time=r["wall_time"],
-                metrics=json.loads(r["metrics"]) if r["metrics"] else {},
+                metrics=metrics,
                 error=r["error"] or "",
             )
         return out
 
     def counts(self) -> dict[str, int]:
         """Episodes per status over the whole store."""
-        rows = self._db.execute("SELECT status, COUNT(*) AS n FROM episodes GROUP BY status")
+        rows = self._rows("SELECT status, COUNT(*) AS n FROM episodes GROUP BY status")
         return {r["status"]: r["n"] for r in rows}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m experiments.store STORE [--release RUN_ID]``: list the runs of a store (state,
+    host, pid, claims held) or release the claims of one (a run gone for good: killed on
+    another host, a copied store, a stopped process)."""
+    parser = argparse.ArgumentParser(prog="python -m experiments.store", description=main.__doc__)
+    parser.add_argument("store", type=Path, help="the store (an .sqlite file)")
+    parser.add_argument("--release", type=int, metavar="RUN_ID", help="drop the claims of this run")
+    args = parser.parse_args(argv)
+    if not args.store.is_file():
+        parser.error(f"{args.store}: no such store file")
+    try:
+        with Store(args.store) as store:
+            if args.release is not None:
+                n = store.release_run(args.release)
+                print(f"{store.path}: released {n} claim(s) of run {args.release}")
+                return 0
+            held = {
+                r["run_id"]: r["n"]
+                for r in store._rows(
+                    "SELECT run_id, COUNT(*) AS n FROM episodes WHERE status = 'running' "
+                    "GROUP BY run_id"
+                )
+            }
+            for run in store.runs():
+                print(
+                    f"run {run['run_id']}: {run['tool']} {run['state']}, host {run['host']}, "
+                    f"pid {run['pid']}, {held.get(run['run_id'], 0)} claim(s) held"
+                )
+    except StoreError as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

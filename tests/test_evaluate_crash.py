@@ -120,3 +120,5 @@ def test_kill_9_then_resume(tmp_path: Path) -> None:
     with sqlite3.connect(out / "results.sqlite") as db:
         statuses = dict(db.execute("SELECT run_id, status FROM runs").fetchall())
     assert statuses == {1: "running", 2: "finished"}  # the killed run never finished
+    # ... and the summary reports it as killed, not as running
+    assert "run 1 (killed: its process is gone" in (out / "summary.md").read_text()

@@ -141,10 +141,21 @@ def test_lagrangian_config_sets_its_budget() -> None:
 # ------------------------------------------------------------------------------------------------
 # ship
 # ------------------------------------------------------------------------------------------------
-def fake_run(runs: Path, config: str, seed: int, **meta: Any) -> Path:
-    src = run_dir(runs, config, seed)
+def recorded_options(config: str, seed: int, *extra: str) -> dict[str, Any]:
+    """The ``config`` block platoon-train records in model.json for a run of ``config``."""
+    import dataclasses
+
+    args = [*CONFIGS[config].args, *extra, "--seed", str(seed), "--out", "x"]
+    return dataclasses.asdict(parse_args(args))
+
+
+def fake_run(runs: Path, name: str, seed: int, **meta: Any) -> Path:
+    """A run folder of configuration ``name`` and ``seed`` whose model.json holds ``meta`` (and,
+    unless given, the options the configuration trains with)."""
+    src = run_dir(runs, name, seed)
     src.mkdir(parents=True)
-    (src / "model.zip").write_bytes(f"zip {config} {seed}".encode())
+    meta.setdefault("config", recorded_options(name, seed))
+    (src / "model.zip").write_bytes(f"zip {name} {seed}".encode())
     (src / "model.json").write_text(json.dumps(meta))
     (src / "progress.csv").write_text(f"timesteps\n{seed}\n")
     (src / "checkpoint.zip").write_bytes(b"not shipped")
@@ -189,6 +200,58 @@ def test_ship_skips_a_run_missing_a_file_or_its_counts(
     err = capsys.readouterr().err
     assert "skip ppo_ta_aruco s0: no progress.csv" in err
     assert "skip ppo_ta_aruco s1: unfinished (10 of None)" in err
+
+
+def test_ship_skips_a_bad_model_json_and_ships_the_rest(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    runs, models = tmp_path / "runs", tmp_path / "models"
+    for seed, text in ((0, "{not json"), (1, "[1, 2]"), (2, "\udcff")):
+        bad = fake_run(runs, "ppo_ta_aruco", seed, timesteps=5, timesteps_requested=5)
+        (bad / "model.json").write_text(text, errors="surrogateescape")
+    bad_counts = fake_run(runs, "ppo_ta_aruco", 3, timesteps="5", timesteps_requested=5)  # text
+    good = fake_run(runs, "ppo_ta_aruco", 4, timesteps=5, timesteps_requested=5)
+    shipped = ship(runs, models, ["ppo_ta_aruco"], [0, 1, 2, 3, 4])
+    assert shipped == [models / "ppo_ta_aruco_s4"]
+    assert (shipped[0] / "model.zip").read_bytes() == (good / "model.zip").read_bytes()
+    err = capsys.readouterr().err
+    assert (
+        f"skip ppo_ta_aruco s0: {runs / 'ppo_ta_aruco' / 's0' / 'model.json'} is not readable JSON"
+        in err
+    )
+    assert "skip ppo_ta_aruco s1: " in err and "is not a JSON object" in err
+    assert "skip ppo_ta_aruco s2: " in err and "is not readable JSON" in err
+    assert "skip ppo_ta_aruco s3: unfinished (5 of 5)" in err
+    assert bad_counts.is_dir()
+
+
+def test_ship_refuses_a_run_trained_with_other_options(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run folder of one configuration holding a run of other options (another seed, the
+    other algorithm, another learning rate or scenario, fewer timesteps) is not shipped as it."""
+    runs, models = tmp_path / "runs", tmp_path / "models"
+    done = {"timesteps": 5, "timesteps_requested": 5}
+    fake_run(runs, "ppo_ta_aruco", 0, **done, config=recorded_options("ppo_ta_aruco", 1))
+    fake_run(runs, "ppo_ta_aruco", 1, **done, config=recorded_options("lag_ta_aruco", 1))
+    fake_run(runs, "ppo_ta_aruco", 2, **done,
+             config=recorded_options("ppo_ta_aruco", 2, "--learning-rate", "0.001"))  # fmt: skip
+    fake_run(runs, "ppo_ta_aruco", 3, **done,
+             config=recorded_options("ppo_ta_aruco", 3, "--scenario", "study_c"))  # fmt: skip
+    fake_run(runs, "ppo_ta_aruco", 4, **done,
+             config=recorded_options("ppo_ta_aruco", 4, "--timesteps", "1000"))  # fmt: skip
+    fake_run(runs, "ppo_ta_aruco", 5, **done, config=None)
+    fake_run(runs, "ppo_ta_aruco", 6, **done)
+    shipped = ship(runs, models, ["ppo_ta_aruco"], range(7))
+    assert shipped == [models / "ppo_ta_aruco_s6"]
+    err = capsys.readouterr().err
+    assert "skip ppo_ta_aruco s0: " in err and "--seed: stored 1, given 0" in err
+    assert "--algo: stored 'ppo_lagrangian', given 'ppo'" in err
+    assert "--learning-rate: stored 0.001, given 0.0003" in err
+    assert "--scenario: stored 'study_c', given 'procedural_medium_train'" in err
+    assert "--timesteps: stored 1000, given 1500000" in err
+    assert "skip ppo_ta_aruco s5: " in err and "no recorded options" in err
+    assert "records other options than the configuration ppo_ta_aruco with seed 2" in err
 
 
 def test_ship_replaces_an_earlier_copy(tmp_path: Path) -> None:

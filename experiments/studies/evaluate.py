@@ -46,20 +46,29 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import sys
 from collections import defaultdict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
 from tqdm import tqdm
 
 import platoon_env
-from experiments.cli import count
-from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
+from experiments.cli import count, number
+from experiments.grid import (
+    DEFAULT_CLAIM_TIMEOUT,
+    Cell,
+    GridResult,
+    ResolvedCell,
+    merge_overrides,
+    resolve_cells,
+    run_grid,
+    store_path,
+)
 from experiments.policies import (
     MODEL,
     REGISTRY,
@@ -70,6 +79,7 @@ from experiments.policies import (
     shipped_models,
 )
 from experiments.report import (
+    file_stem,
     format_value,
     mean_ci,
     provenance_markdown,
@@ -84,6 +94,7 @@ from experiments.suites import SUITES, Condition, suite
 from platoon_env.extras import MissingExtraError, require_extra
 from platoon_env.rollout import METRIC_NAMES, Episode, PolicyLike
 from platoon_env.scenarios.fingerprint import canonical_json
+from platoon_env.scenarios.loader import read_yaml
 from platoon_env.scenarios.schema import ScenarioError, config_to_mapping
 
 __all__ = [
@@ -132,8 +143,9 @@ _TOOL = "platoon-evaluate"
 
 
 def parse_assignment(text: str) -> tuple[tuple[str, ...], Any]:
-    """``KEY[.SUB...]=VALUE`` -> (key path, value), the value read as YAML (``0.01`` a float,
-    ``null`` None, ``true`` a bool, ``[1, 2]`` a list, else a string).
+    """``KEY[.SUB...]=VALUE`` -> (key path, value), the value read as a scenario file reads YAML
+    (:func:`platoon_env.scenarios.loader.read_yaml`: ``0.01`` a float, ``null`` None, ``true``
+    a bool, ``[1, 2]`` a list, else a string).
 
     Raises :class:`argparse.ArgumentTypeError` (argparse turns it into a usage error) on a
     missing ``=``, a malformed key or a value that is not YAML.
@@ -147,9 +159,11 @@ def parse_assignment(text: str) -> tuple[tuple[str, ...], Any]:
             f"{text!r}: bad key {key!r} (expected names joined by dots, e.g. noise.position)"
         )
     try:
-        value = yaml.safe_load(raw)
-    except yaml.YAMLError as exc:
-        detail = str(exc).splitlines()[0]
+        # the scenario files' reader: the value means what it would in a scenario file (YAML 1.2
+        # scalars, no tags, no aliases), and every error is a ScenarioError
+        value = read_yaml(raw, "the value")
+    except ScenarioError as exc:
+        detail = str(exc).splitlines()[0].removeprefix("the value: ")
         raise argparse.ArgumentTypeError(
             f"{text!r}: the value {raw!r} is not YAML ({detail})"
         ) from None
@@ -227,7 +241,7 @@ def build(
 ) -> tuple[platoon_env.PlatoonParallelEnv, PolicyLike]:
     """The env (at the policy's control period, with the realism flags) and the policy for one
     scenario, as an evaluation episode runs them."""
-    env = platoon_env.make(scenario, **spec.env_overrides(), **realism.overrides())
+    env = platoon_env.make(scenario, **merge_overrides(spec, realism.overrides()))
     policy: PolicyLike = build_policy(spec, env)
     return env, policy
 
@@ -329,8 +343,7 @@ def _csv_strings(rows: Iterable[dict[str, Any]]) -> list[dict[str, str]]:
 
 def _slug(scenario: str) -> str:
     """A file-name stem for a scenario given by name or path (never a path itself)."""
-    stem = Path(scenario).stem if scenario.endswith((".yaml", ".yml")) else scenario
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", stem) or "scenario"
+    return file_stem(Path(scenario).stem if scenario.endswith((".yaml", ".yml")) else scenario)
 
 
 def plot_scenario(
@@ -352,7 +365,7 @@ def plot_scenario(
         save_gif,
     )
 
-    slug = slug or _slug(scenario)
+    slug = file_stem(slug) if slug else _slug(scenario)
     names = sorted(episodes)
     eps = [episodes[k] for k in names]
     # The workspace the plotted episodes ran on: reset with their seed draws it as they did
@@ -384,7 +397,9 @@ def plot_scenario(
     fig.suptitle(f"{scenario}, seed {eps[0].seed}: velocity commands")
     paths.append(save_figure(fig, out / f"{slug}_commands.png", metadata))
     for name, ep in zip(names, eps, strict=True):
-        paths.append(save_gif(sc, ep, out / f"{slug}_{name}.gif", frame_every=1.0, size_px=360))
+        paths.append(
+            save_gif(sc, ep, out / f"{slug}_{file_stem(name)}.gif", frame_every=1.0, size_px=360)
+        )
     return paths
 
 
@@ -450,6 +465,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--no-plots", action="store_true", help="skip plots and GIFs")
     parser.add_argument(
+        "--claim-timeout",
+        type=number,
+        default=DEFAULT_CLAIM_TIMEOUT,
+        metavar="SECONDS",
+        help="how long to wait for episodes another run holds while none of them finishes, "
+        "then fail naming that run and how to release it (default: %(default)s)",
+    )
+    parser.add_argument(
         "--set",
         action="append",
         type=parse_assignment,
@@ -493,6 +516,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.episodes = the_suite.seeds if the_suite is not None else DEFAULT_EPISODES
     if args.out.exists() and not args.out.is_dir():
         parser.error(f"--out {args.out}: exists and is not a folder")
+    unwritable = _unwritable(args.out)
+    if unwritable:
+        parser.error(f"--out {args.out}: {unwritable}")
+    if args.claim_timeout <= 0:
+        parser.error(f"--claim-timeout must be > 0 s, got {args.claim_timeout}")
     if str(args.out) in ("", "."):
         parser.error("--out must name an output folder, not the working directory")
     if args.models is not None and not args.models.is_dir():
@@ -562,6 +590,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         detail = str(exc) if isinstance(exc, ScenarioError | TypeError) else f"{exc}"
         parser.error(f"{detail}")
     args.scenario = _distinct_scenarios(args.cells, scenarios)
+    args.policy = _distinct_policies(args.cells, args.policy)
     args.resolved = {
         (rc.cell.scenario, args.condition_of[rc.cell.overrides].label): resolved_realism(rc.config)
         for rc in args.cells
@@ -576,6 +605,38 @@ def _distinct_scenarios(cells: Sequence[ResolvedCell], given: Sequence[str]) -> 
         if s not in kept:
             print(f"note: --scenario {s} has the content of another one given: run once")
     return [s for s in given if s in kept]
+
+
+def _distinct_policies(
+    cells: Sequence[ResolvedCell], given: Sequence[PolicySpec]
+) -> list[PolicySpec]:
+    """The given policies with a distinct fingerprint, in order; says which were another name
+    for one given before (the same law and parameters, or the same model files): their
+    episodes are the same rows, run once and reported under the first name."""
+    kept = {rc.cell.policy.name for rc in cells}
+    first: dict[str, str] = {}
+    for spec in given:
+        first.setdefault(spec.fingerprint(), spec.name)
+        if spec.name not in kept:
+            print(
+                f"note: --policy {spec.name} is the same policy as {first[spec.fingerprint()]} "
+                f"(fingerprint {spec.fingerprint()[:12]}): run once, reported as "
+                f"{first[spec.fingerprint()]}"
+            )
+    return [spec for spec in given if spec.name in kept]
+
+
+def _unwritable(out: Path) -> str | None:
+    """Why nothing can be written under ``out`` (its nearest existing folder is a file or not
+    writable), or None."""
+    folder = out
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        return f"{folder} is not a folder"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"{folder} is not writable"
+    return None
 
 
 def _model_notes(args: argparse.Namespace) -> list[str]:
@@ -594,7 +655,7 @@ def _model_notes(args: argparse.Namespace) -> list[str]:
             notes.append(f"{spec.name}: cannot be loaded ({exc})")
             continue
         for s in args.scenario:
-            env = platoon_env.make(s, **spec.env_overrides(), **args.overrides)
+            env = platoon_env.make(s, **merge_overrides(spec, args.overrides))
             try:
                 for note in policy.check_env(env):
                     notes.append(f"{spec.name} on {s}: {note}")
@@ -647,9 +708,35 @@ def main(argv: Sequence[str] | None = None) -> int:
     except StoreError as exc:
         print(f"{_TOOL}: error: {exc}", file=sys.stderr)
         return 2
+    try:
+        return _run(args, store, stamp, keep)
+    except StoreError as exc:  # held cells that never finished, a store damaged mid-run
+        print(f"{_TOOL}: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # an export that cannot be written (a full disk, a file in the way)
+        print(
+            f"{_TOOL}: error: cannot write {exc.filename or out}: {exc.strerror}", file=sys.stderr
+        )
+        return 1
+
+
+def _run(
+    args: argparse.Namespace,
+    store: Store,
+    stamp: dict[str, Any],
+    keep: Callable[[Cell], bool],
+) -> int:
+    """The grid and the exports of :func:`main` (``store`` is closed at the end)."""
+    out: Path = args.out
     with store:
         result = run_grid(
-            store, args.cells, tool=_TOOL, stamp=stamp, workers=args.workers, keep=keep
+            store,
+            args.cells,
+            tool=_TOOL,
+            stamp=stamp,
+            workers=args.workers,
+            keep=keep,
+            claim_timeout=args.claim_timeout,
         )
         print(
             f"{store.path}: {result.ran} episode(s) run, {result.reused} already in the store "
@@ -739,7 +826,7 @@ def _plots(
     slugs: dict[tuple[str, str], str] = {}
     for s in args.scenario:
         for c in args.conditions:
-            slug = _slug(s) + (f"_{_slug(c.label)}" if len(args.conditions) > 1 else "")
+            slug = _slug(s) + (f"_{file_stem(c.label)}" if len(args.conditions) > 1 else "")
             while slug in slugs.values():
                 slug += "_"
             slugs[(s, c.label)] = slug

@@ -60,7 +60,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from experiments.cli import count
-from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
+from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_file
 from experiments.policies import PolicySpec, analytic_policies, default_models_dir, shipped_models
 from experiments.report import provenance_markdown
 from experiments.stamp import metadata_stamp, png_metadata
@@ -71,7 +71,7 @@ from experiments.stats import (
     performance_profile,
     probability_of_improvement,
 )
-from experiments.store import Store
+from experiments.store import Store, StoreError
 from experiments.studies.cards import write_cards
 from experiments.suites import LEADERBOARD_SUITES, Condition, suite
 from platoon_env.scenarios.schema import ScenarioError
@@ -598,6 +598,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
+    try:  # before any work: a file that is not a store, or not ours, is refused untouched
+        store = Store(store_file(args.store))
+    except StoreError as exc:
+        print(f"platoon-leaderboard: error: --store {args.store}: {exc}", file=sys.stderr)
+        return 2
     board_entries = entries(models)
     board_tasks = tasks(args.paper_seeds, args.heldout_seeds)
     stamp = metadata_stamp(
@@ -610,7 +615,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     grid, refused = cells(board_entries, board_tasks)
     print(f"{len(board_entries)} policies, {len(board_tasks)} tasks, {len(grid)} episodes")
-    with Store(store_path(args.store)) as store:
+    with store:
         result = run_grid(
             store,
             grid,

@@ -33,11 +33,13 @@ from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from experiments.cli import count
+from experiments.report import file_stem
 from experiments.stamp import REPO_ROOT
 
-__all__ = ["CONFIGS", "Config", "main", "run_args", "ship"]
+__all__ = ["CONFIGS", "Config", "main", "option_differences", "run_args", "ship", "unshippable"]
 
 
 @dataclass(frozen=True)
@@ -129,35 +131,77 @@ SHIPPED_FILES = ("model.zip", "model.json", "progress.csv")
 def ship(runs: Path, models: Path, configs: Sequence[str], seeds: Sequence[int]) -> list[Path]:
     """Copy every finished run's model, description and learning curve to ``models``.
 
-    A run is finished when its ``model.json`` exists, is not ``interrupted`` and has trained
-    the timesteps it was asked for; others, and runs missing one of :data:`SHIPPED_FILES`, are
-    skipped with a note on stderr (nothing of them is copied).
+    A run is shipped when :func:`unshippable` finds nothing against it: its ``model.json`` is
+    readable, not ``interrupted``, has trained the timesteps it was asked for, records the
+    options of its configuration and seed, and the run holds every one of
+    :data:`SHIPPED_FILES`. Any other run is skipped with a note on stderr naming the reason
+    (nothing of it is copied), and the others are still shipped.
     """
-    import json
-
     shipped = []
     for name in configs:
         for seed in seeds:
             src = run_dir(runs, name, seed)
-            meta_path = src / "model.json"
-            if not meta_path.exists():
-                print(f"skip {name} s{seed}: no {meta_path}", file=sys.stderr)
+            reason = unshippable(CONFIGS[name], seed, src)
+            if reason:
+                print(f"skip {name} s{seed}: {reason}", file=sys.stderr)
                 continue
-            meta = json.loads(meta_path.read_text())
-            done, wanted = meta.get("timesteps"), meta.get("timesteps_requested")
-            if meta.get("interrupted") or done is None or wanted is None or done < wanted:
-                print(f"skip {name} s{seed}: unfinished ({done} of {wanted})", file=sys.stderr)
-                continue
-            absent = [f for f in SHIPPED_FILES if not (src / f).is_file()]
-            if absent:
-                print(f"skip {name} s{seed}: no {', '.join(absent)} in {src}", file=sys.stderr)
-                continue
-            dst = Path(models) / f"{name}_s{seed}"
+            dst = Path(models) / file_stem(f"{name}_s{seed}")
             dst.mkdir(parents=True, exist_ok=True)
             for f in SHIPPED_FILES:
                 shutil.copy2(src / f, dst / f)
             shipped.append(dst)
     return shipped
+
+
+def unshippable(config: Config, seed: int, src: Path) -> str | None:
+    """Why the run in ``src`` is not a finished run of ``config`` with ``seed`` (None if it
+    is): a missing or unreadable ``model.json``, an unfinished run, a missing file, or options
+    other than the configuration's (each difference named, recorded vs configured)."""
+    import json
+
+    meta_path = src / "model.json"
+    if not meta_path.exists():
+        return f"no {meta_path}"
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        return f"{meta_path} is not readable JSON ({exc})"
+    if not isinstance(meta, dict):
+        return f"{meta_path} is not a JSON object"
+    done, wanted = meta.get("timesteps"), meta.get("timesteps_requested")
+    counts = [v for v in (done, wanted) if isinstance(v, int) and not isinstance(v, bool)]
+    if meta.get("interrupted") or len(counts) < 2 or counts[0] < counts[1]:
+        return f"unfinished ({done} of {wanted})"
+    absent = [f for f in SHIPPED_FILES if not (src / f).is_file()]
+    if absent:
+        return f"no {', '.join(absent)} in {src}"
+    differences = option_differences(config, seed, meta)
+    if differences:
+        return (
+            f"{meta_path} records other options than the configuration {config.name} with seed "
+            f"{seed}: {'; '.join(differences)}"
+        )
+    return None
+
+
+def option_differences(config: Config, seed: int, meta: dict[str, Any]) -> list[str]:
+    """How the options a run recorded (``model.json``'s ``config``) differ from ``config``'s with
+    ``seed``: platoon-train's own comparison (:func:`training.config.config_differences`, on
+    the options themselves, env options included) and the timesteps asked for."""
+    from training.config import config_differences
+    from training.train import parse_args
+
+    recorded = meta.get("config")
+    if not isinstance(recorded, dict):
+        return ["no recorded options (model.json has no 'config')"]
+    cfg = parse_args([*config.args, "--seed", str(seed), "--out", "unused"])
+    # without the scenario fingerprint, the env options are compared one by one (resolving the
+    # scenario here would only repeat what platoon-train checked when it trained the run)
+    options_only = {k: v for k, v in meta.items() if k != "scenario_fingerprint"}
+    out = config_differences(cfg, options_only, "", {})
+    if recorded.get("timesteps") != cfg.timesteps:
+        out.append(f"--timesteps: stored {recorded.get('timesteps')!r}, given {cfg.timesteps!r}")
+    return out
 
 
 def build_parser() -> argparse.ArgumentParser:
