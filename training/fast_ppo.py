@@ -1,0 +1,1045 @@
+r"""A fast training path: PPO and PPO-Lagrangian straight on the batched core, at simulator speed.
+
+Stable-Baselines3 (:mod:`training.train`) steps a vector env of follower slots through Python
+objects and updates on minibatches of 256, orders of magnitude slower than the batched core
+(:class:`platoon_env.batched.BatchedPlatoon`) simulates. This module is one learner written
+top to bottom (in the manner of CleanRL) that keeps closer to the simulator's pace
+(``benchmarks/train_speed.py`` measures both):
+
+* **Collection**: ``n_envs`` copies of one scenario source step in one compiled call per
+  control period (``auto_reset=True``); the policy acts for every follower slot of every copy
+  in one batched forward of the actor; the values and log-probabilities of the rollout are
+  computed after it in one large batch (the policy does not change during a rollout).
+  Followers are independent agents sharing one policy (parameter sharing, as
+  :class:`training.vec_env.PlatoonVecEnv`): each follower slot is a sample. A mask of the live
+  slots of each copy (all of them while every copy has the template's ``N`` followers) is
+  what the samples, counts and team outcomes read.
+* **PPO** (Schulman et al., 2017): the clipped surrogate
+  ``L = E[min(ρ A, clip(ρ, 1 - ε, 1 + ε) A)]``, ``ρ = π(a|o) / π_old(a|o)``, GAE(γ, λ_GAE)
+  advantages, a squared-error value loss, an entropy bonus, Adam, the global gradient norm
+  clipped, ``n_epochs`` passes of large minibatches over each rollout of ``n_steps * n_envs *
+  N`` transitions. At a time limit (``truncated and not terminated``) the value of
+  ``info["final_observation"]`` is bootstrapped into the last reward (``r + γ V(o_T)``, and
+  ``c + γ V_c(o_T)``), as SB3 does with ``TimeLimit.truncated``; a terminated episode (a
+  violation) is not bootstrapped. Torch runs ``torch_threads`` threads (default 1: on this
+  project's shared 2-core machines a second thread made the 64-wide layers slower).
+* **PPO-Lagrangian** (``algo="ppo_lagrangian"``): the constrained problem ``max J_r`` s.t.
+  ``J_c <= b`` of :mod:`training.lagrangian`, in its two-critic form: a **cost critic**
+  ``V_c`` (a second head on the value trunk) learns the discounted per-step cost ``c_t``, the
+  followers' violation cost ``info["cost"]`` of the adapters (1 at a step with a violation of
+  any cause: :data:`platoon_env.violations.VIOLATION_INFO`); cost advantages ``A_c`` come from
+  GAE on it, and the policy maximises the surrogate of ``(A_r - λ A_c) / (1 + λ)`` (``A_r``
+  standardised per minibatch, ``A_c`` centred, as OmniSafe's PPOLag does). The multiplier is
+  updated by **gradient (dual) ascent**, the rule of
+  :class:`training.lagrangian.LagrangeMultiplier`: after each rollout,
+  ``λ ← clip(λ + η (Ĵ_c - b), 0, λ_max)`` with ``Ĵ_c`` the mean cost of the follower episodes
+  that ended in it (the probability that a follower's episode has a violation, with the default
+  ``terminate_on``), before the update on that rollout. With ``λ`` unbounded by the reward
+  scale (``λ_max = 100``), the objective tends to ``-A_c`` as ``λ`` grows, so a run whose budget
+  is feasible can meet it.
+* **The model it saves is an ordinary SB3 model**: the network has exactly the layers and
+  parameter names of SB3's ``MlpPolicy`` (``net_arch`` for both trunks, Tanh, a state-independent
+  ``log_std``), so ``model.zip`` is a ``PPO`` whose policy weights are copied from it
+  (:func:`sb3_model`; the cost head is not part of the policy and is kept in the learner state
+  only). :meth:`training.policies.LearnedPolicy.load` loads it like any ``platoon-train`` model,
+  and acts as this learner's deterministic mode does (the mean, clipped to ``[-1, 1]^2``, then
+  :class:`~training.vec_env.ActionRange`): the same layers on the same inputs.
+* **The observation and action conventions are the SB3 adapters'**: observations divided by
+  :func:`training.vec_env.observation_scale` of the follower's Box; a Gaussian in
+  ``[-1, 1]^2`` sampled unclipped (its log-probability is that of the unclipped sample), clipped
+  to ``[-1, 1]`` and mapped by :class:`~training.vec_env.ActionRange` to ``[u, omega]``.
+
+Seeds (:mod:`training.seeding`, the rule of every training path): env copy ``b`` of segment
+``s`` is reset with ``env_seeds(seed, n_envs, segment=s)[b]``, a stream of
+``numpy.random.SeedSequence(seed)`` (never ``seed + b``); the network's initialisation, the
+action noise and the minibatch order come from ``process_seed(seed, s)``. A segment is one call
+of :func:`train_fast` for the run (0, then one more per resume), so a resumed run draws new
+episodes rather than replaying the first segment's.
+
+Layouts: a procedural source builds a new layout for every episode (about 10-15 ms each,
+against about 0.1 ms for a reset on a layout already built), and with an untrained policy an
+episode lasts some 17 steps, so generating layouts bounds every training path at first.
+``layout_repeats = R > 1`` lets each copy keep its layout for ``R`` consecutive episodes (new
+start, new leader speed factor), dividing that cost by ``R``; each episode's layout is still a
+uniform draw of the split, consecutive episodes of one copy share it. The default, 1, is the
+env's own rule.
+
+Files in ``out`` (a directory holding one run):
+
+* ``model.zip`` + ``model.json`` — the final model (:mod:`training.policies`' format, an SB3
+  zip, so no ``engine`` entry; ``"trainer": "training.fast_ppo"`` says what trained it,
+  ``config`` is this module's :class:`FastPPOConfig`, each entry of ``segments`` also records
+  its ``env_seed_segment``, the first layouts drawn and a digest of the first starts);
+  ``model.state.pt`` — the learner's state beside it (network with the cost head, optimiser,
+  ``λ``), so that a finished run can be continued to more timesteps;
+* ``checkpoint.zip`` + ``.json`` + ``.state.pt`` — the latest checkpoint (every
+  ``checkpoint_every`` transitions, at the end of a rollout), each file replaced atomically,
+  the JSON last and recording both files' SHA-256;
+* ``progress.csv`` — the learning curve, :data:`training.curves.PROGRESS_COLUMNS`, a row every
+  ``log_every`` follower transitions (team success rate, mean return, mean cost, ``λ``).
+
+Use::
+
+    from training.fast_ppo import FastPPOConfig, train_fast
+    cfg = FastPPOConfig(scenario="procedural_medium_train", task_aware_observations=True,
+                        algo="ppo_lagrangian", cost_budget=0.05, timesteps=20_000_000)
+    run = train_fast(cfg, "runs/fast_lag")                   # runs/fast_lag/model.zip
+    run = train_fast(cfg, "runs/fast_lag", resume=True)      # continue (e.g. more timesteps)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import dataclasses
+import datetime as dt
+import hashlib
+import json
+import math
+import os
+import sys
+import time
+import warnings
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numba
+import numpy as np
+import stable_baselines3
+import torch
+from gymnasium import spaces
+from numpy.typing import NDArray
+from stable_baselines3 import PPO
+from torch import nn
+from tqdm.auto import tqdm
+
+from platoon_env.batched import BatchedPlatoon
+from platoon_env.scenarios.fingerprint import file_sha256
+from platoon_env.scenarios.scenario import Scenario
+from platoon_env.scenarios.source import ScenarioSource, scenario_source
+from platoon_env.violations import VIOLATION_INFO
+from training.config import (
+    BOUNDS,
+    MAX_LAYER,
+    SB3_OPTIONS,
+    Bound,
+    TrainConfig,
+    device_error,
+    env_metadata,
+)
+from training.config import env_overrides as train_env_overrides
+from training.curves import PROGRESS_COLUMNS, PROGRESS_FILE, read_rows
+from training.lagrangian import LagrangeMultiplier
+from training.policies import adapter_metadata, save_model, zip_mismatch
+from training.run import git_commit, library_versions, segment_metadata, timing_metadata
+from training.seeding import env_seeds, process_seed
+from training.vec_env import ActionRange, slot_spaces
+
+__all__ = [
+    "ALGOS",
+    "FILES",
+    "ActorCritic",
+    "FastPPOConfig",
+    "FastRun",
+    "RepeatedLayouts",
+    "make_core",
+    "sb3_model",
+    "train_fast",
+]
+
+#: What :func:`train_fast` trains: PPO, or PPO with a cost critic and a Lagrange multiplier.
+ALGOS = ("ppo", "ppo_lagrangian")
+#: The two saved points of a run: the final model and the latest checkpoint.
+POINTS = ("model", "checkpoint")
+#: The files that mark ``out`` as holding a run.
+FILES = (
+    *(f"{p}{ext}" for p in POINTS for ext in (".zip", ".json", ".state.pt")),
+    PROGRESS_FILE,
+)
+#: The cost of each violation bit mask (``info["cost"]`` of the adapters: 1 for any cause).
+COST_OF_MASK: NDArray[np.float32] = np.array([c for _, _, c in VIOLATION_INFO], dtype=np.float32)
+#: ``log sqrt(2 pi)``, of the Gaussian log-density.
+_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+
+
+# ------------------------------------------------------------------------------------------------
+# Options
+# ------------------------------------------------------------------------------------------------
+#: ``platoon-train``'s defaults: the options both trainers have default to the same values.
+_TRAIN = TrainConfig()
+
+
+@dataclass(frozen=True)
+class FastPPOConfig:
+    """Every option of :func:`train_fast`; invalid values raise ``ValueError`` naming the option.
+
+    The env and action options mean what ``platoon-train``'s options of the same name mean
+    (:class:`training.config.TrainConfig`) and are range-checked by the same bounds.
+
+    Run: ``scenario`` (shipped name, YAML path or mapping), ``algo`` (:data:`ALGOS`),
+    ``timesteps`` (follower transitions in total), ``seed``, ``n_envs`` (env copies ``B``;
+    ``B * N`` slots), ``env_threads`` (numba threads of the core), ``layout_repeats``
+    (episodes a copy keeps a procedural layout for; module doc).
+
+    Env: ``control_period`` [s], ``physics_substeps``, ``max_episode_steps``,
+    ``sensor_profile``, ``task_aware_observations``; ``u_low``/``u_high`` [m/s] and
+    ``omega_high`` [rad/s] (the :class:`~training.vec_env.ActionRange`),
+    ``normalize_observations``.
+
+    PPO: ``learning_rate`` (Adam), ``gamma`` (γ, also of the cost), ``gae_lambda`` (λ_GAE),
+    ``n_steps`` (rollout length per slot), ``n_epochs``, ``batch_size`` (minibatch),
+    ``clip_range`` (ε), ``ent_coef``, ``vf_coef`` (of the value and the cost-value losses),
+    ``max_grad_norm``, ``net_arch`` (hidden layers of both trunks), ``log_std_init`` (the
+    policy's initial ``log σ``).
+
+    PPO-Lagrangian: ``cost_budget`` (``b``, expected cost per follower episode),
+    ``lagrangian_lr`` (``η`` per rollout; a rollout here is tens of thousands of transitions,
+    so larger than ``platoon-train``'s 0.05 per 4096), ``lagrangian_init`` (``λ`` at the
+    start), ``lagrangian_max`` (``λ_max``).
+
+    Bookkeeping: ``log_every`` (transitions between rows of ``progress.csv``),
+    ``checkpoint_every`` (transitions between checkpoints; 0: none), ``torch_threads``,
+    ``device`` (``cpu``, ``cuda``, ``cuda:N``), ``progress_bar`` (tqdm).
+    """
+
+    # --- run ---
+    scenario: str | Mapping[str, Any] = _TRAIN.scenario
+    algo: str = "ppo"
+    timesteps: int = _TRAIN.timesteps
+    seed: int = _TRAIN.seed
+    n_envs: int = 512
+    env_threads: int = 1
+    layout_repeats: int = 1
+    # --- env (platoon-train's defaults) ---
+    control_period: float = _TRAIN.control_period
+    physics_substeps: int | None = _TRAIN.physics_substeps
+    max_episode_steps: int | None = _TRAIN.max_episode_steps
+    sensor_profile: str | None = _TRAIN.sensor_profile
+    task_aware_observations: bool = _TRAIN.task_aware_observations
+    # --- action rescaling / observation normalisation (platoon-train's defaults) ---
+    u_low: float = _TRAIN.u_low
+    u_high: float = _TRAIN.u_high
+    omega_high: float = _TRAIN.omega_high
+    normalize_observations: bool = _TRAIN.normalize_observations
+    # --- PPO (large rollouts and minibatches: fewer epochs, a larger step than SB3's) ---
+    learning_rate: float = 1e-3
+    gamma: float = _TRAIN.gamma
+    gae_lambda: float = _TRAIN.gae_lambda
+    n_steps: int = 64
+    n_epochs: int = 5
+    batch_size: int = 8192
+    clip_range: float = _TRAIN.clip_range
+    ent_coef: float = _TRAIN.ent_coef
+    vf_coef: float = _TRAIN.vf_coef
+    max_grad_norm: float = _TRAIN.max_grad_norm
+    net_arch: tuple[int, ...] = (64, 64)
+    log_std_init: float = 0.0
+    # --- PPO-Lagrangian ---
+    cost_budget: float = _TRAIN.cost_budget
+    lagrangian_lr: float = 0.5
+    lagrangian_init: float = 0.0
+    lagrangian_max: float = 100.0
+    # --- bookkeeping ---
+    log_every: int = 100_000
+    checkpoint_every: int = 1_000_000
+    torch_threads: int = 1
+    device: str = "cpu"
+    progress_bar: bool = True
+
+    def __post_init__(self) -> None:
+        # A list given for net_arch is stored as a tuple (the config is frozen and compared).
+        object.__setattr__(self, "net_arch", tuple(self.net_arch))
+        problems = config_problems(self)
+        if problems:
+            raise ValueError("FastPPOConfig: " + "; ".join(problems))
+
+    @property
+    def action_range(self) -> ActionRange:
+        """The physical range of the policy's normalised action."""
+        return ActionRange(u_low=self.u_low, u_high=self.u_high, omega_high=self.omega_high)
+
+    @property
+    def lagrangian(self) -> bool:
+        """Whether the run has a cost critic and a multiplier."""
+        return self.algo == "ppo_lagrangian"
+
+
+#: The bounds of this learner's own options (the shared ones are :data:`training.config.BOUNDS`).
+FAST_BOUNDS: dict[str, Bound] = {
+    "layout_repeats": Bound(1, 10**6),
+    "log_std_init": Bound(-20, 2),
+    "lagrangian_init": Bound(0),
+    "lagrangian_max": Bound(0, low_open=True),
+    "batch_size": Bound(2, 10**9),  # advantage standardisation needs two samples
+}
+#: The options of :class:`FastPPOConfig` checked against :data:`training.config.BOUNDS`.
+SHARED_BOUNDS = (
+    "timesteps",
+    "seed",
+    "n_envs",
+    "env_threads",
+    "control_period",
+    "physics_substeps",
+    "max_episode_steps",
+    "u_low",
+    "u_high",
+    "omega_high",
+    "learning_rate",
+    "gamma",
+    "gae_lambda",
+    "n_steps",
+    "n_epochs",
+    "clip_range",
+    "ent_coef",
+    "vf_coef",
+    "max_grad_norm",
+    "cost_budget",
+    "lagrangian_lr",
+    "log_every",
+    "checkpoint_every",
+    "torch_threads",
+)
+#: Options that may change when a run is resumed (they do not change what is learned).
+RESUMABLE_CHANGES = (
+    "timesteps",
+    "env_threads",
+    "log_every",
+    "checkpoint_every",
+    "torch_threads",
+    "device",
+    "progress_bar",
+)
+
+
+def config_problems(cfg: FastPPOConfig) -> list[str]:
+    """Every problem of ``cfg`` that needs no scenario, each naming its option."""
+    problems: list[str] = []
+    bounds = {**{name: BOUNDS[name] for name in SHARED_BOUNDS}, **FAST_BOUNDS}
+    for name, bound in bounds.items():
+        value = getattr(cfg, name)
+        if value is None and name in ("physics_substeps", "max_episode_steps"):
+            continue
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            problems.append(f"{name} must be a number, got {value!r}")
+        elif not math.isfinite(value):
+            problems.append(f"{name} must be finite, got {value!r}")
+        elif value not in bound:
+            problems.append(f"{name} must be {bound}, got {value!r}")
+    for name in ("task_aware_observations", "normalize_observations", "progress_bar"):
+        if not isinstance(getattr(cfg, name), bool):
+            problems.append(f"{name} must be True or False, got {getattr(cfg, name)!r}")
+    if cfg.algo not in ALGOS:
+        problems.append(f"algo must be one of {ALGOS}, got {cfg.algo!r}")
+    if not problems and not cfg.u_low < cfg.u_high:
+        problems.append(f"u_high must be > u_low = {cfg.u_low:g}, got {cfg.u_high:g}")
+    if not problems and cfg.lagrangian_init > cfg.lagrangian_max:
+        problems.append(
+            f"lagrangian_init must be <= lagrangian_max = {cfg.lagrangian_max:g}, got "
+            f"{cfg.lagrangian_init:g}"
+        )
+    threads = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+    if isinstance(cfg.env_threads, int) and cfg.env_threads > threads:
+        problems.append(f"env_threads must be at most numba's {threads} threads")
+    if not cfg.net_arch or not all(
+        isinstance(h, int) and 1 <= h <= MAX_LAYER for h in cfg.net_arch
+    ):
+        problems.append(f"net_arch must be layer sizes in [1, {MAX_LAYER}], got {cfg.net_arch}")
+    if isinstance(cfg.scenario, str) and not cfg.scenario.strip():
+        problems.append("scenario must name a scenario or a YAML file")
+    reason = device_error(cfg.device) if isinstance(cfg.device, str) else "not a string"
+    if reason is not None or cfg.device == "auto":
+        problems.append(f"device: {reason or 'name one (cpu, cuda, cuda:N)'}")
+    return problems
+
+
+def _train_view(cfg: FastPPOConfig) -> TrainConfig:
+    """``cfg``'s env options as ``platoon-train`` options, for the env rules shared with it
+    (:func:`training.config.env_overrides`, :func:`training.config.env_metadata`)."""
+    return TrainConfig(
+        scenario=cfg.scenario,  # type: ignore[arg-type]  # a mapping is a scenario too
+        seed=cfg.seed,
+        n_envs=cfg.n_envs,
+        control_period=cfg.control_period,
+        physics_substeps=cfg.physics_substeps,
+        max_episode_steps=cfg.max_episode_steps,
+        sensor_profile=cfg.sensor_profile,
+        task_aware_observations=cfg.task_aware_observations,
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# Envs
+# ------------------------------------------------------------------------------------------------
+class RepeatedLayouts:
+    """A procedural source whose every env copy keeps a layout for ``repeats`` episodes.
+
+    The core asks its source for each episode's scenario with the copy's own generator
+    (:meth:`platoon_env.core.PlatoonCore.reset_env`), so the generator tells the copies apart: a
+    copy's ``k``-th call returns the layout of its call ``repeats * (k // repeats)``, which was
+    built by the wrapped source from the same stream. A reseeded copy (a new generator) starts a
+    new layout. The wrapper keeps a reference to each generator it has seen, so their ids are
+    not reused while it lives.
+    """
+
+    def __init__(self, source: ScenarioSource, repeats: int) -> None:
+        if repeats < 1:
+            raise ValueError(f"repeats must be >= 1, got {repeats}")
+        self.inner = source
+        self.repeats = int(repeats)
+        self._held: dict[int, tuple[np.random.Generator, Scenario, int]] = {}
+
+    @property
+    def config(self) -> Any:
+        """The wrapped source's template."""
+        return self.inner.config
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """The wrapped source's bounds."""
+        return self.inner.bounds
+
+    @property
+    def procedural(self) -> bool:
+        """The wrapped source's (True for a procedural family)."""
+        return self.inner.procedural
+
+    def initial(self) -> Scenario:
+        """The wrapped source's representative scenario."""
+        return self.inner.initial()
+
+    def sample(self, rng: np.random.Generator) -> Scenario:
+        """The copy's current layout, or (every ``repeats`` episodes) a new one from ``rng``."""
+        held = self._held.get(id(rng))
+        if held is not None and held[0] is rng and held[2] < self.repeats:
+            self._held[id(rng)] = (rng, held[1], held[2] + 1)
+            return held[1]
+        scenario = self.inner.sample(rng)
+        self._held[id(rng)] = (rng, scenario, 1)
+        return scenario
+
+
+def make_core(cfg: FastPPOConfig, segment: int = 0) -> tuple[BatchedPlatoon, NDArray[np.float32]]:
+    """The ``n_envs`` auto-resetting copies of ``cfg``'s scenario, reset with segment
+    ``segment``'s seeds (:func:`training.seeding.env_seeds`), and their first observations
+    ``(B, N, K)``."""
+    source = scenario_source(
+        cfg.scenario, train_env_overrides(_train_view(cfg)), where="FastPPOConfig.scenario"
+    )
+    if source.procedural and cfg.layout_repeats > 1:
+        source = RepeatedLayouts(source, cfg.layout_repeats)
+    core = BatchedPlatoon(source, cfg.n_envs, n_threads=cfg.env_threads, auto_reset=True)
+    obs = core.reset(env_seeds(cfg.seed, cfg.n_envs, segment=segment))
+    return core, obs
+
+
+@dataclass
+class SlotSpec:
+    """What a follower slot of the core is to the policy: the spaces SB3 records in the model
+    and the fixed normalisation and action range (what :func:`adapter_metadata` reads)."""
+
+    obs_scale: NDArray[np.float32] | None
+    action_range: ActionRange | None
+    observation_space: spaces.Box
+    action_space: spaces.Box
+
+    @classmethod
+    def of(cls, cfg: FastPPOConfig, core: BatchedPlatoon) -> SlotSpec:
+        """The adapters' rule (:func:`training.vec_env.slot_spaces`) for ``core``'s slots;
+        ``ValueError`` for an action range beyond the scenario's actuator limits."""
+        scale, obs_space, act_space = slot_spaces(
+            core.single_observation_space,
+            {"the scenario": core.single_action_space},
+            normalize_observations=cfg.normalize_observations,
+            action_range=cfg.action_range,
+        )
+        return cls(scale, cfg.action_range, obs_space, act_space)
+
+
+# ------------------------------------------------------------------------------------------------
+# Network
+# ------------------------------------------------------------------------------------------------
+def _trunk(n_in: int, hidden: tuple[int, ...]) -> nn.Sequential:
+    """``Linear, Tanh, Linear, Tanh, ...``: SB3's ``MlpExtractor`` branch."""
+    layers: list[nn.Module] = []
+    for h in hidden:
+        layers += [nn.Linear(n_in, h), nn.Tanh()]
+        n_in = h
+    return nn.Sequential(*layers)
+
+
+class _Extractor(nn.Module):
+    """The two trunks under SB3's names (``mlp_extractor.policy_net`` / ``.value_net``)."""
+
+    def __init__(self, n_in: int, hidden: tuple[int, ...]) -> None:
+        super().__init__()
+        self.policy_net = _trunk(n_in, hidden)
+        self.value_net = _trunk(n_in, hidden)
+
+
+class ActorCritic(nn.Module):
+    """SB3's ``MlpPolicy`` for a Box action (separate actor and critic trunks of ``hidden``
+    layers with Tanh, a linear mean, a state-independent ``log_std``, a linear value), with the
+    same parameter names, plus (``cost_head``) a cost value ``V_c`` on the value trunk.
+
+    Initialised as SB3 initialises it (orthogonal: gain ``sqrt 2`` in the trunks, 0.01 for the
+    mean, 1 for the values; zero biases).
+    """
+
+    def __init__(
+        self, n_obs: int, hidden: tuple[int, ...], log_std_init: float, cost_head: bool
+    ) -> None:
+        super().__init__()
+        self.mlp_extractor = _Extractor(n_obs, hidden)
+        self.action_net = nn.Linear(hidden[-1], 2)
+        self.value_net = nn.Linear(hidden[-1], 1)
+        self.log_std = nn.Parameter(torch.full((2,), float(log_std_init)))
+        self.cost_value_net = nn.Linear(hidden[-1], 1) if cost_head else None
+        gains: list[tuple[nn.Module, float]] = [
+            (self.mlp_extractor, math.sqrt(2.0)),
+            (self.action_net, 0.01),
+            (self.value_net, 1.0),
+        ]
+        if self.cost_value_net is not None:
+            gains.append((self.cost_value_net, 1.0))
+        for module, gain in gains:
+            for layer in module.modules():
+                if isinstance(layer, nn.Linear):
+                    nn.init.orthogonal_(layer.weight, gain=gain)
+                    nn.init.zeros_(layer.bias)
+
+    def actor(self, obs: torch.Tensor) -> torch.Tensor:
+        """The action mean ``(M, 2)`` of normalised observations ``(M, K)``."""
+        return self.action_net(self.mlp_extractor.policy_net(obs))
+
+    def critics(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``(V (M,), V_c (M,) or None)`` of normalised observations ``(M, K)``."""
+        latent = self.mlp_extractor.value_net(obs)
+        value = self.value_net(latent).squeeze(-1)
+        cost = None if self.cost_value_net is None else self.cost_value_net(latent).squeeze(-1)
+        return value, cost
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """``(mean (M, 2), V (M,), V_c (M,) or None)`` of normalised observations ``(M, K)``."""
+        return (self.actor(obs), *self.critics(obs))
+
+    def sb3_state_dict(self) -> dict[str, torch.Tensor]:
+        """The parameters SB3's ``ActorCriticPolicy`` has (everything but the cost head)."""
+        return {k: v for k, v in self.state_dict().items() if not k.startswith("cost_value_net.")}
+
+
+def gaussian_log_prob(x: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
+    """``log π(x)`` of the diagonal Gaussian, summed over the action dimensions."""
+    z = (x - mean) * torch.exp(-log_std)
+    return (-0.5 * z * z - log_std - _LOG_SQRT_2PI).sum(-1)
+
+
+class _SlotEnv(gym.Env[np.ndarray, np.ndarray]):
+    """An env that only has a slot's spaces: what SB3 needs to build the ``PPO`` object the
+    learned weights are saved in. It is never stepped."""
+
+    def __init__(self, spec: SlotSpec) -> None:
+        self.observation_space = spec.observation_space
+        self.action_space = spec.action_space
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        raise RuntimeError("the fast learner's save object is not an env to step")
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        raise RuntimeError("the fast learner's save object is not an env to step")
+
+
+def sb3_model(cfg: FastPPOConfig, spec: SlotSpec, rollout: int) -> PPO:
+    """The SB3 ``PPO`` (``MlpPolicy`` with ``cfg.net_arch`` for both trunks) that the learned
+    weights are copied into and saved as, on the CPU. Its hyper-parameters are ``cfg``'s, its
+    ``n_steps`` the whole ``rollout`` (one vector env of one slot in SB3's terms)."""
+    arch = list(cfg.net_arch)
+    with warnings.catch_warnings():
+        # SB3 warns when its rollout is not a multiple of the minibatch: it never trains here.
+        warnings.simplefilter("ignore", UserWarning)
+        options = {name: getattr(cfg, name) for name in SB3_OPTIONS["ppo"]}
+        return PPO(
+            "MlpPolicy",
+            _SlotEnv(spec),
+            **{**options, "n_steps": rollout},
+            policy_kwargs={
+                "net_arch": {"pi": arch, "vf": arch},
+                "log_std_init": cfg.log_std_init,
+            },
+            device="cpu",
+        )
+
+
+# ------------------------------------------------------------------------------------------------
+# Run directory: saved points, resume, progress
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FastRun:
+    """What :func:`train_fast` returns: the model's path, the transitions trained in total,
+    whether Ctrl-C stopped it, and the multiplier (``ppo_lagrangian``; else None)."""
+
+    path: Path
+    timesteps: int
+    interrupted: bool = False
+    lagrange_multiplier: float | None = None
+
+
+@dataclass(frozen=True)
+class _Stored:
+    """A saved point (model or checkpoint) whose three files belong together."""
+
+    name: str
+    meta: dict[str, Any]
+    state: dict[str, Any]
+
+    @property
+    def timesteps(self) -> int:
+        return int(self.meta["timesteps"])
+
+
+def _atomic_torch_save(obj: Any, path: Path) -> str:
+    """``torch.save`` to a temporary file beside ``path``, renamed into place; its SHA-256."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        torch.save(obj, tmp)
+        digest = file_sha256(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return digest
+
+
+def _read_point(out: Path, name: str) -> _Stored | None:
+    """The saved point ``name`` of ``out`` if its JSON, zip and learner state match (else
+    None: missing, or a save cut off between its files)."""
+    meta_file, zip_file, state_file = (out / f"{name}{e}" for e in (".json", ".zip", ".state.pt"))
+    if not (meta_file.is_file() and zip_file.is_file() and state_file.is_file()):
+        return None
+    meta = json.loads(meta_file.read_text())
+    if zip_mismatch(zip_file, meta) is not None:
+        return None
+    if file_sha256(state_file) != meta.get("learner_state_sha256"):
+        return None
+    state = torch.load(state_file, map_location="cpu", weights_only=True)
+    return _Stored(name, meta, state)
+
+
+def _resume_point(cfg: FastPPOConfig, out: Path) -> _Stored:
+    """The newer of ``out``'s model and checkpoint to continue ``cfg`` from (a tie: the model);
+    ``ValueError`` when there is none, or when the run was made with other options."""
+    points = [p for p in (_read_point(out, n) for n in POINTS) if p is not None]
+    if not points:
+        raise ValueError(f"resume: nothing to resume in {out} (no complete model or checkpoint)")
+    best = max(points, key=lambda p: (p.timesteps, p.name == "model"))
+    stored = best.meta.get("config", {})
+    given = json_config(cfg)
+    diffs = [
+        f"{k}: stored {stored.get(k)!r}, given {v!r}"
+        for k, v in given.items()
+        if k not in RESUMABLE_CHANGES and stored.get(k) != v
+    ]
+    if diffs:
+        raise ValueError(
+            f"resume: the options differ from the run in {out} on what defines it: "
+            + "; ".join(diffs)
+        )
+    return best
+
+
+def json_config(cfg: FastPPOConfig) -> dict[str, Any]:
+    """``cfg`` as ``model.json`` records it (tuples as lists)."""
+    out = dataclasses.asdict(cfg)
+    out["net_arch"] = list(cfg.net_arch)
+    return out
+
+
+class _Progress:
+    """The rows of ``progress.csv`` (:mod:`training.curves`): about the follower episodes (and
+    the team episodes: all followers of a copy) that ended since the last row."""
+
+    def __init__(self, path: Path, every: int, start: int, keep: bool) -> None:
+        self.path, self.every, self.last = path, every, start
+        kept = []
+        if keep and path.exists():
+            kept = [r for r in read_rows(path) if int(r["timesteps"]) <= start]
+        with path.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=PROGRESS_COLUMNS)
+            writer.writeheader()
+            writer.writerows(kept)
+        self.t0 = time.perf_counter()
+        self.returns: list[NDArray[np.float64]] = []
+        self.costs: list[NDArray[np.float64]] = []
+        self.teams: list[NDArray[np.bool_]] = []
+
+    def add(self, returns: NDArray[Any], costs: NDArray[Any], teams: NDArray[np.bool_]) -> None:
+        """Ended follower episodes' returns and costs; ended team episodes' successes."""
+        self.returns.append(returns)
+        self.costs.append(costs)
+        self.teams.append(teams)
+
+    def maybe_write(self, timesteps: int, lam: float | None, force: bool = False) -> None:
+        """Write a row if ``every`` transitions passed since the last (or ``force``, if any)."""
+        if timesteps - self.last < self.every and not (force and timesteps > self.last):
+            return
+        self.last = timesteps
+        r, c, s = (
+            np.concatenate(x) if x else np.zeros(0) for x in (self.returns, self.costs, self.teams)
+        )
+        row = {
+            "timesteps": timesteps,
+            "wall_time_s": f"{time.perf_counter() - self.t0:.1f}",
+            "episodes": len(c),
+            "return_mean": f"{r.mean():.6g}" if len(r) else "",
+            "success_rate": f"{s.mean():.6g}" if len(s) else "",
+            "cost_mean": f"{c.mean():.6g}" if len(c) else "",
+            "lambda": "" if lam is None else f"{lam:.6g}",
+        }
+        with self.path.open("a", newline="") as f:
+            csv.DictWriter(f, fieldnames=PROGRESS_COLUMNS).writerow(row)
+        self.returns, self.costs, self.teams = [], [], []
+
+
+@contextlib.contextmanager
+def _torch_threads(n: int) -> Iterator[None]:
+    """``torch.set_num_threads(n)`` for the duration (restored afterwards)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+# ------------------------------------------------------------------------------------------------
+# The learner
+# ------------------------------------------------------------------------------------------------
+def train_fast(
+    config: FastPPOConfig, out: str | os.PathLike[str], *, resume: bool = False
+) -> FastRun:
+    """Train ``config`` into the directory ``out``; returns the model's path and counts.
+
+    A new run needs an ``out`` that holds no run (:data:`FILES`); ``resume=True`` continues
+    the run in ``out`` from the newer of its model and checkpoint (``ValueError`` if there is
+    none, or if an option that defines the run differs: all but :data:`RESUMABLE_CHANGES`),
+    as segment ``len(segments)`` with that segment's env streams; a run that already has
+    ``timesteps`` is returned unchanged. See the module doc for the algorithm and the files.
+    """
+    cfg = config
+    out = Path(out)
+    stored: _Stored | None = None
+    if resume:
+        stored = _resume_point(cfg, out)
+        if stored.name == "model" and stored.timesteps >= cfg.timesteps:
+            print(f"{out}: the model already has {stored.timesteps} timesteps", file=sys.stderr)
+            return FastRun(out / "model.zip", stored.timesteps, False, stored.state.get("lambda"))
+    else:
+        present = [name for name in FILES if (out / name).exists()]
+        if present:
+            raise ValueError(
+                f"out: {out} already holds a run ({', '.join(present)}); pass resume=True to "
+                "continue it, or choose another directory"
+            )
+    previous: list[dict[str, Any]] = list(stored.meta.get("segments", [])) if stored else []
+    segment = len(previous)
+    with _torch_threads(cfg.torch_threads):
+        return _learn(cfg, out, stored, previous, segment)
+
+
+def _learn(
+    cfg: FastPPOConfig,
+    out: Path,
+    stored: _Stored | None,
+    previous: list[dict[str, Any]],
+    segment: int,
+) -> FastRun:
+    """The learner, top to bottom: set up, then collect / advantages / multiplier / update."""
+    device = torch.device(cfg.device)
+    seed = process_seed(cfg.seed, segment)
+    torch.manual_seed(seed)
+    gen = torch.Generator(device=device)
+    gen.manual_seed(seed)
+
+    # --- envs: B copies, N follower slots each, one compiled step for all -------------------
+    core, first_obs = make_core(cfg, segment)
+    spec = SlotSpec.of(cfg, core)
+    B, N = core.batch_size, core.n_followers
+    S, T = B * N, cfg.n_steps
+    # The live follower slots of each copy: all of them while every copy has the template's N
+    # followers; samples, counts and team outcomes read only live slots.
+    live = np.ones((B, N), dtype=bool)
+    live_flat = torch.as_tensor(live.reshape(-1), device=device)
+    n_live = int(live.sum())
+    if cfg.batch_size > T * n_live:
+        raise ValueError(
+            f"batch_size: {cfg.batch_size} exceeds the rollout n_steps * n_envs * followers = "
+            f"{T} * {B} * {N} = {T * n_live}"
+        )
+    scale = torch.as_tensor(
+        spec.obs_scale
+        if spec.obs_scale is not None
+        else np.ones(core.single_observation_space.shape, np.float32),
+        device=device,
+    )
+    action_range = cfg.action_range
+    lagrangian = cfg.lagrangian
+
+    # --- network, optimiser, multiplier (restored when resuming) -----------------------------
+    K = int(core.single_observation_space.shape[0])
+    net = ActorCritic(K, cfg.net_arch, cfg.log_std_init, cost_head=lagrangian).to(device)
+    optimizer = torch.optim.Adam(net.parameters(), lr=cfg.learning_rate, eps=1e-5)
+    multiplier = (
+        LagrangeMultiplier(
+            budget=cfg.cost_budget,
+            lr=cfg.lagrangian_lr,
+            initial=cfg.lagrangian_init,
+            max_value=cfg.lagrangian_max,
+        )
+        if lagrangian
+        else None
+    )
+    timesteps = 0
+    if stored is not None:
+        net.load_state_dict(stored.state["network"])
+        optimizer.load_state_dict(stored.state["optimizer"])
+        if multiplier is not None:
+            multiplier.value = float(stored.state["lambda"])
+        timesteps = int(stored.state["timesteps"])
+    saver = sb3_model(cfg, spec, T * n_live)
+    out.mkdir(parents=True, exist_ok=True)
+    progress = _Progress(out / PROGRESS_FILE, cfg.log_every, timesteps, keep=stored is not None)
+
+    # --- what model.json records --------------------------------------------------------------
+    commit = git_commit()
+    started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+    clock = time.perf_counter()
+    start_timesteps = timesteps
+    first_episodes = {
+        "env_seed_segment": segment,
+        "first_layouts": [sc.layout_index for sc in core.scenarios]
+        if core.source.procedural
+        else None,
+        "start_poses_sha256": _digest(core.poses),
+    }
+    env_meta = env_metadata(_train_view(cfg), core)
+
+    def save(name: str, interrupted: bool = False) -> Path:
+        state = {
+            "network": {k: v.detach().cpu() for k, v in net.state_dict().items()},
+            "optimizer": optimizer.state_dict(),
+            "lambda": None if multiplier is None else multiplier.value,
+            "timesteps": timesteps,
+        }
+        state_file = out / f"{name}.state.pt"
+        digest = _atomic_torch_save(state, state_file)
+        saver.policy.load_state_dict({k: v.detach().cpu() for k, v in net.sb3_state_dict().items()})
+        saver.num_timesteps = timesteps
+        this = segment_metadata(
+            started_at=started,
+            wall_time_s=time.perf_counter() - clock,
+            timesteps_start=start_timesteps,
+            timesteps_end=timesteps,
+            resumed_from=None if stored is None else f"{stored.name}.zip",
+            commit=commit,
+        )
+        this.update(first_episodes)
+        meta: dict[str, Any] = {
+            "algo": cfg.algo,
+            "trainer": "training.fast_ppo",
+            **env_meta,
+            **adapter_metadata(spec),
+            "timesteps": timesteps,
+            "timesteps_requested": cfg.timesteps,
+            **({"lagrange_multiplier": multiplier.value} if multiplier is not None else {}),
+            **commit,
+            **timing_metadata([*previous, this], timesteps),
+            "learner_state": state_file.name,
+            "learner_state_sha256": digest,
+            "config": json_config(cfg),
+            "versions": library_versions(stable_baselines3, torch),
+        }
+        if name == "model":
+            meta["interrupted"] = interrupted
+        return save_model(saver, out / f"{name}.zip", meta)
+
+    # --- rollout storage (device tensors, time-major: [t, slot]) ------------------------------
+    def zeros(*shape: int) -> torch.Tensor:
+        return torch.zeros((T, *shape), dtype=torch.float32, device=device)
+
+    obs_buf, act_buf, rew_buf, done_buf = zeros(S, K), zeros(S, 2), zeros(S), zeros(S)
+    cost_buf = zeros(S) if lagrangian else None
+    live_slots = live.reshape(-1)
+    episode_return = np.zeros(S)
+    episode_cost = np.zeros(S)
+    next_obs = torch.as_tensor(first_obs, device=device).reshape(S, K) / scale
+
+    def lam_now() -> float | None:
+        return None if multiplier is None else multiplier.value
+
+    bar = None
+    if cfg.progress_bar:
+        bar = tqdm(total=cfg.timesteps, initial=timesteps, unit="step", dynamic_ncols=True)
+    last_checkpoint = timesteps
+    interrupted = False
+    try:
+        while timesteps < cfg.timesteps:
+            # ===== collect T steps of every slot: one forward of the actor, one env call ======
+            # Only the actor runs per step; the values and log-probabilities of the behaviour
+            # policy (unchanged during the rollout) are computed after it in one large batch.
+            rollout_costs: list[NDArray[np.float64]] = []
+            finals: list[tuple[int, NDArray[np.int64], NDArray[np.float32]]] = []
+            net.eval()
+            with torch.no_grad():
+                std = torch.exp(net.log_std)
+                for t in range(T):
+                    mean = net.actor(next_obs)
+                    action = mean + std * torch.randn(mean.shape, generator=gen, device=device)
+                    obs_buf[t] = next_obs
+                    act_buf[t] = action
+                    # SB3 clips the sample to the action Box before the adapter maps it.
+                    physical = action_range.to_physical(action.clamp(-1.0, 1.0).cpu().numpy())
+                    obs, reward, terminated, truncated, info = core.step(physical.reshape(B, N, 2))
+                    reward = reward.reshape(S)
+                    cost = COST_OF_MASK[info["violations"]].reshape(S)
+                    episode_return += reward
+                    episode_cost += cost
+                    ended = terminated | truncated
+                    slot_ended = np.repeat(ended, N)
+                    if ended.any():
+                        # A time limit is bootstrapped (r + γ V(o_T)): keep its final obs.
+                        limit = np.repeat(truncated & ~terminated, N)
+                        if limit.any():
+                            final = info["final_observation"].reshape(S, K)[limit]
+                            finals.append((t, np.flatnonzero(limit), final))
+                        done = slot_ended & live_slots
+                        costs = episode_cost[done].copy()
+                        team = (episode_cost.reshape(B, N) == 0) | ~live
+                        progress.add(episode_return[done].copy(), costs, team.all(1)[ended])
+                        rollout_costs.append(costs)
+                        episode_return[slot_ended] = 0.0
+                        episode_cost[slot_ended] = 0.0
+                    rew_buf[t] = torch.as_tensor(reward, device=device)
+                    done_buf[t] = torch.as_tensor(slot_ended, device=device)
+                    if cost_buf is not None:
+                        cost_buf[t] = torch.as_tensor(cost, device=device)
+                    next_obs = torch.as_tensor(obs, device=device).reshape(S, K) / scale
+                    timesteps += n_live
+                    progress.maybe_write(timesteps, lam_now())
+                    if bar is not None:
+                        bar.update(n_live)
+
+                # ===== the behaviour policy's log π and values, the time-limit bootstraps =====
+                mean = net.actor(obs_buf.reshape(T * S, K))
+                logp_buf = gaussian_log_prob(act_buf.reshape(T * S, 2), mean, net.log_std)
+                logp_buf = logp_buf.reshape(T, S)
+                values, cvalues = net.critics(obs_buf.reshape(T * S, K))
+                val_buf = values.reshape(T, S)
+                cval_buf = None if cvalues is None else cvalues.reshape(T, S)
+                next_value, next_cvalue = net.critics(next_obs)
+                if finals:
+                    final_obs = torch.as_tensor(
+                        np.concatenate([f for _, _, f in finals]), device=device
+                    )
+                    v_final, c_final = net.critics(final_obs / scale)
+                    at = 0
+                    for t, index, _ in finals:
+                        rows = slice(at, at + len(index))
+                        where = torch.as_tensor(index, device=device)
+                        rew_buf[t, where] += cfg.gamma * v_final[rows]
+                        if cost_buf is not None and c_final is not None:
+                            cost_buf[t, where] += cfg.gamma * c_final[rows]
+                        at += len(index)
+
+                # ===== advantages: GAE(γ, λ_GAE) of the reward (and of the cost) ==============
+                advantages, returns = _gae(rew_buf, val_buf, done_buf, next_value, cfg)
+                cost_adv = cost_returns = None
+                if cost_buf is not None and cval_buf is not None and next_cvalue is not None:
+                    cost_adv, cost_returns = _gae(cost_buf, cval_buf, done_buf, next_cvalue, cfg)
+
+            # ===== the multiplier: dual ascent on the rollout's episode costs, before the update
+            lam = 0.0
+            if multiplier is not None:
+                costs_all = np.concatenate(rollout_costs) if rollout_costs else np.zeros(0)
+                lam = multiplier.update(costs_all)
+
+            # ===== PPO update: n_epochs over minibatches of the live samples ==================
+            def flat(x: torch.Tensor) -> torch.Tensor:
+                x = x if n_live == S else x[:, live_flat]
+                return x.reshape(-1, *x.shape[2:])
+
+            b_obs, b_act, b_logp = flat(obs_buf), flat(act_buf), flat(logp_buf)
+            b_adv, b_ret = flat(advantages), flat(returns)
+            b_cadv = b_cret = None
+            if cost_adv is not None and cost_returns is not None:
+                b_cadv, b_cret = flat(cost_adv), flat(cost_returns)
+            n = b_obs.shape[0]
+            net.train()
+            for _epoch in range(cfg.n_epochs):
+                order = torch.randperm(n, generator=gen, device=device)
+                for start in range(0, n, cfg.batch_size):
+                    idx = order[start : start + cfg.batch_size]
+                    if len(idx) < 2:
+                        continue  # no standardised advantage of one sample
+                    mean, value, cvalue = net(b_obs[idx])
+                    logp = gaussian_log_prob(b_act[idx], mean, net.log_std)
+                    ratio = torch.exp(logp - b_logp[idx])
+                    adv = b_adv[idx]
+                    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+                    if b_cadv is not None:
+                        cadv = b_cadv[idx]
+                        adv = (adv - lam * (cadv - cadv.mean())) / (1.0 + lam)
+                    clipped = torch.clamp(ratio, 1.0 - cfg.clip_range, 1.0 + cfg.clip_range)
+                    policy_loss = -torch.min(adv * ratio, adv * clipped).mean()
+                    value_loss = ((value - b_ret[idx]) ** 2).mean()
+                    if cvalue is not None and b_cret is not None:
+                        value_loss = value_loss + ((cvalue - b_cret[idx]) ** 2).mean()
+                    entropy = (0.5 + _LOG_SQRT_2PI + net.log_std).sum()
+                    loss = policy_loss - cfg.ent_coef * entropy + cfg.vf_coef * value_loss
+                    optimizer.zero_grad(set_to_none=True)
+                    loss.backward()
+                    nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
+                    optimizer.step()
+
+            if cfg.checkpoint_every > 0 and timesteps - last_checkpoint >= cfg.checkpoint_every:
+                last_checkpoint = timesteps
+                save("checkpoint")
+    except KeyboardInterrupt:
+        interrupted = True
+        print(
+            f"\ninterrupted after {timesteps} timesteps; saving the model so far", file=sys.stderr
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    progress.maybe_write(timesteps, lam_now(), force=True)
+    path = save("model", interrupted)
+    return FastRun(path, timesteps, interrupted, lam_now())
+
+
+def _digest(array: NDArray[Any]) -> str:
+    """The SHA-256 of an array's bytes."""
+    return hashlib.sha256(np.ascontiguousarray(array).tobytes()).hexdigest()
+
+
+def _gae(
+    rewards: torch.Tensor,
+    values: torch.Tensor,
+    dones: torch.Tensor,
+    next_value: torch.Tensor,
+    cfg: FastPPOConfig,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """GAE advantages and returns ``(T, S)``: ``δ_t = r_t + γ V_{t+1} (1 - d_t) - V_t``,
+    ``A_t = δ_t + γ λ_GAE (1 - d_t) A_{t+1}``, ``d_t`` the end of an episode at step ``t``."""
+    advantages = torch.zeros_like(rewards)
+    last = torch.zeros_like(next_value)
+    for t in reversed(range(rewards.shape[0])):
+        following = next_value if t == rewards.shape[0] - 1 else values[t + 1]
+        alive = 1.0 - dones[t]
+        delta = rewards[t] + cfg.gamma * following * alive - values[t]
+        last = delta + cfg.gamma * cfg.gae_lambda * alive * last
+        advantages[t] = last
+    return advantages, advantages + values
