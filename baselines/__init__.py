@@ -6,6 +6,7 @@ from baselines.filtered_ppc import FilteredPPCPolicy, FilterParams
 from baselines.last_seen import LastSeenFOVPolicy, LastSeenParams, LastSeenPolicy
 from baselines.policy import Policy
 from baselines.ppc import PPCParams, PPCPolicy
+from baselines.ppc_tuned import TunedPPCPolicy
 
 __all__ = [
     "FilterParams",
@@ -16,4 +17,5 @@ __all__ = [
     "PPCParams",
     "PPCPolicy",
     "Policy",
+    "TunedPPCPolicy",
 ]

@@ -105,6 +105,14 @@ REGISTRY: dict[str, PolicyKind] = {
         label="last-seen + FOV slow-down",
         studies=frozenset({"comparison"}),
     ),
+    "ppc_tuned": PolicyKind(
+        "baselines.ppc_tuned:TunedPPCPolicy",
+        "the paper's PPC law with its gains tuned per formation under the aruco profile "
+        "(Remark 3; baselines/data/ppc_tuned.yaml)",
+        signals=True,
+        label="tuned PPC",
+        studies=frozenset({"frontiers", "leaderboard"}),
+    ),
 }
 
 
