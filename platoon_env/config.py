@@ -296,9 +296,12 @@ class ObservationConfig:
 GENERATOR_KINDS: tuple[str, ...] = ("corridor", "rooms", "mixed")
 #: Disjoint families of procedural workspaces: train on one, evaluate on the other.
 GENERATOR_SPLITS: tuple[str, ...] = ("train", "test")
-#: Difficulty tiers of procedural workspaces, easiest first (the parameters of each are
-#: :data:`platoon_env.scenarios.procedural.TIERS`).
-GENERATOR_TIERS: tuple[str, ...] = ("easy", "medium", "hard")
+#: Difficulty tiers of procedural workspaces: easy to hard (the parameters of each are
+#: :data:`platoon_env.scenarios.procedural.TIERS`), then the two with the paper studies'
+#: geometry, sharp corners in narrow passages and doors followed by a turn
+#: (:data:`platoon_env.scenarios.procedural.SHARP_TIERS`). Appended: the earlier tiers keep
+#: their seed blocks.
+GENERATOR_TIERS: tuple[str, ...] = ("easy", "medium", "hard", "sharp", "paper")
 
 
 @dataclass(frozen=True)

@@ -94,6 +94,24 @@ SHARP_CORNER_DEG = 45.0
 CORNER_WIDTH_WINDOW = (0.3, 1.0)
 #: [m] arc-length step at which the driven leader's turning radius is measured
 TURN_STEP = 0.05
+#: [deg] the studies' defining corner (the ``--tiers`` table): the leader's path turns by at
+#: least this much ...
+SHARP_TURN_DEG = 75.0
+#: [m] ... within this much of path
+SHARP_TURN_WINDOW = 0.6
+#: [m] a *door* is a short gap in a wall: where the passage across the path is narrower by at
+#: least DOOR_STEP than somewhere within DOOR_REACH before it and somewhere within DOOR_REACH
+#: after it (so at most 2 DOOR_REACH long: walls are at most 0.3 m thick)
+DOOR_STEP = 0.8
+DOOR_REACH = 0.35
+#: [m] ... and at least this long (the samples at a sharp vertex, whose tangent is neither
+#: leg's, are not doors)
+DOOR_MIN_LENGTH = 0.06
+#: The generated blocks of docs/scenarios.md, each named by the command that writes it.
+DOC = REPO / "docs" / "scenarios.md"
+TIERS_COMMAND = "python scripts/check_workspaces.py --tiers"
+#: Layouts per tier in the ``--tiers`` table (the test split's seeds 0 .. TIER_LAYOUTS - 1).
+TIER_LAYOUTS = 50
 
 
 @dataclass(frozen=True)
@@ -307,6 +325,88 @@ def violation_summary(bad: list[tuple[float, list[str]]], total: int) -> str:
         return "none"
     at, problems = bad[0]
     return f"{len(bad)} of {total} samples, first at s={at:.2f}: {'; '.join(problems)}"
+
+
+def sharp_turns(path: np.ndarray) -> int:
+    """How many times the polyline ``path`` turns by at least :data:`SHARP_TURN_DEG` within
+    :data:`SHARP_TURN_WINDOW` of arc length (the studies' sharp corners; consecutive windows
+    over one corner count once)."""
+    step = np.hypot(*np.diff(path, axis=0).T)
+    keep = np.concatenate([[True], step > 1e-9])  # a turn in place repeats the position
+    pts, _ = resample(path[keep], SAMPLE_STEP)
+    d = np.diff(pts, axis=0)
+    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    lag = round(SHARP_TURN_WINDOW / SAMPLE_STEP)
+    if len(heading) <= lag:
+        return 0
+    sharp = np.abs(heading[lag:] - heading[:-lag]) >= math.radians(SHARP_TURN_DEG)
+    return int(np.sum(sharp[1:] & ~sharp[:-1]) + sharp[0])
+
+
+def door_samples(sides: np.ndarray) -> np.ndarray:
+    """Which samples of the path (one every :data:`SAMPLE_STEP`, with their distances ``sides``
+    ``(n, 2)`` to the walls along the left and right normals) are in a door: within
+    :data:`DOOR_REACH` before it and within it after it the path is in the open on *both*
+    sides (each normal longer than both of the door's by half of :data:`DOOR_STEP`, not only
+    one of them, as beside the inside of a sharp corner), over at least
+    :data:`DOOR_MIN_LENGTH`."""
+    reach = round(DOOR_REACH / SAMPLE_STEP)
+    open_both = sides.min(axis=1)
+    narrow = sides.max(axis=1)
+    n = len(sides)
+    door = np.zeros(n, dtype=bool)
+    for i in range(1, n - 1):
+        before = open_both[max(0, i - reach) : i].max()
+        after = open_both[i + 1 : i + reach + 1].max()
+        door[i] = min(before, after) >= narrow[i] + 0.5 * DOOR_STEP
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], door.astype(int), [0]])))
+    for a, b in zip(edges[0::2], edges[1::2], strict=True):  # runs door[a:b]
+        if (b - a) * SAMPLE_STEP < DOOR_MIN_LENGTH - 1e-9:
+            door[a:b] = False
+    return door
+
+
+@dataclass(frozen=True)
+class LayoutProperties:
+    """The studies' geometry measured on one workspace and leader path (the ``--tiers`` table)."""
+
+    path_length: float  # [m]
+    sharp_turns: int  # :func:`sharp_turns`
+    passage_gap: float  # [m] narrowest passage across the path, outside doors, minus 2 r
+    door_gap: float  # [m] narrowest door minus 2 r (nan: no door)
+    obstacles: int  # free-standing obstacles (holes of W_f)
+
+
+def layout_properties(scenario: Scenario) -> LayoutProperties:
+    """:class:`LayoutProperties` of ``scenario``'s workspace and leader path."""
+    raw = np.asarray(scenario.leader_path, dtype=float)
+    step = np.hypot(*np.diff(raw, axis=0).T)
+    raw = raw[np.concatenate([[True], step > 1e-9])]
+    pts, s = resample(raw, SAMPLE_STEP)
+    free = scenario.free_space
+    sides = normal_ray_distances(free, pts, tangents(pts))
+    width = sides.sum(axis=1)
+    door = door_samples(sides)
+    # Near a sharp vertex a normal ray can cut across the inside of the turn to the other leg's
+    # wall: the passage is measured outside clearance * tan(|turn| / 2) of such vertices (the
+    # reach of the inner wall corner along each leg, for a path on the passage's centre line).
+    seg = np.diff(raw, axis=0)
+    cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+    turn = np.abs(np.diff(np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))))
+    near_corner = np.zeros(len(s), dtype=bool)
+    for k in np.flatnonzero(turn >= math.radians(SHARP_CORNER_DEG)) + 1:
+        reach = free.boundary.distance(Point(raw[k])) * math.tan(0.5 * min(turn[k - 1], 2.2))
+        near_corner |= np.abs(s - cum[k]) <= reach + 0.05
+    diameter = 2.0 * scenario.config.robot.radius
+    passage = ~door & ~near_corner
+    holes = sum(len(g.interiors) for g in getattr(free, "geoms", [free]))
+    return LayoutProperties(
+        path_length=float(s[-1]),
+        sharp_turns=sharp_turns(raw),
+        passage_gap=float(width[passage].min()) - diameter,
+        door_gap=float(width[door].min()) - diameter if door.any() else math.nan,
+        obstacles=holes,
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -594,6 +694,173 @@ def draw(
     report.add("png", str(out))
 
 
+# --------------------------------------------------------------------------------------------
+# The tiers' table (--tiers): the studies' geometry measured on every tier and every study
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Measured:
+    """One layout (or study) with its properties and, for a tier with the studies' geometry,
+    the ideal PPC's episode on it."""
+
+    name: str  # scenario
+    seed: int  # the episode's seed (a procedural test split: it draws the layout)
+    layout: int | None  # the layout number drawn (None: a study)
+    properties: LayoutProperties
+    turn_radius: float  # [m] the leader's tightest turn (tightest_turn)
+    success: (
+        bool | None
+    )  # the ideal PPC's episode: the leader arrived, no violation (None: not run)
+    failure: str  # its first violation: cause, robot, time and place ("" on success)
+
+
+def measure(job: tuple[str, int, bool]) -> Measured:
+    """Measure ``platoon_env.make(name)`` after ``reset(seed)``.
+
+    With ``ppc``, run the ideal PPC (:class:`baselines.PPCPolicy`) from there with
+    ``terminate_on=()`` (so that the leader always drives to its end: its turning radius is the
+    driven one; ``success`` is still the first violation's absence). Without, the turning radius
+    is the driven leader's for a study (:func:`drive_leader`) and the leader path's own for a
+    procedural layout (whose rounded arcs pure pursuit follows).
+    """
+    from baselines import PPCPolicy
+    from platoon_env.rollout import episode_metrics, run_episode
+
+    name, seed, ppc = job
+    env = platoon_env.make(name, terminate_on=())
+    env.reset(seed=seed)
+    scenario = env.scenario
+    success: bool | None = None
+    failure = ""
+    if ppc:
+        episode = run_episode(env, PPCPolicy(env), seed=seed, record_signals=False)
+        if episode.first_violation is not None:
+            step, cause, robot = episode.first_violation
+            x, y, _ = episode.poses[step + 1, robot]
+            t = episode.times[step + 1]
+            failure = f"{cause} (follower {robot}, t = {t:.1f} s, at {x:.2f}, {y:.2f})"
+        radius = tightest_turn(episode.poses[:, 0, :2])
+        success = bool(episode_metrics(episode)["success"])
+    elif env.layout_index is None:
+        radius = tightest_turn(drive_leader(scenario).trajectory)
+    else:
+        radius = tightest_turn(np.asarray(scenario.leader_path))
+    measured = Measured(
+        name=name,
+        seed=seed,
+        layout=env.layout_index,
+        properties=layout_properties(scenario),
+        turn_radius=radius,
+        success=success,
+        failure=failure,
+    )
+    env.close()
+    return measured
+
+
+def generation_ms(name: str, layouts: int) -> float:
+    """The median time [ms] to generate one of the first ``layouts`` layouts of ``name``."""
+    import time
+
+    template = load_config(name)
+    generate_scenario(template, layouts)  # warm up
+    times = []
+    for k in range(layouts):
+        start = time.perf_counter()
+        generate_scenario(template, k)
+        times.append(time.perf_counter() - start)
+    return 1000.0 * float(np.median(times))
+
+
+def _spread(values: list[float], digits: int = 2) -> str:
+    """``min / median / max`` of ``values`` (``-`` when none)."""
+    v = np.asarray([x for x in values if not math.isnan(x)])
+    if not len(v):
+        return "-"
+    lo, mid, hi = np.min(v), np.median(v), np.max(v)
+    if lo == hi:
+        return f"{lo:.{digits}f}"
+    return f"{lo:.{digits}f} / {mid:.{digits}f} / {hi:.{digits}f}"
+
+
+def tiers_table(layouts: int, workers: int) -> str:
+    """The ``--tiers`` block: per tier (seeds ``0 .. layouts - 1`` of its test split) and per
+    study its measured geometry and the median generation time of a layout; for the tiers with
+    the studies' geometry (:data:`~platoon_env.scenarios.procedural.SHARP_TIERS`) the ideal
+    PPC's success on every layout. Markdown."""
+    from multiprocessing import Pool
+
+    from platoon_env.scenarios.procedural import SHARP_TIERS
+    from platoon_env.scenarios.schema import GENERATOR_TIERS
+
+    rows = [(tier, f"procedural_{tier}_test", layouts) for tier in GENERATOR_TIERS]
+    rows += [(name, name, 1) for name in STUDIES]
+    jobs = [(name, seed, label in SHARP_TIERS) for label, name, n in rows for seed in range(n)]
+    with Pool(workers) as pool:
+        results = pool.map(measure, jobs, chunksize=1)
+    by_name: dict[str, list[Measured]] = {}
+    for m in results:
+        by_name.setdefault(m.name, []).append(m)
+    lines = [
+        f"| tier or study | layouts | sharp corners (>= {SHARP_TURN_DEG:g} deg within "
+        f"{SHARP_TURN_WINDOW:g} m) per 10 m | narrowest passage - 2r [m] | narrowest door - 2r "
+        "[m] | leader's tightest turn radius [m] | free-standing obstacles | ideal PPC success "
+        "| median generation [ms] |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    failures = []
+    for label, name, n in rows:
+        ms = by_name[name]
+        props = [m.properties for m in ms]
+        study = label in STUDIES
+        ran = [m.success for m in ms if m.success is not None]
+        lines.append(
+            "| "
+            + " | ".join(
+                [
+                    f"`{label}`",
+                    "the map" if study else f"{len({m.layout for m in ms})} (seeds 0-{n - 1})",
+                    _spread([10.0 * q.sharp_turns / q.path_length for q in props], 1),
+                    _spread([q.passage_gap for q in props]),
+                    _spread([q.door_gap for q in props]),
+                    _spread([m.turn_radius for m in ms]),
+                    _spread([float(q.obstacles) for q in props], 0),
+                    f"{sum(ran)}/{len(ran)}" if ran else "-",
+                    "-" if study else f"{generation_ms(name, n):.1f}",
+                ]
+            )
+            + " |"
+        )
+        failures += [
+            f"- `{name}` seed {m.seed} (layout {m.layout}): {m.failure}"
+            for m in ms
+            if m.success is False
+        ]
+    notes = [
+        "",
+        "Each cell is min / median / max over the layouts (one value: all equal). The leader's "
+        "turn radius is the driven leader's for the studies and the tiers the PPC ran on (a "
+        "turn in place shows as a radius below 0.1 m), the leader path's arcs for the others. "
+        "The generation time is that of `generate_scenario`, on the machine the command ran on.",
+    ]
+    if failures:
+        notes += ["", "Episodes the ideal PPC failed (first violation):", "", *failures]
+    return "\n".join(lines + notes)
+
+
+def rewrite_block(doc: Path, command: str, text: str) -> None:
+    """Replace the text between ``<!-- begin: {command} -->`` and the next ``<!-- end -->`` of
+    ``doc`` by ``text`` (``ValueError`` if the markers are missing)."""
+    begin, end = f"<!-- begin: {command} -->", "<!-- end -->"
+    content = doc.read_text()
+    head, sep, rest = content.partition(begin)
+    if not sep or end not in rest:
+        raise ValueError(f"{doc}: no block {begin} ... {end}")
+    tail = rest.split(end, 1)[1]
+    doc.write_text(f"{head}{begin}\n{text}\n{end}{tail}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -608,7 +875,22 @@ def main(argv: list[str] | None = None) -> int:
         default=Path("/tmp/workspaces"),
         help="where the PNGs are written (default: /tmp/workspaces)",
     )
+    parser.add_argument(
+        "--tiers",
+        action="store_true",
+        help=f"measure every generator tier ({TIER_LAYOUTS} test layouts each; the ideal PPC on "
+        f"each of the sharp and paper tiers') and the studies, and rewrite the block of "
+        f"{DOC.relative_to(REPO)} named '{TIERS_COMMAND}'",
+    )
+    parser.add_argument(
+        "--workers", type=int, default=2, help="episodes run at once for --tiers (default 2)"
+    )
     args = parser.parse_args(argv)
+    if args.tiers:
+        table = tiers_table(TIER_LAYOUTS, args.workers)
+        rewrite_block(DOC, TIERS_COMMAND, table)
+        print(table)
+        return 0
     files = args.files or [str(DATA_DIR / f"{name}.yaml") for name in STUDIES]
     failed = False
     for f in files:

@@ -4,6 +4,7 @@ tier scenarios, their Gymnasium ids and the ``heldout`` suite."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
 import math
 from functools import cache
@@ -23,6 +24,7 @@ from platoon_env.scenarios.procedural import (
     LAYOUT_BOUNDS,
     LAYOUTS_PER_SPLIT,
     PATH_CLEARANCE,
+    SHARP_TIERS,
     SPLIT_OFFSETS,
     TIERS,
     generate_scenario,
@@ -45,6 +47,9 @@ assert BASE.ppc is not None
 DELTA = BASE.ppc.delta
 #: Layouts per tier and kind in the property samples.
 SAMPLE = 30
+#: The three ordered tiers (easy to hard); the tiers with the studies' geometry (SHARP_TIERS)
+#: follow them in GENERATOR_TIERS and are tested in test_sharp_layouts.py.
+ORDERED = tuple(TIERS)
 #: Every (tier, split) pair; tier None is the untiered family.
 PAIRS = [(tier, split) for tier in (None, *GENERATOR_TIERS) for split in GENERATOR_SPLITS]
 
@@ -92,16 +97,17 @@ def _strictly_increasing(values: list[float]) -> bool:
 
 
 def test_tier_names_and_default() -> None:
-    assert tuple(TIERS) == GENERATOR_TIERS == ("easy", "medium", "hard")
+    assert ORDERED == GENERATOR_TIERS[:3] == ("easy", "medium", "hard")
+    assert GENERATOR_TIERS == (*TIERS, *SHARP_TIERS) == (*ORDERED, "sharp", "paper")
     assert Params.from_template(BASE).difficulty is DEFAULT_DIFFICULTY  # untiered
-    for tier in GENERATOR_TIERS:
+    for tier in ORDERED:
         assert Params.from_template(_template(tier)).difficulty is TIERS[tier]
-    assert len({TIERS[t] for t in GENERATOR_TIERS} | {DEFAULT_DIFFICULTY}) == 4
+    assert len({TIERS[t] for t in ORDERED} | {DEFAULT_DIFFICULTY}) == 4
 
 
 def test_tier_parameters_are_ordered() -> None:
     """From easy to hard every range moves towards the harder end (none moves back)."""
-    easy, medium, hard = (TIERS[t] for t in GENERATOR_TIERS)
+    easy, medium, hard = (TIERS[t] for t in ORDERED)
     harder_when_larger = (
         "sharp_fraction",
         "sharp_turn",
@@ -137,7 +143,7 @@ def test_measured_properties_are_ordered() -> None:
     """Over samples of layouts: narrower corridors and doorways, sharper turns and more
     obstacles from easy to hard."""
     corridor_clear, turns, room_clear, obstacles = [], [], [], []
-    for tier in GENERATOR_TIERS:
+    for tier in ORDERED:
         corridors, rooms = _sample(tier, "corridor"), _sample(tier, "rooms")
         corridor_clear.append(_mean([_clearance(sc) for sc in corridors]))
         turns.append(_mean([_max_turn(sc.leader_path) for sc in corridors]))
@@ -154,7 +160,7 @@ def test_measured_properties_are_ordered() -> None:
     assert obstacles[2] - obstacles[0] > 1.5
 
 
-@pytest.mark.parametrize("tier", GENERATOR_TIERS)
+@pytest.mark.parametrize("tier", ORDERED)
 def test_every_tier_layout_is_valid(tier: str) -> None:
     """The guarantees of every layout hold in every tier (feasible start, path clearance)."""
     level = TIERS[tier]
@@ -197,6 +203,28 @@ def test_seed_blocks_are_disjoint() -> None:
         assert (first, last) == (block[0], block[-1])
 
 
+#: sha256 of the edges and leader paths of layouts 0, 1, 2 and 999 999 of both splits of the
+#: untiered family and of easy, medium and hard (kind mixed), as shipped before the tiers with
+#: the studies' geometry were added: those layouts, and results stored for them, stay valid.
+LAYOUTS_DIGEST = "40574b7ea588eae2c7a645f0b8af171376057fa8f2228421672c926fd7e87f7f"
+
+
+def test_existing_tiers_are_unchanged() -> None:
+    digest = hashlib.sha256()
+    for tier in (None, *ORDERED):
+        for split in GENERATOR_SPLITS:
+            template = _template(tier, split=split)
+            for k in (0, 1, 2, LAYOUTS_PER_SPLIT - 1):
+                sc = generate_scenario(template, k)
+                digest.update(np.ascontiguousarray(sc.workspace.edges).tobytes())
+                digest.update(np.ascontiguousarray(sc.leader_path).tobytes())
+    assert digest.hexdigest() == LAYOUTS_DIGEST
+    # and their seed blocks: the new tiers come after them
+    assert [seed_range("train", t).start for t in GENERATOR_TIERS] == [
+        2 * LAYOUTS_PER_SPLIT * (k + 1) for k in range(len(GENERATOR_TIERS))
+    ]
+
+
 def test_shipped_files_use_disjoint_seed_blocks() -> None:
     procedural_names = [n for n in list_scenarios() if load_config(n).generator is not None]
     blocks: dict[tuple[str | None, str], list[str]] = {}
@@ -213,7 +241,7 @@ def test_shipped_files_use_disjoint_seed_blocks() -> None:
     assert all(max(a.start, b.start) >= min(a.stop, b.stop) for a in test for b in train)
 
 
-@pytest.mark.parametrize("tier", GENERATOR_TIERS)
+@pytest.mark.parametrize("tier", ORDERED)
 def test_shipped_tier_files(tier: str) -> None:
     for split in GENERATOR_SPLITS:
         name = f"procedural_{tier}_{split}"
@@ -332,7 +360,7 @@ def test_heldout_suite_runs_every_tier() -> None:
     assert "heldout" in SUITES
     generators = {name: load_config(name).generator for name in list_scenarios()}
     train = [seed_range(g.split, g.tier) for g in generators.values() if g and g.split == "train"]
-    assert len(train) == 5  # untiered, corridors (untiered), three tiers
+    assert len(train) == 2 + len(GENERATOR_TIERS)  # untiered, corridors (untiered), the tiers
     for name in heldout.scenarios:
         gen = generators[name]
         assert gen is not None and gen.split == "test"
