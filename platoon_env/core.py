@@ -54,7 +54,6 @@ from platoon_env.records import (
     PATH_X,
     PATH_Y,
     Buffers,
-    MapBank,
     constraint_params,
     new_episode,
 )
@@ -140,13 +139,6 @@ def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
     p["alpha_max"] = math.inf if rob.alpha_max is None else rob.alpha_max
     p["actuate"] = rob.lag > 0 or rob.accel_max is not None or rob.alpha_max is not None
     return p
-
-
-def scenario_params(scenario: Scenario) -> np.ndarray:
-    """A ``(1,)`` params array of a built scenario (``[0]`` is the record a kernel takes)."""
-    out = np.zeros(1, dtype=PARAMS_DTYPE)
-    out[0] = params_of(scenario.config, scenario.max_episode_steps)
-    return out
 
 
 class _MapSlots:
@@ -316,14 +308,11 @@ class PlatoonCore:
         """The :class:`~platoon_env.records.MapBank` arrays as the plain tuple the step takes."""
         return self._slots.arrays
 
-    def map_bank(self) -> MapBank:
-        """The map bank as a named tuple (for reading; the step takes :attr:`maps`)."""
-        return MapBank(self._slots.info, *self._slots.arrays[1:])
-
     @property
     def step_args(self) -> tuple[Any, ...]:
         """The arguments of :func:`~platoon_env.simulator.step_serial` after ``active`` and
-        ``n_substeps``: the records as bytes, the map bank and the buffers (see there why)."""
+        ``n_substeps``: the records as bytes, the map bank and the buffers (why: the drivers'
+        docstring, ``platoon_env.simulator._driver``)."""
         return (self._params_bytes, self._episode_bytes, self._slots.arrays, self.buffers)
 
     def set_threads(self, n_threads: int) -> None:
@@ -494,6 +483,14 @@ class PlatoonCore:
                 ended = int(step_parallel(*args))
             finally:
                 numba.set_num_threads(previous)
+        return self.after_step(active, n_substeps, ended)
+
+    def after_step(self, active: np.ndarray | None, n_substeps: int, ended: int) -> int:
+        """The core's rule after every call of the compiled step on the ``active`` envs (None:
+        all), whoever made it (:meth:`run`, or the env calling its compiled entry directly):
+        unless the call was refused (``ended < 0``: nothing changed), a task-aware core's
+        ``t_unseen`` (:meth:`observe_task`; ``n_substeps = 0``: a reset). Returns ``ended``.
+        """
         if self.task_aware and ended >= 0:
             self.observe_task(active, n_substeps > 0)
         return ended

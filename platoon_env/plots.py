@@ -13,7 +13,7 @@ per policy) are overlaid with a legend.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -92,6 +92,27 @@ def plot_snapshots(
     )
 
 
+def _follower_axes(
+    fig: Figure, scenario: Scenario, followers: Sequence[int] | None
+) -> tuple[list[int], np.ndarray]:
+    """The followers a per-follower figure shows (None: all) and its axes, a row each and two
+    columns sharing the time axis (labelled under the bottom row)."""
+    n = scenario.config.followers
+    rows = list(followers) if followers is not None else list(range(1, n + 1))
+    axes = fig.subplots(len(rows), 2, squeeze=False, sharex=True)
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]")
+    return rows, axes
+
+
+def _overlaid(
+    episodes: Sequence[Episode], labels: Sequence[str]
+) -> Iterator[tuple[Episode, str, str | None]]:
+    """Each overlaid episode with its line colour and legend label (None beyond ``labels``)."""
+    for j, ep in enumerate(episodes):
+        yield ep, POLICY_COLOURS[j % len(POLICY_COLOURS)], labels[j] if j < len(labels) else None
+
+
 def plot_errors(
     fig: Figure,
     scenario: Scenario,
@@ -106,15 +127,11 @@ def plot_errors(
     such episode). Errors are drawn only while the predecessor is visible.
     """
     cfg = scenario.config
-    n = cfg.followers
-    rows = list(followers) if followers is not None else list(range(1, n + 1))
-    axes = fig.subplots(len(rows), 2, squeeze=False, sharex=True)
+    rows, axes = _follower_axes(fig, scenario, followers)
     d_lo, d_hi = -(cfg.formation.d_des - cfg.safety.d_col), cfg.camera.range - cfg.formation.d_des
     b = cfg.camera.half_angle
     funnel_drawn = False
-    for j, ep in enumerate(episodes):
-        colour = POLICY_COLOURS[j % len(POLICY_COLOURS)]
-        label = labels[j] if j < len(labels) else None
+    for ep, colour, label in _overlaid(episodes, labels):
         t = ep.times
         vis = ep.sensed[:, :, SENSE_VISIBLE] > 0
         e_d = np.where(vis, ep.sensed[:, :, SENSE_D] - cfg.formation.d_des, np.nan)
@@ -148,8 +165,6 @@ def plot_errors(
         axes[r, 1].set_ylabel(f"$e_{{\\beta_{i}}}$ [rad]")
         axes[r, 0].set_ylim(d_lo * 1.15, d_hi * 1.15)
         axes[r, 1].set_ylim(-b * 1.15, b * 1.15)
-    axes[-1, 0].set_xlabel("t [s]")
-    axes[-1, 1].set_xlabel("t [s]")
     if any(a.get_legend_handles_labels()[0] for a in axes[0]):
         axes[0, 0].legend(loc="upper right", fontsize=7)
 
@@ -162,12 +177,8 @@ def plot_commands(
     followers: Sequence[int] | None = None,
 ) -> None:
     """Linear and angular velocity commands per follower (Fig. 7, 10, 11)."""
-    n = scenario.config.followers
-    rows = list(followers) if followers is not None else list(range(1, n + 1))
-    axes = fig.subplots(len(rows), 2, squeeze=False, sharex=True)
-    for j, ep in enumerate(episodes):
-        colour = POLICY_COLOURS[j % len(POLICY_COLOURS)]
-        label = labels[j] if j < len(labels) else None
+    rows, axes = _follower_axes(fig, scenario, followers)
+    for ep, colour, label in _overlaid(episodes, labels):
         t = ep.times[1:]
         for r, i in enumerate(rows):
             axes[r, 0].plot(
@@ -177,8 +188,6 @@ def plot_commands(
     for r, i in enumerate(rows):
         axes[r, 0].set_ylabel(f"$u_{i}$ [m/s]")
         axes[r, 1].set_ylabel(f"$\\omega_{i}$ [rad/s]")
-    axes[-1, 0].set_xlabel("t [s]")
-    axes[-1, 1].set_xlabel("t [s]")
     if labels:
         axes[0, 0].legend(loc="upper right", fontsize=7)
 

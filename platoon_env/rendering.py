@@ -403,17 +403,21 @@ def draw_scene(
     """
     if background:
         _draw_background(ax, free_space, config, bounds)
-    trail_lines = LineCollection([], linewidths=0.8, alpha=0.8, zorder=_Z_TRAIL)
-    fov = PolyCollection(
-        [], facecolors=[_FOV_FACE], edgecolors=[_FOV_EDGE], linewidths=0.6, zorder=_Z_FOV
-    )
-    sight_visible = LineCollection([], colors=_SIGHT_OK, linewidths=1.3, zorder=_Z_SIGHT)
-    sight_lost = LineCollection(
-        [], colors=_SIGHT_LOST, linewidths=1.3, linestyles="--", zorder=_Z_SIGHT
-    )
-    robots = PolyCollection([], edgecolors="black", linewidths=0.5, zorder=_Z_ROBOTS)
-    headings = LineCollection([], colors="white", linewidths=1.5, zorder=_Z_HEADINGS)
-    for collection in (trail_lines, fov, sight_visible, sight_lost, robots, headings):
+    # The per-frame collections, by their SceneArtists field (update() fills them); each is
+    # added to the axes once.
+    collections: dict[str, Any] = {
+        "trail": LineCollection([], linewidths=0.8, alpha=0.8, zorder=_Z_TRAIL),
+        "fov": PolyCollection(
+            [], facecolors=[_FOV_FACE], edgecolors=[_FOV_EDGE], linewidths=0.6, zorder=_Z_FOV
+        ),
+        "sight_visible": LineCollection([], colors=_SIGHT_OK, linewidths=1.3, zorder=_Z_SIGHT),
+        "sight_lost": LineCollection(
+            [], colors=_SIGHT_LOST, linewidths=1.3, linestyles="--", zorder=_Z_SIGHT
+        ),
+        "robots": PolyCollection([], edgecolors="black", linewidths=0.5, zorder=_Z_ROBOTS),
+        "headings": LineCollection([], colors="white", linewidths=1.5, zorder=_Z_HEADINGS),
+    }
+    for collection in collections.values():
         ax.add_collection(collection, autolim=False)
     artists = SceneArtists(
         ax=ax,
@@ -421,12 +425,7 @@ def draw_scene(
         half_angle=float(config.camera.half_angle),
         camera_range=float(config.camera.range),
         name=str(config.name),
-        robots=robots,
-        headings=headings,
-        fov=fov,
-        sight_visible=sight_visible,
-        sight_lost=sight_lost,
-        trail=trail_lines,
+        **collections,
         title=ax.set_title("", fontsize=11),
         violation_text=ax.text(
             0.01,
@@ -640,18 +639,6 @@ class Renderer:
         self._last_time = sim_time
         self._trail.append(poses[:, :2].copy())
         return np.stack(self._trail) if len(self._trail) > 1 else None
-
-    def world_to_pixel(self, x: float, y: float) -> tuple[int, int]:
-        """``(row, col)`` of the world point ``(x, y)`` in an ``"rgb_array"`` frame.
-
-        Valid once a frame has been rendered.
-        """
-        if self._scene is None:
-            raise RuntimeError("render a frame first")
-        ax = self._scene.ax
-        ax.apply_aspect()
-        px, py = ax.transData.transform((x, y))
-        return round(self._height - float(py)), round(float(px))
 
     def close(self) -> None:
         """Release the figure (and close the window in ``"human"`` mode). Idempotent."""

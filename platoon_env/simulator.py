@@ -34,6 +34,7 @@ size of the map.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit, prange
@@ -44,20 +45,14 @@ from platoon_env.dynamics.unicycle import unicycle_arc
 from platoon_env.geometry.sensing import (
     SENSE_BETA,
     SENSE_D,
-    SENSE_D_SIGHT_LEFT,
-    SENSE_D_SIGHT_RIGHT,
-    SENSE_D_WALL_LEFT,
-    SENSE_D_WALL_RIGHT,
+    SENSE_PROXIMITY,
     SENSE_VISIBLE,
     sense_follower_grid,
 )
 from platoon_env.observation import (
     ACT_OMEGA,
     ACT_U,
-    OBS_D_SIGHT_LEFT,
-    OBS_D_SIGHT_RIGHT,
-    OBS_D_WALL_LEFT,
-    OBS_D_WALL_RIGHT,
+    OBS_CLEARANCES,
     OBS_VISIBLE,
     OBS_X_REL,
     OBS_Y_REL,
@@ -96,10 +91,9 @@ def observe_into(sensed: np.ndarray, obs: np.ndarray) -> None:
         else:
             obs[i, OBS_X_REL] = 0.0
             obs[i, OBS_Y_REL] = 0.0
-        obs[i, OBS_D_WALL_LEFT] = sensed[i, SENSE_D_WALL_LEFT]
-        obs[i, OBS_D_WALL_RIGHT] = sensed[i, SENSE_D_WALL_RIGHT]
-        obs[i, OBS_D_SIGHT_LEFT] = sensed[i, SENSE_D_SIGHT_LEFT]
-        obs[i, OBS_D_SIGHT_RIGHT] = sensed[i, SENSE_D_SIGHT_RIGHT]
+        # The four clearances d_W_l, d_W_r, d_l, d_r, in both tables' order.
+        for k in range(len(OBS_CLEARANCES)):
+            obs[i, OBS_CLEARANCES[k]] = sensed[i, SENSE_PROXIMITY[k]]
 
 
 @njit(cache=True)
@@ -342,74 +336,52 @@ def count_ended(active: np.ndarray, episode: np.ndarray) -> int:
     return ended
 
 
-@njit(cache=True, inline="always")
-def _named(
-    params_bytes: np.ndarray,
-    episode_bytes: np.ndarray,
-    maps: tuple,  # type: ignore[type-arg]
-    bufs: tuple,  # type: ignore[type-arg]
-) -> tuple:  # type: ignore[type-arg]
-    """The drivers' arguments named again: params and episode records, MapBank, Buffers."""
-    return (
-        params_bytes.view(PARAMS_DTYPE),
-        episode_bytes.view(EPISODE_DTYPE),
-        MapBank(maps[0].view(MAP_INFO_DTYPE), *maps[1:]),
-        Buffers(*bufs),
-    )
-
-
-# The two drivers share their body (step_env); they must be distinct functions because numba
-# caches one compiled variant per function, and prange only parallelises with parallel=True.
-@njit(cache=True)
-def step_serial(
-    active: np.ndarray,
-    n_substeps: int,
-    params_bytes: np.ndarray,
-    episode_bytes: np.ndarray,
-    maps: tuple,  # type: ignore[type-arg]
-    bufs: tuple,  # type: ignore[type-arg]
-) -> int:
-    """Step (or, with ``n_substeps = 0``, sense) the ``active`` envs one after the other.
+def _driver(name: str, parallel: bool, doc: str) -> Any:
+    """A compiled driver of the step, ``name`` (docstring ``doc``): ``(active, n_substeps,
+    params_bytes, episode_bytes, maps, bufs) -> int`` steps (or, with ``n_substeps = 0``,
+    senses) the ``active`` envs, over numba's threads (``prange``) when ``parallel``, else one
+    after the other.
 
     The records arrive as their bytes (``params.view(np.uint8)``, ...) and the named tuples as
     plain tuples (``maps``: a :class:`~platoon_env.records.MapBank` with its ``info`` as bytes;
     ``bufs``: a :class:`~platoon_env.records.Buffers`): numba types a structured array or a
-    named tuple passed from Python on a slow path on every call (about 0.5 µs each, measured),
-    a byte array or a plain tuple of arrays on its fast one. They are named again here.
+    named tuple passed from Python on a slow path on every call (about 0.5 µs each, measured), a
+    byte array or a plain tuple of arrays on its fast one. They are named again inside. The
+    driver returns how many envs ended, or ``-1 - (b * N + i)`` when follower ``i`` of env
+    ``b`` has a NaN or inf action (then nothing changed).
 
-    Returns how many envs ended, or ``-1 - (b * N + i)`` when follower ``i`` of env ``b`` has a
-    NaN or inf action (then nothing changed).
+    One body, compiled twice: numba caches one compiled variant per function (its cache files
+    are named by the function's qualified name, here ``name``), and ``prange`` parallelises
+    only with ``parallel=True`` (without, it is ``range``).
     """
-    params, episode, bank, buf = _named(params_bytes, episode_bytes, maps, bufs)
-    bad = first_bad_action(active, buf.actions) if n_substeps > 0 else -1
-    if bad >= 0:
-        return -1 - bad
-    for b in range(active.shape[0]):
-        if active[b]:
-            step_env(b, n_substeps, params, episode, bank, buf)
-    return count_ended(active, episode)
+
+    def driver(
+        active: np.ndarray,
+        n_substeps: int,
+        params_bytes: np.ndarray,
+        episode_bytes: np.ndarray,
+        maps: tuple,  # type: ignore[type-arg]
+        bufs: tuple,  # type: ignore[type-arg]
+    ) -> int:
+        # The records and named tuples named again here, not through an inlined helper:
+        # numba's parfor lowering cannot trace a named tuple that an inlined call returned into
+        # the prange body.
+        params = params_bytes.view(PARAMS_DTYPE)
+        episode = episode_bytes.view(EPISODE_DTYPE)
+        bank = MapBank(maps[0].view(MAP_INFO_DTYPE), *maps[1:])
+        buf = Buffers(*bufs)
+        bad = first_bad_action(active, buf.actions) if n_substeps > 0 else -1
+        if bad >= 0:
+            return -1 - bad
+        for b in prange(active.shape[0]):
+            if active[b]:
+                step_env(b, n_substeps, params, episode, bank, buf)
+        return count_ended(active, episode)
+
+    driver.__name__ = driver.__qualname__ = name
+    driver.__doc__ = doc
+    return njit(cache=True, parallel=parallel)(driver)
 
 
-@njit(cache=True, parallel=True)
-def step_parallel(
-    active: np.ndarray,
-    n_substeps: int,
-    params_bytes: np.ndarray,
-    episode_bytes: np.ndarray,
-    maps: tuple,  # type: ignore[type-arg]
-    bufs: tuple,  # type: ignore[type-arg]
-) -> int:
-    """:func:`step_serial` with the envs spread over numba's threads (``prange``)."""
-    # Named here, not through _named: numba's parfor lowering cannot trace a named tuple that
-    # an inlined call returned into the prange body.
-    params = params_bytes.view(PARAMS_DTYPE)
-    episode = episode_bytes.view(EPISODE_DTYPE)
-    bank = MapBank(maps[0].view(MAP_INFO_DTYPE), *maps[1:])
-    buf = Buffers(*bufs)
-    bad = first_bad_action(active, buf.actions) if n_substeps > 0 else -1
-    if bad >= 0:
-        return -1 - bad
-    for b in prange(active.shape[0]):
-        if active[b]:
-            step_env(b, n_substeps, params, episode, bank, buf)
-    return count_ended(active, episode)
+step_serial = _driver("step_serial", False, "The :func:`_driver` of the envs one after the other.")
+step_parallel = _driver("step_parallel", True, "The :func:`_driver` over numba's threads (prange).")

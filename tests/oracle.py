@@ -1,7 +1,8 @@
 """A slow, independent shapely reference for the sensing model (``docs/sensing.md``).
 
 This is the test oracle for :func:`platoon_env.geometry.sensing.sense`. It shares no code with
-the kernel: it works on the free space ``W_f`` as a shapely geometry and answers every question
+the kernel (only its interface: the params record it reads by field name and the columns of the
+result): it works on the free space ``W_f`` as a shapely geometry and answers every question
 with shapely operations (``intersects``, ``intersection``, ``distance``), so that an agreement
 between the two on random states is evidence that both implement the spec, not the same bug.
 
@@ -44,7 +45,6 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable
 
 import numpy as np
 import shapely
@@ -52,28 +52,20 @@ from numpy.typing import NDArray
 from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 
-#: Column order of the result, identical to the kernel's ``SENSE_*`` constants.
-COLUMNS: tuple[str, ...] = (
-    "d",
-    "beta",
-    "visible",
-    "occluded",
-    "d_W_l",
-    "d_W_r",
-    "d_l",
-    "d_r",
-    "clearance",
-)
-COL_D = 0
-COL_BETA = 1
-COL_VISIBLE = 2
-COL_OCCLUDED = 3
-COL_D_WALL_LEFT = 4
-COL_D_WALL_RIGHT = 5
-COL_D_SIGHT_LEFT = 6
-COL_D_SIGHT_RIGHT = 7
-COL_CLEARANCE = 8
-N_COLUMNS = 9
+from platoon_env.geometry.sensing import SENSE_NAMES, SENSE_SIZE, sense
+from platoon_env.geometry.workspace import boundary_edges
+
+#: The result's columns are the kernel's (``SENSE_NAMES``, in ``SENSE_*`` order: the layout is
+#: shared, the values are computed independently). :func:`named` reads them by name.
+READING_DTYPE = np.dtype([(name, np.float64) for name in SENSE_NAMES])
+
+
+def named(readings: NDArray[np.float64]) -> NDArray[np.void]:
+    """Readings ``(..., SENSE_SIZE)`` (the kernel's or the oracle's) as records whose fields are
+    the columns' names: ``named(out)["d_l"]`` (a view; a row of ``N`` followers gives ``N``
+    records, one follower's row a 0-d array of one)."""
+    return np.ascontiguousarray(readings, dtype=np.float64).view(READING_DTYPE)[..., 0]
+
 
 #: Absolute tolerance on distances [m] (relative beyond 1 m) and on the angle of view [rad].
 DIST_TOL = 1e-9
@@ -82,9 +74,6 @@ ANGLE_TOL = 1e-12
 #: the spec allows, so that a boundary point at exactly the range (lattice inputs put crossings
 #: there) is sensed whatever the rounding of a split point.
 RANGE_PAD_REL = 1e-12
-
-#: A sensing function: (free space, poses, d_con, beta_con, proximity range) -> (N, 9) array.
-SenseFn = Callable[[BaseGeometry, NDArray[np.float64], float, float, float], NDArray[np.float64]]
 
 
 def wrap_angle(angle: float) -> float:
@@ -208,19 +197,19 @@ def oracle_sense_follower(
     boundary: BaseGeometry,
     follower: NDArray[np.float64],
     predecessor: NDArray[np.float64],
-    d_con: float,
-    beta_con: float,
-    proximity_range: float,
+    params: np.void,
     reach: float,
-    proximity_half_angle: float = math.pi,
 ) -> NDArray[np.float64]:
     """The nine sensed quantities of one follower, as a length-9 float64 array.
 
     ``boundary`` is ``dW_f`` (a shapely line geometry), ``follower`` is ``[x, y, theta]`` and
-    ``predecessor`` is ``[x, y, ...]``. ``reach`` is a length beyond which no boundary lies
-    from the follower (it sizes the half-plane and wedge polygons). ``proximity_half_angle``
-    (``>= pi``: all around) limits what the four clearances see.
+    ``predecessor`` is ``[x, y, ...]``; ``params`` the sensors, as in :func:`oracle_sense`.
+    ``reach`` is a length beyond which no boundary lies from the follower (it sizes the
+    half-plane and wedge polygons).
     """
+    d_con, beta_con = float(params["d_con"]), float(params["beta_con"])
+    proximity_range = float(params["proximity_range"])
+    proximity_half_angle = float(params["proximity_half_angle"])
     px, py, theta = float(follower[0]), float(follower[1]), float(follower[2])
     qx, qy = float(predecessor[0]), float(predecessor[1])
     rel_x, rel_y = qx - px, qy - py
@@ -249,29 +238,25 @@ def oracle_sense_follower(
         sides.append(side_boundary)
     left, right = sides
 
-    out = np.empty(N_COLUMNS, dtype=np.float64)
-    out[COL_D] = d
-    out[COL_BETA] = beta
-    out[COL_VISIBLE] = 1.0 if visible else 0.0
-    out[COL_OCCLUDED] = 1.0 if occluded else 0.0
-    out[COL_D_WALL_LEFT] = _capped_distance(p, left, proximity_range)
-    out[COL_D_WALL_RIGHT] = _capped_distance(p, right, proximity_range)
+    row = np.empty(SENSE_SIZE, dtype=np.float64)
+    out = named(row)
+    out["d"] = d
+    out["beta"] = beta
+    out["visible"] = 1.0 if visible else 0.0
+    out["occluded"] = 1.0 if occluded else 0.0
+    out["d_W_l"] = _capped_distance(p, left, proximity_range)
+    out["d_W_r"] = _capped_distance(p, right, proximity_range)
     # d_l, d_r see only the boundary within the proximity range of the follower.
     disk = proximity_range * (1.0 + RANGE_PAD_REL)
     in_range = [_clip_to_disk(side, (px, py), disk) for side in (left, right)]
-    out[COL_D_SIGHT_LEFT] = _capped_distance(line_of_sight, in_range[0], proximity_range)
-    out[COL_D_SIGHT_RIGHT] = _capped_distance(line_of_sight, in_range[1], proximity_range)
-    out[COL_CLEARANCE] = float(p.distance(boundary))
-    return out
+    out["d_l"] = _capped_distance(line_of_sight, in_range[0], proximity_range)
+    out["d_r"] = _capped_distance(line_of_sight, in_range[1], proximity_range)
+    out["clearance"] = float(p.distance(boundary))
+    return row
 
 
 def oracle_sense(
-    free_space: BaseGeometry,
-    poses: NDArray[np.float64],
-    d_con: float,
-    beta_con: float,
-    proximity_range: float,
-    proximity_half_angle: float = math.pi,
+    free_space: BaseGeometry, poses: NDArray[np.float64], params: np.void
 ) -> NDArray[np.float64]:
     """Reference sensing of every follower: an ``(N, 9)`` float64 array.
 
@@ -280,21 +265,25 @@ def oracle_sense(
             exterior and interior ring) is ``dW_f``.
         poses: ``(N + 1, 3)`` array of ``[x, y, theta]``, the leader ``R_0`` first; row ``i``
             (``i >= 1``) is follower ``i``, whose predecessor is row ``i - 1``.
-        d_con: camera range; visibility needs ``d_i < d_con``.
-        beta_con: camera half-angle; visibility needs ``|beta_i| < beta_con``.
-        proximity_range: the radius around each follower within which the boundary is sensed,
-            and the cap of ``d_W_l, d_W_r, d_l, d_r``.
-        proximity_half_angle: those four see only the boundary at bearings within
-            ``± proximity_half_angle`` of the follower's heading (default ``pi``: all around).
+        params: the sensors, a record with the fields of ``PARAMS_DTYPE``
+            (``platoon_env.records``) that the sensing reads, by name: ``d_con`` (visibility
+            needs ``d_i < d_con``), ``beta_con`` (and ``|beta_i| < beta_con``),
+            ``proximity_range`` (the radius around each follower within which the boundary is
+            sensed, and the cap of ``d_W_l, d_W_r, d_l, d_r``), ``proximity_half_angle`` (those
+            four see only the boundary at bearings within ``±`` it of the follower's heading;
+            ``pi``: all around) and ``inflation``, which must be 0 (the oracle models the true
+            boundary only).
 
     Returns:
         Row ``i - 1`` holds follower ``i``'s ``[d, beta, visible, occluded, d_W_l, d_W_r, d_l,
         d_r, clearance]`` (``visible`` and ``occluded`` as 0.0 / 1.0), in the column order of
-        :data:`COLUMNS`.
+        ``SENSE_NAMES`` (:func:`named` reads them by name).
     """
     poses = np.asarray(poses, dtype=np.float64)
     if poses.ndim != 2 or poses.shape[1] != 3 or poses.shape[0] < 1:
         raise ValueError(f"poses must have shape (N + 1, 3), got {poses.shape}")
+    if params["inflation"] != 0.0:
+        raise ValueError(f"the oracle models no inflation, got {params['inflation']}")
     boundary = free_space.boundary
     xmin, ymin, xmax, ymax = free_space.bounds
     # Any length exceeding every distance between a pose and the boundary will do.
@@ -307,20 +296,11 @@ def oracle_sense(
     )
     reach = 8.0 * extent
     rows = [
-        oracle_sense_follower(
-            boundary,
-            poses[i],
-            poses[i - 1],
-            d_con,
-            beta_con,
-            proximity_range,
-            reach,
-            proximity_half_angle,
-        )
+        oracle_sense_follower(boundary, poses[i], poses[i - 1], params, reach)
         for i in range(1, poses.shape[0])
     ]
     if not rows:
-        return np.zeros((0, N_COLUMNS), dtype=np.float64)
+        return np.zeros((0, SENSE_SIZE), dtype=np.float64)
     return np.vstack(rows)
 
 
@@ -349,16 +329,24 @@ def disagreements(
 ) -> list[tuple[int, str, float, float]]:
     """Every ``(row, column name, kernel value, reference value)`` outside tolerance."""
     found: list[tuple[int, str, float, float]] = []
-    for col, name in enumerate(COLUMNS):
+    for col, name in enumerate(SENSE_NAMES):
         k, r = kernel[:, col], reference[:, col]
-        if col in (COL_VISIBLE, COL_OCCLUDED):
+        if name in ("visible", "occluded"):
             bad = k != r
-        elif col == COL_BETA:
+        elif name == "beta":
             bad = ~(angle_difference(k, r) <= ANGLE_TOL)
         else:
             bad = ~(np.abs(k - r) <= DIST_TOL * max(1.0, float(np.max(np.abs(r)))))
         found.extend((int(row), name, float(k[row]), float(r[row])) for row in np.flatnonzero(bad))
     return found
+
+
+def kernel_sense(
+    free_space: BaseGeometry, poses: NDArray[np.float64], params: np.void
+) -> NDArray[np.float64]:
+    """The kernel under test (:func:`platoon_env.geometry.sensing.sense`, every edge visited),
+    taking a shapely free space like :func:`oracle_sense` does."""
+    return sense(poses, boundary_edges(free_space), params)
 
 
 def assert_agree(kernel: NDArray[np.float64], reference: NDArray[np.float64], context: str) -> None:

@@ -16,7 +16,9 @@ import pytest
 import platoon_env
 from platoon_env.batched import BatchedPlatoon
 from platoon_env.env import PlatoonParallelEnv
+from platoon_env.geometry.sensing import sense
 from platoon_env.initial import InitialSampler
+from platoon_env.records import constraint_params
 from platoon_env.scenarios.scenario import initial_violations
 
 
@@ -246,14 +248,12 @@ def test_vec_env_trains_ppo() -> None:
 def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
     """Random actions, no termination: the core with the edge grid and with one cell (every
     edge visited) gives the same steps, and its sensing is that of :func:`sense` (with the
-    scenario's proximity sector, study B's ±130 deg)."""
-    from platoon_env.geometry.sensing import sense
-
+    scenario's proximity sector, study B's ±130 deg, and its inflation)."""
     culled = BatchedPlatoon(scenario, 1, terminate_on=())
     brute = BatchedPlatoon(scenario, 1, terminate_on=(), grid_cell_size=0.0)
     culled.reset(0)
     brute.reset(0)
-    cfg = culled.scenario.config
+    params = constraint_params(culled.scenario.config)[0]
     edges = culled.scenario.workspace.edges
     rng = np.random.default_rng(0)
     n = culled.n_followers
@@ -264,9 +264,5 @@ def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
         np.testing.assert_array_equal(info_a["violations"], info_b["violations"], err_msg=str(t))
         np.testing.assert_array_equal(culled.poses, brute.poses, err_msg=str(t))
         np.testing.assert_allclose(culled.sensed, brute.sensed, rtol=0, atol=1e-12)
-        direct = sense(
-            culled.poses[0], edges, cfg.camera.range, cfg.camera.half_angle,
-            cfg.proximity_range, proximity_half_angle=cfg.proximity_half_angle,
-            inflation=cfg.safety.inflation,
-        )  # fmt: skip
+        direct = sense(culled.poses[0], edges, params)
         np.testing.assert_allclose(culled.sensed[0], direct, rtol=0, atol=1e-12, err_msg=str(t))

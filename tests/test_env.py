@@ -404,12 +404,13 @@ def test_info_diagnostics_and_reward_terms(corridor: dict[str, Any]) -> None:
 
 def test_reward_buffer_of_the_wrong_size_is_refused() -> None:
     """Compiled code does not check bounds: a short buffer must raise, not be overwritten."""
-    from platoon_env.core import scenario_params
+    from platoon_env.core import params_of
     from platoon_env.reward import REWARD_TERMS, reward_terms_into
 
     sensed, actions = np.zeros((2, 9)), np.zeros((2, 2))
     masks = np.zeros(2, dtype=np.int64)
-    p = scenario_params(platoon_env.make("study_c").scenario)[0]
+    scenario = platoon_env.make("study_c").scenario
+    p = params_of(scenario.config, scenario.max_episode_steps)
     args = (sensed, actions, masks, p)
     reward_terms_into(*args, np.zeros((2, len(REWARD_TERMS))))
     for shape in [(2, len(REWARD_TERMS) - 1), (1, len(REWARD_TERMS))]:

@@ -31,6 +31,7 @@ from platoon_env.geometry.sensing import (
     sense,
     sense_candidates,
     sense_follower_grid,
+    sensing_params,
 )
 from platoon_env.geometry.workspace import boundary_edges
 from platoon_env.records import constraint_params
@@ -110,19 +111,19 @@ def test_culled_sensing_matches_oracle_and_brute_force(
             poses = sample_lattice_platoon(workspace.free_space, rng, 3)
         else:
             poses = sample_platoon(workspace.free_space, rng, 3, d_con, beta_con)
-        culled = sense(poses, edges, d_con, beta_con, prox, grid=grid)
-        brute = sense(poses, edges, d_con, beta_con, prox)
+        params = sensing_params(d_con=d_con, beta_con=beta_con, proximity_range=prox)
+        culled = sense(poses, edges, params, grid=grid)
+        brute = sense(poses, edges, params)
         context = f"{workspace.name} cell {cell_size} trial {trial}"
-        assert_agree(
-            culled, oracle_sense(workspace.free_space, poses, d_con, beta_con, prox), context
-        )
+        assert_agree(culled, oracle_sense(workspace.free_space, poses, params), context)
         np.testing.assert_allclose(culled, brute, rtol=0, atol=1e-12, err_msg=context)
         # The same with a proximity sector (convex, half-plane, non-convex).
         half_angle = SECTOR_HALF_ANGLES[trial % len(SECTOR_HALF_ANGLES)]
-        culled = sense(poses, edges, d_con, beta_con, prox, grid, proximity_half_angle=half_angle)
-        brute = sense(poses, edges, d_con, beta_con, prox, proximity_half_angle=half_angle)
+        params["proximity_half_angle"] = half_angle
+        culled = sense(poses, edges, params, grid)
+        brute = sense(poses, edges, params)
         context = f"{context}, sector ±{half_angle}"
-        reference = oracle_sense(workspace.free_space, poses, d_con, beta_con, prox, half_angle)
+        reference = oracle_sense(workspace.free_space, poses, params)
         assert_agree(culled, reference, context)
         np.testing.assert_allclose(culled, brute, rtol=0, atol=1e-12, err_msg=context)
 
@@ -138,9 +139,10 @@ def test_clearance_beyond_the_proximity_range(cell_size: float | None) -> None:
         poses = np.zeros((3, 3))
         poses[:, :2] = rng.uniform(-45.0, 45.0, size=(3, 2))
         poses[:, 2] = rng.uniform(-math.pi, math.pi, size=3)
-        culled = sense(poses, edges, 4.0, 0.7, 1.0, grid=grid)
-        assert_agree(culled, oracle_sense(room, poses, 4.0, 0.7, 1.0), "open room")
-        np.testing.assert_allclose(culled, sense(poses, edges, 4.0, 0.7, 1.0), rtol=0, atol=1e-12)
+        params = sensing_params(d_con=4.0, beta_con=0.7, proximity_range=1.0)
+        culled = sense(poses, edges, params, grid=grid)
+        assert_agree(culled, oracle_sense(room, poses, params), "open room")
+        np.testing.assert_allclose(culled, sense(poses, edges, params), rtol=0, atol=1e-12)
 
 
 def test_poses_outside_the_grid() -> None:
@@ -149,9 +151,10 @@ def test_poses_outside_the_grid() -> None:
     edges = boundary_edges(free)
     grid = EdgeGrid.build(edges, 1.0)
     poses = np.array([[12.0, 2.0, 0.0], [11.0, 2.5, 0.3], [-3.0, -1.0, 0.0], [20.0, 9.0, 1.0]])
+    params = sensing_params(d_con=4.0, beta_con=0.7, proximity_range=2.0)
     np.testing.assert_allclose(
-        sense(poses, edges, 4.0, 0.7, 2.0, grid=grid),
-        sense(poses, edges, 4.0, 0.7, 2.0),
+        sense(poses, edges, params, grid=grid),
+        sense(poses, edges, params),
         rtol=0,
         atol=1e-12,
     )
@@ -240,11 +243,7 @@ def test_simulated_steps_do_not_depend_on_culling(scenario: str) -> None:
         brute = np.zeros_like(viol)
         violation_masks(poses, prev, grid.walls, p, brute)
         np.testing.assert_array_equal(viol, brute, err_msg=str(t))
-        direct = sense(
-            poses, edges, cfg.camera.range, cfg.camera.half_angle,
-            cfg.proximity_range, proximity_half_angle=cfg.proximity_half_angle,
-            inflation=cfg.safety.inflation,
-        )  # fmt: skip
+        direct = sense(poses, edges, p)
         np.testing.assert_allclose(sensed, direct, rtol=0, atol=1e-12, err_msg=str(t))
 
 
@@ -258,10 +257,7 @@ def test_substep_checks_match_brute_force(scenario: str, corridor: dict[str, Any
     p = params[0]
     grid = EdgeGrid.build(sc.workspace.edges, reach=sc.config.proximity_range)
     n, substeps = sc.initial_poses.shape[0] - 1, 3
-    start = sense(
-        sc.initial_poses, grid.edges, float(p["d_con"]), float(p["beta_con"]),
-        float(p["proximity_range"]), grid, proximity_half_angle=float(p["proximity_half_angle"]),
-    )  # fmt: skip
+    start = sense(sc.initial_poses, grid.edges, p, grid)
     cand = np.empty(grid.n_edges, dtype=np.int64)
     seen = 0
     got, expected = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)

@@ -32,6 +32,7 @@ from platoon_env.geometry.sensing import (
     SENSE_OCCLUDED,
     SENSE_SIZE,
     sense,
+    sensing_params,
 )
 from platoon_env.geometry.workspace import boundary_edges
 from platoon_env.records import constraint_params
@@ -155,11 +156,14 @@ def test_readings_are_to_the_inflated_outline(m: float) -> None:
     edges = boundary_edges(free)
     rng = np.random.default_rng(13)
     prox = 2.0
+    inflated_sensors = sensing_params(d_con=3.0, beta_con=0.7, proximity_range=prox, inflation=m)
+    reach_sensors = sensing_params(d_con=3.0, beta_con=0.7, proximity_range=prox + m)
+    true_sensors = sensing_params(d_con=3.0, beta_con=0.7, proximity_range=prox)
     for trial in range(200):
         poses = _random_poses(rng, eroded, 3)
-        inflated = sense(poses, edges, 3.0, 0.7, prox, inflation=m)
-        reach = sense(poses, edges, 3.0, 0.7, prox + m)
-        true = sense(poses, edges, 3.0, 0.7, prox)
+        inflated = sense(poses, edges, inflated_sensors)
+        reach = sense(poses, edges, reach_sensors)
+        true = sense(poses, edges, true_sensors)
         expected = np.clip(reach[:, SENSOR] - m, 0.0, prox)
         np.testing.assert_array_equal(inflated[:, SENSOR], expected, err_msg=str(trial))
         np.testing.assert_array_equal(inflated[:, SENSE_CLEARANCE], true[:, SENSE_CLEARANCE] - m)

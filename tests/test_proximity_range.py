@@ -15,21 +15,12 @@ import math
 
 import numpy as np
 import pytest
-from oracle import (
-    COL_D_SIGHT_LEFT,
-    COL_D_SIGHT_RIGHT,
-    COL_D_WALL_LEFT,
-    COL_D_WALL_RIGHT,
-    COL_OCCLUDED,
-    COL_VISIBLE,
-    assert_agree,
-    oracle_sense,
-)
+from oracle import assert_agree, named, oracle_sense
 from shapely.geometry import Polygon, box
 
 import platoon_env
 from platoon_env.geometry.grid import EdgeGrid
-from platoon_env.geometry.sensing import sense
+from platoon_env.geometry.sensing import sense, sensing_params
 from platoon_env.geometry.workspace import boundary_edges
 
 #: Study B's sensors (paper §4.2): camera range and half-angle, the proximity sensor's range
@@ -37,16 +28,18 @@ from platoon_env.geometry.workspace import boundary_edges
 D_CON, BETA_CON, RANGE, SECTOR = 2.5, 0.785, 2.5, math.radians(130.0)
 
 
-def _both(free: Polygon, poses: np.ndarray, prox: float, half_angle: float) -> np.ndarray:
-    """The kernel's readings (brute force and grid-culled, which must agree bit for bit), after
-    checking them against the oracle's."""
+def _both(free: Polygon, poses: np.ndarray, prox: float, half_angle: float) -> np.void:
+    """The kernel's readings of follower 1 (brute force and grid-culled, which must agree bit
+    for bit; an :func:`oracle.named` record), after checking them against the oracle's."""
     edges = boundary_edges(free)
-    args = (poses, edges, D_CON, BETA_CON, prox)
-    brute = sense(*args, proximity_half_angle=half_angle)
-    culled = sense(*args, EdgeGrid.build(edges, reach=prox), proximity_half_angle=half_angle)
+    params = sensing_params(
+        d_con=D_CON, beta_con=BETA_CON, proximity_range=prox, proximity_half_angle=half_angle
+    )
+    brute = sense(poses, edges, params)
+    culled = sense(poses, edges, params, EdgeGrid.build(edges, reach=prox))
     np.testing.assert_array_equal(brute, culled)
-    assert_agree(brute, oracle_sense(free, poses, D_CON, BETA_CON, prox, half_angle), "oracle")
-    return brute[0]
+    assert_agree(brute, oracle_sense(free, poses, params), "oracle")
+    return named(brute)[0]
 
 
 def _example_world() -> tuple[Polygon, np.ndarray, tuple[float, float]]:
@@ -75,13 +68,13 @@ def test_wall_beyond_range_of_the_follower_but_near_the_segment_is_not_sensed(
     free, poses, b = _example_world()
     assert math.hypot(*b) == pytest.approx(2.61, abs=1e-12)
     out = _both(free, poses, RANGE, half_angle)
-    assert out[COL_VISIBLE] == 1.0 and out[COL_OCCLUDED] == 0.0
-    assert out[COL_D_SIGHT_LEFT] == RANGE
-    assert out[COL_D_WALL_LEFT] == RANGE
-    assert out[COL_D_SIGHT_RIGHT] == out[COL_D_WALL_RIGHT] == RANGE  # the room's walls: 5 m
+    assert out["visible"] == 1.0 and out["occluded"] == 0.0
+    assert out["d_l"] == RANGE
+    assert out["d_W_l"] == RANGE
+    assert out["d_r"] == out["d_W_r"] == RANGE  # the room's walls: 5 m
     wide = _both(free, poses, 2.7, half_angle)
-    assert wide[COL_D_SIGHT_LEFT] == pytest.approx(0.283, abs=1e-12)
-    assert wide[COL_D_WALL_LEFT] == pytest.approx(2.61, abs=1e-12)
+    assert wide["d_l"] == pytest.approx(0.283, abs=1e-12)
+    assert wide["d_W_l"] == pytest.approx(2.61, abs=1e-12)
 
 
 def test_wall_within_range_of_the_follower_is_sensed() -> None:
@@ -94,7 +87,7 @@ def test_wall_within_range_of_the_follower_is_sensed() -> None:
     out = _both(free, poses, RANGE, SECTOR)
     # The corner now lies above L_i (0 <= bx <= 2.45): its distance to L_i is its height.
     assert 0.0 <= bx <= poses[0, 0] and math.hypot(bx, by) < RANGE
-    assert out[COL_D_SIGHT_LEFT] == pytest.approx(by, abs=1e-12)
+    assert out["d_l"] == pytest.approx(by, abs=1e-12)
 
 
 def test_a_wall_leaving_the_range_is_sensed_up_to_it() -> None:
@@ -106,13 +99,15 @@ def test_a_wall_leaving_the_range_is_sensed_up_to_it() -> None:
     poses = np.array([[3.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
     x_end = (0.5 + math.sqrt(0.25 + 4.0 * 1.0625 * 3.0)) / (2.0 * 1.0625)
     assert x_end**2 + (1.0 - x_end / 4.0) ** 2 == pytest.approx(4.0, abs=1e-12)
-    out = sense(poses, edges, 4.0, 0.5, 2.0)[0]
-    assert out[COL_D_SIGHT_LEFT] == pytest.approx(1.0 - x_end / 4.0, abs=1e-12)
-    assert out[COL_D_WALL_LEFT] == pytest.approx(1.0 / math.hypot(1.0, 0.25), abs=1e-12)
+    near = sensing_params(d_con=4.0, beta_con=0.5, proximity_range=2.0)
+    out = named(sense(poses, edges, near))[0]
+    assert out["d_l"] == pytest.approx(1.0 - x_end / 4.0, abs=1e-12)
+    assert out["d_W_l"] == pytest.approx(1.0 / math.hypot(1.0, 0.25), abs=1e-12)
     old_rule = 0.25 / math.hypot(1.0, 0.25)  # q = (3, 0) to the wall's line
-    assert out[COL_D_SIGHT_LEFT] > old_rule + 0.25
-    wide = sense(poses, edges, 4.0, 0.5, 5.0)[0]
-    assert wide[COL_D_SIGHT_LEFT] == pytest.approx(old_rule, abs=1e-12)
+    assert out["d_l"] > old_rule + 0.25
+    far = sensing_params(d_con=4.0, beta_con=0.5, proximity_range=5.0)
+    wide = named(sense(poses, edges, far))[0]
+    assert wide["d_l"] == pytest.approx(old_rule, abs=1e-12)
 
 
 @pytest.mark.parametrize(
@@ -127,15 +122,17 @@ def test_occluding_crossing_counts_only_within_range(wall_x: float, zeroed: bool
     free = room.difference(box(wall_x, -0.5, wall_x + 0.05, 0.5))
     poses = np.array([[3.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
     edges = boundary_edges(free)
-    out = sense(poses, edges, 4.0, 0.5, 2.0)[0]
-    assert_agree(out[None], oracle_sense(free, poses, 4.0, 0.5, 2.0), "oracle")
-    assert out[COL_OCCLUDED] == 1.0 and out[COL_VISIBLE] == 0.0
-    sight = out[[COL_D_SIGHT_LEFT, COL_D_SIGHT_RIGHT]].tolist()
+    params = sensing_params(d_con=4.0, beta_con=0.5, proximity_range=2.0)
+    readings = sense(poses, edges, params)
+    assert_agree(readings, oracle_sense(free, poses, params), "oracle")
+    out = named(readings)[0]
+    assert out["occluded"] == 1.0 and out["visible"] == 0.0
+    sight = out[["d_l", "d_r"]].tolist()
     if zeroed:
-        assert sight == [0.0, 0.0]
+        assert sight == (0.0, 0.0)
     else:
-        assert sight == [2.0, 2.0]
-        assert out[COL_D_WALL_LEFT] == out[COL_D_WALL_RIGHT] == 2.0
+        assert sight == (2.0, 2.0)
+        assert out["d_W_l"] == out["d_W_r"] == 2.0
 
 
 def test_env_reports_the_rule() -> None:

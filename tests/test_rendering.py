@@ -7,6 +7,7 @@ import importlib
 import sys
 import types
 import warnings
+from typing import Any
 
 import numpy as np
 import pytest
@@ -62,6 +63,16 @@ def is_white(pixel: np.ndarray) -> bool:
     return bool(pixel.min() >= 245)
 
 
+def world_to_pixel(renderer: Renderer, x: float, y: float) -> tuple[int, int]:
+    """``(row, col)`` of the world point ``(x, y)`` in the renderer's ``"rgb_array"`` frames
+    (once one has been rendered: the axes' transform then maps metres to pixels)."""
+    scene = renderer._scene
+    assert scene is not None, "render a frame first"
+    scene.ax.apply_aspect()
+    px, py = scene.ax.transData.transform((x, y))
+    return round(renderer.frame_shape[0] - float(py)), round(float(px))
+
+
 def test_rgb_array_frame_shape_and_dtype(free_space: Polygon) -> None:
     renderer = Renderer(free_space, make_config(), "rgb_array", size_px=320)
     poses, visible = platoon(3)
@@ -105,10 +116,10 @@ def test_obstacle_pixel_grey_and_free_pixel_white(free_space: Polygon) -> None:
     poses, visible = platoon(3)
     frame = renderer.render(poses, visible, 0.0)
     assert frame is not None
-    assert is_grey(frame[renderer.world_to_pixel(*OBSTACLE_POINT)])
-    assert is_white(frame[renderer.world_to_pixel(*FREE_POINT)])
+    assert is_grey(frame[world_to_pixel(renderer, *OBSTACLE_POINT)])
+    assert is_white(frame[world_to_pixel(renderer, *FREE_POINT)])
     # The margin beyond the workspace bounds counts as obstacle as well.
-    assert is_grey(frame[renderer.world_to_pixel(-0.15, 3.0)])
+    assert is_grey(frame[world_to_pixel(renderer, -0.15, 3.0)])
 
 
 def test_robot_colours_and_violation(free_space: Polygon) -> None:
@@ -120,7 +131,7 @@ def test_robot_colours_and_violation(free_space: Polygon) -> None:
 
     def body(k: int) -> np.ndarray:
         # Behind the centre, off the heading tick.
-        pixel = renderer.world_to_pixel(poses[k, 0] - 0.1, poses[k, 1] - 0.05)
+        pixel = world_to_pixel(renderer, poses[k, 0] - 0.1, poses[k, 1] - 0.05)
         return frame[pixel].astype(int)
 
     leader, follower, violating = body(0), body(1), body(3)
@@ -221,26 +232,23 @@ def test_fov_wedge_geometry() -> None:
     assert np.isclose(angles.min(), np.pi / 2 - 0.4) and np.isclose(angles.max(), np.pi / 2 + 0.4)
 
 
-def test_multipolygon_free_space_and_real_config() -> None:
+def test_multipolygon_free_space_and_real_config(corridor: dict[str, Any]) -> None:
+    """A real ScenarioConfig (the shared corridor's robots and camera) over two rooms."""
     schema = pytest.importorskip("platoon_env.scenarios.schema")
-    config = schema.parse_scenario(
-        {
-            "name": "two_rooms",
-            "workspace": {"bounds": [0, 0, 9, 4]},
-            "leader": {"path": [[0.5, 1], [3.5, 1]], "speed": 0.3},
-            "followers": 1,
-            "robot": {"radius": 0.15},
-            "camera": {"half_angle": 0.4, "range": 1.5},
-            "safety": {"d_col": 0.3},
-            "formation": {"d_des": 1.0},
-        }
-    )
+    rooms_scenario = {
+        **corridor,
+        "name": "two_rooms",
+        "workspace": {"bounds": [0, 0, 9, 4]},
+        "leader": {"path": [[0.5, 1], [3.5, 1]], "speed": 0.3},
+        "followers": 1,
+    }
+    config = schema.parse_scenario(rooms_scenario)
     rooms = MultiPolygon([box(0, 0, 4, 4), box(5, 0, 9, 4)])
     renderer = Renderer(rooms, config, "rgb_array", size_px=300)
     frame = renderer.render(np.array([[2.5, 1.0, 0.0], [1.5, 1.0, 0.0]]), [True], 0.0)
     assert frame is not None
-    assert is_grey(frame[renderer.world_to_pixel(4.5, 3.0)])  # between the rooms
-    assert is_white(frame[renderer.world_to_pixel(7.0, 3.0)])
+    assert is_grey(frame[world_to_pixel(renderer, 4.5, 3.0)])  # between the rooms
+    assert is_white(frame[world_to_pixel(renderer, 7.0, 3.0)])
     renderer.close()
 
 
@@ -311,8 +319,8 @@ def test_bounds_fix_frame_shape_and_scale(free_space: Polygon) -> None:
         frame = renderer.render(np.array([[3.0, 5.0, 0.0], [2.0, 5.0, 0.0]]), [True], 0.0)
         assert frame is not None and frame.shape == renderer.frame_shape
         frames.append(frame.shape)
-        pixels.append(renderer.world_to_pixel(15.0, 2.0))
-        assert is_grey(frame[renderer.world_to_pixel(15.0, 5.0)])  # inside bounds, not W_f
+        pixels.append(world_to_pixel(renderer, 15.0, 2.0))
+        assert is_grey(frame[world_to_pixel(renderer, 15.0, 5.0)])  # inside bounds, not W_f
         renderer.close()
     assert frames[0] == frames[1] == (*frame_size(bounds, 300), 3)
     assert frames[0][1] == 300  # the wide bounds' longer side

@@ -25,6 +25,7 @@ from platoon_env.geometry.sensing import (
     SENSE_OCCLUDED,
     SENSE_SIZE,
     sense,
+    sensing_params,
 )
 from platoon_env.geometry.workspace import boundary_edges
 from platoon_env.records import PARAMS_DTYPE
@@ -42,14 +43,23 @@ from platoon_env.safety import (
 )
 
 
-def _params(
-    radius: float, d_col: float, d_con: float, beta_con: float, prox: float, half: float = math.pi
-) -> NDArray[np.void]:
+def _params(*, radius: float, d_col: float, **sensors: float) -> NDArray[np.void]:
+    """A ``(1,)`` params array of what the constraint rules read: the robot radius ``r``,
+    ``d_col`` and the sensors (:func:`~platoon_env.geometry.sensing.sensing_params`)."""
     params = np.zeros(1, dtype=PARAMS_DTYPE)
+    params[0] = sensing_params(**sensors)
     params["radius"], params["d_col"] = radius, d_col
-    params["d_con"], params["beta_con"] = d_con, beta_con
-    params["proximity_range"], params["proximity_half_angle"] = prox, half
     return params
+
+
+#: The corridor tests' robots and sensors.
+CORRIDOR_PARAMS = {
+    "radius": 0.1,
+    "d_col": 0.3,
+    "d_con": 1.5,
+    "beta_con": 0.5,
+    "proximity_range": 1.0,
+}
 
 
 @pytest.mark.parametrize("workspace", all_workspaces(), ids=lambda w: w.name)
@@ -59,7 +69,14 @@ def test_configuration_masks_are_the_substep_rules(workspace: Workspace, half_an
     brute-force sub-step masks without motion, and the sensing equals :func:`sense`."""
     rng = np.random.default_rng(11)
     edges = boundary_edges(workspace.free_space)
-    params = _params(0.2, 0.45, workspace.d_con, workspace.beta_con, 1.2, half_angle)
+    params = _params(
+        radius=0.2,
+        d_col=0.45,
+        d_con=workspace.d_con,
+        beta_con=workspace.beta_con,
+        proximity_range=1.2,
+        proximity_half_angle=half_angle,
+    )
     p = params[0]
     grid = EdgeGrid.build(edges, reach=1.2)
     seen = 0
@@ -76,10 +93,7 @@ def test_configuration_masks_are_the_substep_rules(workspace: Workspace, half_an
         violation_masks(poses, poses, grid.walls, p, expected)
         context = f"{workspace.name} trial {trial}, poses={poses.tolist()}"
         np.testing.assert_array_equal(masks, expected, err_msg=context)
-        reading = sense(
-            poses, edges, workspace.d_con, workspace.beta_con, 1.2, proximity_half_angle=half_angle
-        )
-        np.testing.assert_array_equal(sensed, reading, err_msg=context)
+        np.testing.assert_array_equal(sensed, sense(poses, edges, p), err_msg=context)
         seen |= int(np.bitwise_or.reduce(masks))
     assert seen == 0b11111, f"every cause should occur, saw {seen:#b}"
 
@@ -88,9 +102,7 @@ def _corridor_problems(poses: list[list[float]], **overrides: float) -> list[str
     """The messages for ``poses`` in a 20 m x 2 m corridor with a post at x in [10, 11]."""
     free = box(0.0, -1.0, 20.0, 1.0).difference(box(10.0, -1.0, 11.0, 0.2))
     grid = EdgeGrid.build(boundary_edges(free), reach=1.0)
-    values = {"radius": 0.1, "d_col": 0.3, "d_con": 1.5, "beta_con": 0.5, "prox": 1.0}
-    values.update(overrides)
-    params = _params(*values.values())
+    params = _params(**(CORRIDOR_PARAMS | overrides))
     return configuration_problems(np.array(poses, dtype=np.float64), grid.walls, params)
 
 
@@ -128,7 +140,7 @@ def test_contacts_of_any_two_robots() -> None:
 def test_describe_masks_without_poses_and_motion() -> None:
     """Without poses a contact is reported per follower; an obstacle hit with clearance left
     is the tunnelling check of a step."""
-    params = _params(0.1, 0.3, 1.5, 0.5, 1.0)
+    params = _params(**CORRIDOR_PARAMS)
     sensed = np.zeros((2, SENSE_SIZE))
     sensed[:, SENSE_D] = 1.0
     sensed[:, SENSE_CLEARANCE] = 0.5
@@ -145,7 +157,7 @@ def test_describe_masks_without_poses_and_motion() -> None:
 def test_sensed_violation_reads_the_row() -> None:
     """``d`` and ``beta`` come from the row, the squared clearance and the tunnelling check
     from the sensing call, the occlusion from the row's flag."""
-    p = _params(0.1, 0.3, 1.5, 0.5, 1.0)[0]
+    p = _params(**CORRIDOR_PARAMS)[0]
     row = np.zeros(SENSE_SIZE)
     row[SENSE_D], row[SENSE_BETA] = 1.0, 0.2
     assert sensed_violation(row, 1.0, False, p) == 0

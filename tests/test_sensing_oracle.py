@@ -11,15 +11,15 @@ Three layers, as STYLE principle 6 asks:
    vertex, an edge crossing the line through ``L_i`` beyond the segment, a line of sight along a
    wall, a follower touching a wall, a predecessor exactly on the edge of the field of view.
 
-The kernel is imported inside a fixture, so the oracle's own checks run without it.
+Both take the sensors as a params record (:func:`~platoon_env.geometry.sensing.sensing_params`)
+and both results are read by column name (:func:`oracle.named`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
-from types import ModuleType
+from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -27,25 +27,14 @@ import shapely
 from numpy.typing import NDArray
 from oracle import (
     ANGLE_TOL,
-    COL_BETA,
-    COL_CLEARANCE,
-    COL_D,
-    COL_D_SIGHT_LEFT,
-    COL_D_SIGHT_RIGHT,
-    COL_D_WALL_LEFT,
-    COL_D_WALL_RIGHT,
-    COL_OCCLUDED,
-    COL_VISIBLE,
-    COLUMNS,
-    N_COLUMNS,
-    SenseFn,
     angle_difference,
     assert_agree,
+    kernel_sense,
+    named,
     oracle_sense,
     wrap_angle,
 )
 from shapely.geometry import MultiPolygon, Polygon, box
-from shapely.geometry.base import BaseGeometry
 from workspaces import (
     Workspace,
     all_workspaces,
@@ -55,40 +44,23 @@ from workspaces import (
     two_rooms,
 )
 
+from platoon_env.geometry.grid import EdgeGrid
+from platoon_env.geometry.sensing import SENSE_NAMES, SENSE_SIZE, sense, sensing_params
+from platoon_env.geometry.workspace import boundary_edges
+
 # --------------------------------------------------------------------------------------------
 # Helpers
 
 
-def _kernel_sense(
-    free_space: BaseGeometry,
-    poses: NDArray[np.float64],
-    d_con: float,
-    beta_con: float,
-    proximity_range: float,
-    half_angle: float = math.pi,
-) -> NDArray[np.float64]:
-    """The kernel under test, taking a shapely free space like the oracle does."""
-    from platoon_env.geometry.sensing import sense
-    from platoon_env.geometry.workspace import boundary_edges
-
-    edges = boundary_edges(free_space)
-    return np.asarray(
-        sense(poses, edges, d_con, beta_con, proximity_range, proximity_half_angle=half_angle)
+def sensors(d_con: float, proximity_range: float, proximity_half_angle: float = math.pi) -> np.void:
+    """The sensors of most cases here: a camera of range ``d_con`` and half-angle 0.5 rad, and
+    a proximity sensor of the given range and sector."""
+    return sensing_params(
+        d_con=d_con,
+        beta_con=0.5,
+        proximity_range=proximity_range,
+        proximity_half_angle=proximity_half_angle,
     )
-
-
-@pytest.fixture(scope="module")
-def kernel_sense() -> SenseFn:
-    """The kernel under test (all-around proximity sensor)."""
-    return _kernel_sense
-
-
-@pytest.fixture(scope="module")
-def sensing_module() -> ModuleType:
-    """The kernel's module, for its column constants."""
-    import platoon_env.geometry.sensing as sensing
-
-    return sensing
 
 
 def corridor(half_width: float, length: float = 40.0) -> Polygon:
@@ -138,25 +110,25 @@ def test_oracle_distance_to_unit_square(
     cross = v[0] * corners[:, 1] - v[1] * corners[:, 0]
     assert np.all(cross > 0) if square_on_left else np.all(cross < 0)
     poses = np.array([[px + v[0], py + v[1], 0.0], [px, py, math.atan2(v[1], v[0])]])
-    out = oracle_sense(unit_square_world(), poses, 4.0, 0.5, proximity)[0]
-    near, far = (COL_D_WALL_LEFT, COL_D_WALL_RIGHT)[:: 1 if square_on_left else -1]
+    out = named(oracle_sense(unit_square_world(), poses, sensors(4.0, proximity)))[0]
+    near, far = ("d_W_l", "d_W_r")[:: 1 if square_on_left else -1]
     assert out[near] == pytest.approx(distance, abs=1e-12)
     assert out[far] == proximity
-    assert out[COL_CLEARANCE] == pytest.approx(distance, abs=1e-12)
-    assert out[COL_D] == pytest.approx(1.0, abs=1e-12)
-    assert out[COL_BETA] == pytest.approx(0.0, abs=1e-12)
-    assert out[COL_OCCLUDED] == 0.0
-    assert out[COL_VISIBLE] == 1.0
+    assert out["clearance"] == pytest.approx(distance, abs=1e-12)
+    assert out["d"] == pytest.approx(1.0, abs=1e-12)
+    assert out["beta"] == pytest.approx(0.0, abs=1e-12)
+    assert out["occluded"] == 0.0
+    assert out["visible"] == 1.0
 
 
 def test_oracle_sight_parallel_to_square_side() -> None:
     """Line of sight parallel to the square's right side at 1 m: ``d_l = 1``, ``d_r`` capped."""
     poses = np.array([[2.0, 2.5, 0.0], [2.0, -0.5, math.pi / 2]])
-    out = oracle_sense(unit_square_world(), poses, 4.0, 0.5, 5.0)[0]
-    assert out[COL_D_SIGHT_LEFT] == pytest.approx(1.0, abs=1e-12)
-    assert out[COL_D_SIGHT_RIGHT] == 5.0
-    assert out[COL_D_WALL_LEFT] == pytest.approx(math.hypot(1.0, 0.5), abs=1e-12)
-    assert out[COL_CLEARANCE] == pytest.approx(math.hypot(1.0, 0.5), abs=1e-12)
+    out = named(oracle_sense(unit_square_world(), poses, sensors(4.0, 5.0)))[0]
+    assert out["d_l"] == pytest.approx(1.0, abs=1e-12)
+    assert out["d_r"] == 5.0
+    assert out["d_W_l"] == pytest.approx(math.hypot(1.0, 0.5), abs=1e-12)
+    assert out["clearance"] == pytest.approx(math.hypot(1.0, 0.5), abs=1e-12)
 
 
 def _point_to_segment(
@@ -203,32 +175,32 @@ def test_oracle_straight_corridor(
     w = 1.0
     y0, y1 = offset, offset + rise
     poses = np.array([[22.0, y1, 0.0], [20.0, y0, heading_error]])
-    out = oracle_sense(corridor(w), poses, 3.0, 0.5, proximity)[0]
-    assert out[COL_D_WALL_LEFT] == pytest.approx(min(w - y0, proximity), abs=1e-12)
-    assert out[COL_D_WALL_RIGHT] == pytest.approx(min(w + y0, proximity), abs=1e-12)
+    out = named(oracle_sense(corridor(w), poses, sensors(3.0, proximity)))[0]
+    assert out["d_W_l"] == pytest.approx(min(w - y0, proximity), abs=1e-12)
+    assert out["d_W_r"] == pytest.approx(min(w + y0, proximity), abs=1e-12)
     left = _sight_to_sensed_wall((20.0, y0), (22.0, y1), w, proximity)
     right = _sight_to_sensed_wall((20.0, y0), (22.0, y1), -w, proximity)
-    assert out[COL_D_SIGHT_LEFT] == pytest.approx(left, abs=1e-12)
-    assert out[COL_D_SIGHT_RIGHT] == pytest.approx(right, abs=1e-12)
+    assert out["d_l"] == pytest.approx(left, abs=1e-12)
+    assert out["d_r"] == pytest.approx(right, abs=1e-12)
     if proximity == 5.0:  # the whole stretch beside L_i is in range
         assert left == pytest.approx(min(w - max(y0, y1), proximity), abs=1e-12)
         assert right == pytest.approx(min(w + min(y0, y1), proximity), abs=1e-12)
-    assert out[COL_CLEARANCE] == pytest.approx(w - abs(y0), abs=1e-12)
-    assert out[COL_D] == pytest.approx(math.hypot(2.0, rise), abs=1e-12)
-    assert out[COL_BETA] == pytest.approx(math.atan2(rise, 2.0) - heading_error, abs=1e-12)
-    assert out[COL_OCCLUDED] == 0.0
-    assert out[COL_VISIBLE] == 1.0
+    assert out["clearance"] == pytest.approx(w - abs(y0), abs=1e-12)
+    assert out["d"] == pytest.approx(math.hypot(2.0, rise), abs=1e-12)
+    assert out["beta"] == pytest.approx(math.atan2(rise, 2.0) - heading_error, abs=1e-12)
+    assert out["occluded"] == 0.0
+    assert out["visible"] == 1.0
 
 
 def test_oracle_corridor_looking_back_swaps_sides() -> None:
     """Facing ``-x`` in the corridor, left is the ``-y`` wall."""
     poses = np.array([[18.0, 0.25, math.pi], [20.0, 0.25, math.pi]])
-    out = oracle_sense(corridor(1.0), poses, 3.0, 0.5, 5.0)[0]
-    assert out[COL_D_WALL_LEFT] == pytest.approx(1.25, abs=1e-12)
-    assert out[COL_D_WALL_RIGHT] == pytest.approx(0.75, abs=1e-12)
-    assert out[COL_D_SIGHT_LEFT] == pytest.approx(1.25, abs=1e-12)
-    assert out[COL_D_SIGHT_RIGHT] == pytest.approx(0.75, abs=1e-12)
-    assert out[COL_BETA] == pytest.approx(0.0, abs=1e-12)
+    out = named(oracle_sense(corridor(1.0), poses, sensors(3.0, 5.0)))[0]
+    assert out["d_W_l"] == pytest.approx(1.25, abs=1e-12)
+    assert out["d_W_r"] == pytest.approx(0.75, abs=1e-12)
+    assert out["d_l"] == pytest.approx(1.25, abs=1e-12)
+    assert out["d_r"] == pytest.approx(0.75, abs=1e-12)
+    assert out["beta"] == pytest.approx(0.0, abs=1e-12)
 
 
 @pytest.mark.parametrize(
@@ -246,9 +218,9 @@ def test_oracle_angle_of_view_wraps(direction: float, heading: float, beta: floa
     follower = np.array([20.0, 0.0])
     ahead = follower + 0.5 * np.array([math.cos(direction), math.sin(direction)])
     poses = np.array([[ahead[0], ahead[1], 0.0], [follower[0], follower[1], heading]])
-    out = oracle_sense(corridor(1.0), poses, 3.0, 0.5, 5.0)[0]
-    assert out[COL_BETA] == pytest.approx(beta, abs=1e-12)
-    assert -math.pi < out[COL_BETA] <= math.pi
+    out = named(oracle_sense(corridor(1.0), poses, sensors(3.0, 5.0)))[0]
+    assert out["beta"] == pytest.approx(beta, abs=1e-12)
+    assert -math.pi < out["beta"] <= math.pi
 
 
 def test_wrap_angle() -> None:
@@ -264,46 +236,43 @@ def test_oracle_thin_wall_occludes() -> None:
     """A wall between follower and predecessor: occluded, not visible, ``d_l = d_r = 0``."""
     free = box(0.0, 0.0, 10.0, 10.0).difference(box(4.9, 3.0, 5.1, 7.0))
     poses = np.array([[6.0, 5.0, 0.0], [4.0, 5.0, 0.0]])
-    out = oracle_sense(free, poses, 4.0, 0.5, 4.0)[0]
-    assert out[COL_OCCLUDED] == 1.0
-    assert out[COL_VISIBLE] == 0.0
-    assert out[COL_D_SIGHT_LEFT] == 0.0
-    assert out[COL_D_SIGHT_RIGHT] == 0.0
-    assert out[COL_D_WALL_LEFT] == pytest.approx(0.9, abs=1e-12)
-    assert out[COL_D_WALL_RIGHT] == pytest.approx(0.9, abs=1e-12)
+    out = named(oracle_sense(free, poses, sensors(4.0, 4.0)))[0]
+    assert out["occluded"] == 1.0
+    assert out["visible"] == 0.0
+    assert out["d_l"] == 0.0
+    assert out["d_r"] == 0.0
+    assert out["d_W_l"] == pytest.approx(0.9, abs=1e-12)
+    assert out["d_W_r"] == pytest.approx(0.9, abs=1e-12)
 
 
 def test_oracle_rejects_bad_shape() -> None:
     """Poses must be ``(N + 1, 3)``."""
     with pytest.raises(ValueError, match="shape"):
-        oracle_sense(corridor(1.0), np.zeros((3, 2)), 3.0, 0.5, 3.0)
+        oracle_sense(corridor(1.0), np.zeros((3, 2)), sensors(3.0, 3.0))
+
+
+def test_oracle_refuses_inflation() -> None:
+    """The oracle models the true boundary: a record with an inflation is an error, not a
+    silent answer for another sensor."""
+    poses = np.array([[22.0, 0.0, 0.0], [20.0, 0.0, 0.0]])
+    inflated = sensing_params(d_con=3.0, beta_con=0.5, proximity_range=3.0, inflation=0.1)
+    with pytest.raises(ValueError, match="inflation"):
+        oracle_sense(corridor(1.0), poses, inflated)
 
 
 # --------------------------------------------------------------------------------------------
 # 2. The kernel against the oracle
 
 
-def test_kernel_column_constants(sensing_module: ModuleType) -> None:
-    """The kernel's ``SENSE_*`` column indices are the documented order."""
-    expected = {
-        "SENSE_D": COL_D,
-        "SENSE_BETA": COL_BETA,
-        "SENSE_VISIBLE": COL_VISIBLE,
-        "SENSE_OCCLUDED": COL_OCCLUDED,
-        "SENSE_D_WALL_LEFT": COL_D_WALL_LEFT,
-        "SENSE_D_WALL_RIGHT": COL_D_WALL_RIGHT,
-        "SENSE_D_SIGHT_LEFT": COL_D_SIGHT_LEFT,
-        "SENSE_D_SIGHT_RIGHT": COL_D_SIGHT_RIGHT,
-        "SENSE_CLEARANCE": COL_CLEARANCE,
-    }
-    assert {name: getattr(sensing_module, name) for name in expected} == expected
+def test_kernel_columns_are_the_documented_ones() -> None:
+    """The sensing columns (``env.sensed``, ``docs/sensing.md``), in the documented order; the
+    tests read them by these names (:func:`oracle.named`)."""
+    assert " ".join(SENSE_NAMES) == "d beta visible occluded d_W_l d_W_r d_l d_r clearance"
 
 
 @pytest.mark.parametrize("workspace", all_workspaces(), ids=lambda w: w.name)
 def test_boundary_edges_cover_every_ring(workspace: Workspace) -> None:
     """``boundary_edges`` lists each ring's edges once: they rebuild ``dW_f`` exactly."""
-    from platoon_env.geometry.workspace import boundary_edges
-
     edges = boundary_edges(workspace.free_space)
     assert edges.dtype == np.float64 and edges.ndim == 2 and edges.shape[1] == 4
     boundary = workspace.free_space.boundary
@@ -361,32 +330,34 @@ def lattice_states(workspace: Workspace) -> Iterator[tuple[int, NDArray[np.float
 LATTICE_WORKSPACES = [collinear_holes(), two_rooms(), all_workspaces()[1]]
 
 
-@pytest.mark.parametrize("workspace", all_workspaces(), ids=lambda w: w.name)
-def test_kernel_matches_oracle_random_states(kernel_sense: SenseFn, workspace: Workspace) -> None:
-    """Random platoons (N = 3, a quarter of the robots near walls): every column agrees."""
-    for k, poses, prox in random_states(workspace):
-        args = (poses, workspace.d_con, workspace.beta_con, prox)
+def _check_states(
+    workspace: Workspace, states: Iterator[tuple[int, NDArray[np.float64], float]], kind: str
+) -> None:
+    """Kernel and oracle agree in every column on each of ``states`` (of :func:`random_states`
+    or :func:`lattice_states`)."""
+    for k, poses, prox in states:
+        params = workspace.sensors(prox)
         assert_agree(
-            kernel_sense(workspace.free_space, *args),
-            oracle_sense(workspace.free_space, *args),
-            f"{workspace.name} state {k}, prox={prox}, poses={poses.tolist()}",
+            kernel_sense(workspace.free_space, poses, params),
+            oracle_sense(workspace.free_space, poses, params),
+            f"{workspace.name} {kind} {k}, prox={prox}, poses={poses.tolist()}",
         )
 
 
+@pytest.mark.parametrize("workspace", all_workspaces(), ids=lambda w: w.name)
+def test_kernel_matches_oracle_random_states(workspace: Workspace) -> None:
+    """Random platoons (N = 3, a quarter of the robots near walls): every column agrees."""
+    _check_states(workspace, random_states(workspace), "state")
+
+
 @pytest.mark.parametrize("workspace", LATTICE_WORKSPACES, ids=lambda w: w.name)
-def test_kernel_matches_oracle_lattice_states(kernel_sense: SenseFn, workspace: Workspace) -> None:
+def test_kernel_matches_oracle_lattice_states(workspace: Workspace) -> None:
     """Poses on the workspace's own 0.5 m lattice: exact collinear and touching configurations.
 
     Lines of sight run exactly through vertices and along edges, robots sit exactly on walls
     and occasionally on each other; the closed half-planes must agree with the oracle's.
     """
-    for k, poses, prox in lattice_states(workspace):
-        args = (poses, workspace.d_con, workspace.beta_con, prox)
-        assert_agree(
-            kernel_sense(workspace.free_space, *args),
-            oracle_sense(workspace.free_space, *args),
-            f"{workspace.name} lattice state {k}, prox={prox}, poses={poses.tolist()}",
-        )
+    _check_states(workspace, lattice_states(workspace), "lattice state")
 
 
 # --------------------------------------------------------------------------------------------
@@ -404,11 +375,18 @@ class Case:
     d_con: float
     beta_con: float
     proximity_range: float
-    expected: dict[int, float] = field(default_factory=dict)
+    #: The readings checked, by column name (``SENSE_NAMES``); the others are not.
+    expected: dict[str, float]
 
     def poses(self) -> NDArray[np.float64]:
         """The ``(2, 3)`` poses array: predecessor (as leader), then the follower."""
         return np.array([[*self.predecessor, 0.0], list(self.follower)], dtype=np.float64)
+
+    def sensors(self) -> np.void:
+        """The case's sensors as the params record both senses read."""
+        return sensing_params(
+            d_con=self.d_con, beta_con=self.beta_con, proximity_range=self.proximity_range
+        )
 
 
 def _room_with(obstacle: Polygon, bounds: tuple[float, float, float, float]) -> Polygon:
@@ -416,357 +394,167 @@ def _room_with(obstacle: Polygon, bounds: tuple[float, float, float, float]) -> 
     return box(*bounds).difference(obstacle)
 
 
+# fmt: off
+# A table, a case a few lines: the formatter would put every field on a line of its own.
 CASES: list[Case] = [
-    Case(
-        # The line x + y = 8 touches the square [4, 6]^2 only at its vertex (4, 4). The vertex
-        # is on the line, so it belongs to both sides: d_W_r is |(3, 5) - (4, 4)| = sqrt 2.
-        "sight_through_vertex",
-        _room_with(box(4.0, 4.0, 6.0, 6.0), (0.0, 0.0, 10.0, 10.0)),
-        predecessor=(5.0, 3.0),
-        follower=(3.0, 5.0, -math.pi / 4),
-        d_con=4.0,
-        beta_con=0.5,
-        proximity_range=4.0,
-        expected={
-            COL_D: 2 * math.sqrt(2.0),
-            COL_BETA: 0.0,
-            COL_VISIBLE: 0.0,
-            COL_OCCLUDED: 1.0,
-            COL_D_WALL_LEFT: 1.0,
-            COL_D_WALL_RIGHT: math.sqrt(2.0),
-            COL_D_SIGHT_LEFT: 0.0,
-            COL_D_SIGHT_RIGHT: 0.0,
-            COL_CLEARANCE: 1.0,
-        },
-    ),
-    Case(
-        # The sight line y = 5 meets the triangle's edge (4, 7)-(6, 3) at (5, 5), beyond L_i.
-        # Split there: its left part is nearest at (4.6, 5.8) / (4.4, 6.2), its right part
-        # only at the split point (5, 5).
-        "edge_crosses_line_beyond_segment",
-        _room_with(Polygon([(4.0, 7.0), (6.0, 3.0), (7.0, 3.0)]), (-10.0, -10.0, 20.0, 20.0)),
-        predecessor=(3.0, 5.0),
-        follower=(2.0, 5.0, 0.0),
-        d_con=4.0,
-        beta_con=0.5,
-        proximity_range=4.0,
-        expected={
-            COL_D: 1.0,
-            COL_BETA: 0.0,
-            COL_VISIBLE: 1.0,
-            COL_OCCLUDED: 0.0,
-            COL_D_WALL_LEFT: math.sqrt(7.2),
-            COL_D_WALL_RIGHT: 3.0,
-            COL_D_SIGHT_LEFT: math.sqrt(3.2),
-            COL_D_SIGHT_RIGHT: 2.0,
-            COL_CLEARANCE: math.sqrt(7.2),
-        },
-    ),
-    Case(
-        # Same, but the follower looks the other way: the sides swap.
-        "edge_crosses_line_behind_follower",
-        _room_with(Polygon([(4.0, 7.0), (6.0, 3.0), (7.0, 3.0)]), (-10.0, -10.0, 20.0, 20.0)),
-        predecessor=(1.0, 5.0),
-        follower=(2.0, 5.0, math.pi),
-        d_con=4.0,
-        beta_con=0.5,
-        proximity_range=4.0,
-        expected={
-            COL_D: 1.0,
-            COL_VISIBLE: 1.0,
-            COL_OCCLUDED: 0.0,
-            COL_D_WALL_LEFT: 3.0,
-            COL_D_WALL_RIGHT: math.sqrt(7.2),
-            COL_D_SIGHT_LEFT: 3.0,
-            COL_D_SIGHT_RIGHT: math.sqrt(7.2),
-            COL_CLEARANCE: math.sqrt(7.2),
-        },
-    ),
-    Case(
-        # The hole's bottom edge (5, 5)-(7, 5) lies on the line through L_i, beyond it: on both
-        # sides, not an occlusion.
-        "edge_on_line_beyond_segment",
-        _room_with(box(5.0, 5.0, 7.0, 6.0), (-10.0, -10.0, 20.0, 20.0)),
-        predecessor=(3.0, 5.0),
-        follower=(2.0, 5.0, 0.0),
-        d_con=4.0,
-        beta_con=0.5,
-        proximity_range=4.0,
-        expected={
-            COL_VISIBLE: 1.0,
-            COL_OCCLUDED: 0.0,
-            COL_D_WALL_LEFT: 3.0,
-            COL_D_WALL_RIGHT: 3.0,
-            COL_D_SIGHT_LEFT: 2.0,
-            COL_D_SIGHT_RIGHT: 2.0,
-            COL_CLEARANCE: 3.0,
-        },
-    ),
-    Case(
-        # Both robots on the corridor's lower wall: L_i lies along it, which is touching.
-        "sight_along_wall",
-        corridor(1.0),
-        predecessor=(12.0, -1.0),
-        follower=(10.0, -1.0, 0.0),
-        d_con=3.0,
-        beta_con=0.5,
-        proximity_range=3.0,
-        expected={
-            COL_D: 2.0,
-            COL_BETA: 0.0,
-            COL_VISIBLE: 0.0,
-            COL_OCCLUDED: 1.0,
-            COL_D_WALL_LEFT: 0.0,
-            COL_D_WALL_RIGHT: 0.0,
-            COL_D_SIGHT_LEFT: 0.0,
-            COL_D_SIGHT_RIGHT: 0.0,
-            COL_CLEARANCE: 0.0,
-        },
-    ),
-    Case(
-        # Parallel to the lower wall, 0.25 m above it.
-        "sight_parallel_to_wall",
-        corridor(1.0),
-        predecessor=(12.0, -0.75),
-        follower=(10.0, -0.75, 0.1),
-        d_con=3.0,
-        beta_con=0.5,
-        proximity_range=3.0,
-        expected={
-            COL_D: 2.0,
-            COL_BETA: -0.1,
-            COL_VISIBLE: 1.0,
-            COL_OCCLUDED: 0.0,
-            COL_D_WALL_LEFT: 1.75,
-            COL_D_WALL_RIGHT: 0.25,
-            COL_D_SIGHT_LEFT: 1.75,
-            COL_D_SIGHT_RIGHT: 0.25,
-            COL_CLEARANCE: 0.25,
-        },
-    ),
-    Case(
-        # A robot of radius r = 0.25 touching the upper wall: clearance == r exactly.
-        "follower_touching_wall",
-        corridor(1.0),
-        predecessor=(11.5, 0.75),
-        follower=(10.0, 0.75, 0.0),
-        d_con=3.0,
-        beta_con=0.5,
-        proximity_range=3.0,
-        expected={
-            COL_OCCLUDED: 0.0,
-            COL_VISIBLE: 1.0,
-            COL_D_WALL_LEFT: 0.25,
-            COL_D_WALL_RIGHT: 1.75,
-            COL_D_SIGHT_LEFT: 0.25,
-            COL_D_SIGHT_RIGHT: 1.75,
-            COL_CLEARANCE: 0.25,
-        },
-    ),
-    Case(
-        # atan2(1, 1) - 0 == pi/4 == beta_con exactly: on the edge of the field of view.
-        "predecessor_on_fov_edge_left",
-        box(0.0, 0.0, 10.0, 10.0),
-        predecessor=(6.0, 6.0),
-        follower=(5.0, 5.0, 0.0),
-        d_con=3.0,
-        beta_con=math.pi / 4,
-        proximity_range=3.0,
-        expected={COL_BETA: math.pi / 4, COL_VISIBLE: 0.0, COL_OCCLUDED: 0.0},
-    ),
-    Case(
-        "predecessor_on_fov_edge_right",
-        box(0.0, 0.0, 10.0, 10.0),
-        predecessor=(6.0, 4.0),
-        follower=(5.0, 5.0, 0.0),
-        d_con=3.0,
-        beta_con=math.pi / 4,
-        proximity_range=3.0,
-        expected={COL_BETA: -math.pi / 4, COL_VISIBLE: 0.0, COL_OCCLUDED: 0.0},
-    ),
-    Case(
-        "predecessor_just_inside_fov",
-        box(0.0, 0.0, 10.0, 10.0),
-        predecessor=(6.0, 6.0 - 1e-9),
-        follower=(5.0, 5.0, 0.0),
-        d_con=3.0,
-        beta_con=math.pi / 4,
-        proximity_range=3.0,
-        expected={COL_VISIBLE: 1.0, COL_OCCLUDED: 0.0},
-    ),
-    Case(
-        # |(3, 4)| == 5 == d_con exactly: out of range.
-        "predecessor_on_range_edge",
-        box(0.0, 0.0, 10.0, 10.0),
-        predecessor=(5.0, 6.0),
-        follower=(2.0, 2.0, math.atan2(4.0, 3.0)),
-        d_con=5.0,
-        beta_con=0.5,
-        proximity_range=3.0,
-        expected={COL_D: 5.0, COL_VISIBLE: 0.0, COL_OCCLUDED: 0.0},
-    ),
-    Case(
-        "predecessor_just_inside_range",
-        box(0.0, 0.0, 10.0, 10.0),
-        predecessor=(5.0, 6.0 - 1e-9),
-        follower=(2.0, 2.0, math.atan2(4.0, 3.0)),
-        d_con=5.0,
-        beta_con=0.5,
-        proximity_range=3.0,
-        expected={COL_VISIBLE: 1.0, COL_OCCLUDED: 0.0},
-    ),
-    Case(
-        # atan2(-1, 0) - pi/2 == -pi exactly, which wraps to +pi.
-        "predecessor_right_behind",
-        box(0.0, 0.0, 10.0, 10.0),
-        predecessor=(5.0, 4.0),
-        follower=(5.0, 5.0, math.pi / 2),
-        d_con=3.0,
-        beta_con=0.5,
-        proximity_range=3.0,
-        expected={COL_D: 1.0, COL_BETA: math.pi, COL_VISIBLE: 0.0, COL_OCCLUDED: 0.0},
-    ),
-    Case(
-        # Robots on top of each other: the heading (+x) orients left (+y) and right.
-        "coincident_robots_facing_east",
-        corridor(1.0),
-        predecessor=(20.0, 0.25),
-        follower=(20.0, 0.25, 0.0),
-        d_con=3.0,
-        beta_con=0.5,
-        proximity_range=3.0,
-        expected={
-            COL_D: 0.0,
-            COL_BETA: 0.0,
-            COL_VISIBLE: 1.0,
-            COL_OCCLUDED: 0.0,
-            COL_D_WALL_LEFT: 0.75,
-            COL_D_WALL_RIGHT: 1.25,
-            COL_D_SIGHT_LEFT: 0.75,
-            COL_D_SIGHT_RIGHT: 1.25,
-            COL_CLEARANCE: 0.75,
-        },
-    ),
-    Case(
-        "coincident_robots_facing_west",
-        corridor(1.0),
-        predecessor=(20.0, 0.25),
-        follower=(20.0, 0.25, math.pi),
-        d_con=3.0,
-        beta_con=0.5,
-        proximity_range=3.0,
-        expected={
-            COL_D: 0.0,
-            COL_BETA: math.pi,
-            COL_VISIBLE: 0.0,
-            COL_OCCLUDED: 0.0,
-            COL_D_WALL_LEFT: 1.25,
-            COL_D_WALL_RIGHT: 0.75,
-            COL_D_SIGHT_LEFT: 1.25,
-            COL_D_SIGHT_RIGHT: 0.75,
-            COL_CLEARANCE: 0.75,
-        },
-    ),
-    Case(
-        # Predecessor in the other room of a two-room free space.
-        "predecessor_in_other_room",
-        two_rooms().free_space,
-        predecessor=(5.5, 1.0),
-        follower=(3.5, 1.0, 0.0),
-        d_con=3.0,
-        beta_con=0.5,
-        proximity_range=3.0,
-        expected={
-            COL_VISIBLE: 0.0,
-            COL_OCCLUDED: 1.0,
-            COL_D_SIGHT_LEFT: 0.0,
-            COL_D_SIGHT_RIGHT: 0.0,
-            COL_CLEARANCE: 0.5,
-        },
-    ),
-    Case(
-        # Out of contract (the follower is outside W_f), but defined: nothing lies on the
-        # right of the line x = 100 looking north, so the right side reads the range.
-        "empty_side_reads_range",
-        box(0.0, 0.0, 10.0, 10.0),
-        predecessor=(100.0, 2.0),
-        follower=(100.0, 1.0, math.pi / 2),
-        d_con=3.0,
-        beta_con=0.5,
-        proximity_range=3.0,
-        expected={
-            COL_OCCLUDED: 0.0,
-            COL_D_WALL_LEFT: 3.0,
-            COL_D_WALL_RIGHT: 3.0,
-            COL_D_SIGHT_LEFT: 3.0,
-            COL_D_SIGHT_RIGHT: 3.0,
-            COL_CLEARANCE: 90.0,
-        },
-    ),
+    # The line x + y = 8 touches the square [4, 6]^2 only at its vertex (4, 4). The vertex
+    # is on the line, so it belongs to both sides: d_W_r is |(3, 5) - (4, 4)| = sqrt 2.
+    Case("sight_through_vertex", _room_with(box(4.0, 4.0, 6.0, 6.0), (0.0, 0.0, 10.0, 10.0)),
+         predecessor=(5.0, 3.0), follower=(3.0, 5.0, -math.pi / 4),
+         d_con=4.0, beta_con=0.5, proximity_range=4.0,
+         expected=dict(d=2 * math.sqrt(2.0), beta=0.0, visible=0.0, occluded=1.0, d_W_l=1.0,
+                       d_W_r=math.sqrt(2.0), d_l=0.0, d_r=0.0, clearance=1.0)),
+    # The sight line y = 5 meets the triangle's edge (4, 7)-(6, 3) at (5, 5), beyond L_i.
+    # Split there: its left part is nearest at (4.6, 5.8) / (4.4, 6.2), its right part
+    # only at the split point (5, 5).
+    Case("edge_crosses_line_beyond_segment",
+         _room_with(Polygon([(4.0, 7.0), (6.0, 3.0), (7.0, 3.0)]), (-10.0, -10.0, 20.0, 20.0)),
+         predecessor=(3.0, 5.0), follower=(2.0, 5.0, 0.0),
+         d_con=4.0, beta_con=0.5, proximity_range=4.0,
+         expected=dict(d=1.0, beta=0.0, visible=1.0, occluded=0.0, d_W_l=math.sqrt(7.2),
+                       d_W_r=3.0, d_l=math.sqrt(3.2), d_r=2.0, clearance=math.sqrt(7.2))),
+    # Same, but the follower looks the other way: the sides swap.
+    Case("edge_crosses_line_behind_follower",
+         _room_with(Polygon([(4.0, 7.0), (6.0, 3.0), (7.0, 3.0)]), (-10.0, -10.0, 20.0, 20.0)),
+         predecessor=(1.0, 5.0), follower=(2.0, 5.0, math.pi),
+         d_con=4.0, beta_con=0.5, proximity_range=4.0,
+         expected=dict(d=1.0, visible=1.0, occluded=0.0, d_W_l=3.0, d_W_r=math.sqrt(7.2), d_l=3.0,
+                       d_r=math.sqrt(7.2), clearance=math.sqrt(7.2))),
+    # The hole's bottom edge (5, 5)-(7, 5) lies on the line through L_i, beyond it: on both
+    # sides, not an occlusion.
+    Case("edge_on_line_beyond_segment",
+         _room_with(box(5.0, 5.0, 7.0, 6.0), (-10.0, -10.0, 20.0, 20.0)),
+         predecessor=(3.0, 5.0), follower=(2.0, 5.0, 0.0),
+         d_con=4.0, beta_con=0.5, proximity_range=4.0,
+         expected=dict(visible=1.0, occluded=0.0, d_W_l=3.0, d_W_r=3.0, d_l=2.0, d_r=2.0,
+                       clearance=3.0)),
+    # Both robots on the corridor's lower wall: L_i lies along it, which is touching.
+    Case("sight_along_wall", corridor(1.0),
+         predecessor=(12.0, -1.0), follower=(10.0, -1.0, 0.0),
+         d_con=3.0, beta_con=0.5, proximity_range=3.0,
+         expected=dict(d=2.0, beta=0.0, visible=0.0, occluded=1.0, d_W_l=0.0, d_W_r=0.0, d_l=0.0,
+                       d_r=0.0, clearance=0.0)),
+    # Parallel to the lower wall, 0.25 m above it.
+    Case("sight_parallel_to_wall", corridor(1.0),
+         predecessor=(12.0, -0.75), follower=(10.0, -0.75, 0.1),
+         d_con=3.0, beta_con=0.5, proximity_range=3.0,
+         expected=dict(d=2.0, beta=-0.1, visible=1.0, occluded=0.0, d_W_l=1.75, d_W_r=0.25,
+                       d_l=1.75, d_r=0.25, clearance=0.25)),
+    # A robot of radius r = 0.25 touching the upper wall: clearance == r exactly.
+    Case("follower_touching_wall", corridor(1.0),
+         predecessor=(11.5, 0.75), follower=(10.0, 0.75, 0.0),
+         d_con=3.0, beta_con=0.5, proximity_range=3.0,
+         expected=dict(visible=1.0, occluded=0.0, d_W_l=0.25, d_W_r=1.75, d_l=0.25, d_r=1.75,
+                       clearance=0.25)),
+    # atan2(1, 1) - 0 == pi/4 == beta_con exactly: on the edge of the field of view.
+    Case("predecessor_on_fov_edge_left", box(0.0, 0.0, 10.0, 10.0),
+         predecessor=(6.0, 6.0), follower=(5.0, 5.0, 0.0),
+         d_con=3.0, beta_con=math.pi / 4, proximity_range=3.0,
+         expected=dict(beta=math.pi / 4, visible=0.0, occluded=0.0)),
+    Case("predecessor_on_fov_edge_right", box(0.0, 0.0, 10.0, 10.0),
+         predecessor=(6.0, 4.0), follower=(5.0, 5.0, 0.0),
+         d_con=3.0, beta_con=math.pi / 4, proximity_range=3.0,
+         expected=dict(beta=-math.pi / 4, visible=0.0, occluded=0.0)),
+    Case("predecessor_just_inside_fov", box(0.0, 0.0, 10.0, 10.0),
+         predecessor=(6.0, 6.0 - 1e-9), follower=(5.0, 5.0, 0.0),
+         d_con=3.0, beta_con=math.pi / 4, proximity_range=3.0,
+         expected=dict(visible=1.0, occluded=0.0)),
+    # |(3, 4)| == 5 == d_con exactly: out of range.
+    Case("predecessor_on_range_edge", box(0.0, 0.0, 10.0, 10.0),
+         predecessor=(5.0, 6.0), follower=(2.0, 2.0, math.atan2(4.0, 3.0)),
+         d_con=5.0, beta_con=0.5, proximity_range=3.0,
+         expected=dict(d=5.0, visible=0.0, occluded=0.0)),
+    Case("predecessor_just_inside_range", box(0.0, 0.0, 10.0, 10.0),
+         predecessor=(5.0, 6.0 - 1e-9), follower=(2.0, 2.0, math.atan2(4.0, 3.0)),
+         d_con=5.0, beta_con=0.5, proximity_range=3.0,
+         expected=dict(visible=1.0, occluded=0.0)),
+    # atan2(-1, 0) - pi/2 == -pi exactly, which wraps to +pi.
+    Case("predecessor_right_behind", box(0.0, 0.0, 10.0, 10.0),
+         predecessor=(5.0, 4.0), follower=(5.0, 5.0, math.pi / 2),
+         d_con=3.0, beta_con=0.5, proximity_range=3.0,
+         expected=dict(d=1.0, beta=math.pi, visible=0.0, occluded=0.0)),
+    # Robots on top of each other: the heading (+x) orients left (+y) and right.
+    Case("coincident_robots_facing_east", corridor(1.0),
+         predecessor=(20.0, 0.25), follower=(20.0, 0.25, 0.0),
+         d_con=3.0, beta_con=0.5, proximity_range=3.0,
+         expected=dict(d=0.0, beta=0.0, visible=1.0, occluded=0.0, d_W_l=0.75, d_W_r=1.25,
+                       d_l=0.75, d_r=1.25, clearance=0.75)),
+    Case("coincident_robots_facing_west", corridor(1.0),
+         predecessor=(20.0, 0.25), follower=(20.0, 0.25, math.pi),
+         d_con=3.0, beta_con=0.5, proximity_range=3.0,
+         expected=dict(d=0.0, beta=math.pi, visible=0.0, occluded=0.0, d_W_l=1.25, d_W_r=0.75,
+                       d_l=1.25, d_r=0.75, clearance=0.75)),
+    # Predecessor in the other room of a two-room free space.
+    Case("predecessor_in_other_room", two_rooms().free_space,
+         predecessor=(5.5, 1.0), follower=(3.5, 1.0, 0.0),
+         d_con=3.0, beta_con=0.5, proximity_range=3.0,
+         expected=dict(visible=0.0, occluded=1.0, d_l=0.0, d_r=0.0, clearance=0.5)),
+    # Out of contract (the follower is outside W_f), but defined: nothing lies on the
+    # right of the line x = 100 looking north, so the right side reads the range.
+    Case("empty_side_reads_range", box(0.0, 0.0, 10.0, 10.0),
+         predecessor=(100.0, 2.0), follower=(100.0, 1.0, math.pi / 2),
+         d_con=3.0, beta_con=0.5, proximity_range=3.0,
+         expected=dict(occluded=0.0, d_W_l=3.0, d_W_r=3.0, d_l=3.0, d_r=3.0, clearance=90.0)),
 ]
+# fmt: on
 
 
-def _check_expected(out: NDArray[np.float64], case: Case, who: str) -> None:
-    """Assert one follower's readings match the case's hand-computed values."""
-    for col, value in case.expected.items():
-        got = float(out[col])
-        if col in (COL_VISIBLE, COL_OCCLUDED):
-            assert got == value, f"{who}, {case.name}: {COLUMNS[col]} = {got}, expected {value}"
-        elif col == COL_BETA:
+def _check_expected(out: np.void, case: Case, who: str) -> None:
+    """Assert one follower's readings (a :func:`oracle.named` record) match the case's
+    hand-computed values."""
+    for name, value in case.expected.items():
+        got = float(out[name])
+        if name in ("visible", "occluded"):
+            assert got == value, f"{who}, {case.name}: {name} = {got}, expected {value}"
+        elif name == "beta":
             assert angle_difference(np.array(got), np.array(value)) <= ANGLE_TOL, (
                 f"{who}, {case.name}: beta = {got!r}, expected {value!r}"
             )
             assert -math.pi < got <= math.pi, f"{who}, {case.name}: beta = {got!r} not wrapped"
         else:
             assert abs(got - value) <= 1e-12, (
-                f"{who}, {case.name}: {COLUMNS[col]} = {got!r}, expected {value!r}"
+                f"{who}, {case.name}: {name} = {got!r}, expected {value!r}"
             )
 
 
 @pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
 def test_oracle_constructed_case(case: Case) -> None:
     """The oracle reproduces the hand-computed readings."""
-    out = oracle_sense(
-        case.free_space, case.poses(), case.d_con, case.beta_con, case.proximity_range
-    )
-    assert out.shape == (1, N_COLUMNS)
-    _check_expected(out[0], case, "oracle")
+    out = oracle_sense(case.free_space, case.poses(), case.sensors())
+    assert out.shape == (1, SENSE_SIZE)
+    _check_expected(named(out)[0], case, "oracle")
 
 
 @pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
-def test_kernel_constructed_case(kernel_sense: SenseFn, case: Case) -> None:
+def test_kernel_constructed_case(case: Case) -> None:
     """The kernel reproduces the hand-computed readings, and the oracle in every column."""
-    args = (case.poses(), case.d_con, case.beta_con, case.proximity_range)
-    out = kernel_sense(case.free_space, *args)
-    assert out.shape == (1, N_COLUMNS)
-    _check_expected(out[0], case, "kernel")
-    assert_agree(out, oracle_sense(case.free_space, *args), case.name)
+    out = kernel_sense(case.free_space, case.poses(), case.sensors())
+    assert out.shape == (1, SENSE_SIZE)
+    _check_expected(named(out)[0], case, "kernel")
+    assert_agree(out, oracle_sense(case.free_space, case.poses(), case.sensors()), case.name)
 
 
-def test_kernel_touching_wall_is_a_collision(kernel_sense: SenseFn) -> None:
+def test_kernel_touching_wall_is_a_collision() -> None:
     """``clearance <= r`` holds for a robot of radius ``r`` exactly touching a wall."""
     radius = 0.25
     poses = np.array([[11.5, 0.75, 0.0], [10.0, 0.75, 0.0], [10.0, -0.75, 0.0]])
-    out = kernel_sense(corridor(1.0), poses, 3.0, 0.5, 3.0)
-    assert out[0, COL_CLEARANCE] <= radius
-    assert out[1, COL_CLEARANCE] <= radius
+    out = named(kernel_sense(corridor(1.0), poses, sensors(3.0, 3.0)))
+    assert np.all(out["clearance"] <= radius)
 
 
 def test_zero_length_edges_change_nothing() -> None:
     """A zero-length edge (a point on the boundary) changes no reading; boundary_edges drops it."""
-    from platoon_env.geometry.sensing import sense
-    from platoon_env.geometry.workspace import boundary_edges
-
     free = box(0, 0, 10, 10).difference(box(4, 4, 6, 6))
     edges = boundary_edges(free)
     points = np.array([[x, y, x, y] for x, y in np.asarray(free.interiors[0].coords)[:-1]])
     rng = np.random.default_rng(3)
+    params = sensors(4.0, 4.0)
     for _ in range(200):
         poses = np.column_stack(
             [rng.uniform(0.5, 9.5, 3), rng.uniform(0.5, 9.5, 3), rng.uniform(-np.pi, np.pi, 3)]
         )
-        a = sense(poses, edges, 4.0, 0.5, 4.0)
-        b = sense(poses, np.concatenate([edges, points]), 4.0, 0.5, 4.0)
+        a = sense(poses, edges, params)
+        b = sense(poses, np.concatenate([edges, points]), params)
         np.testing.assert_array_equal(a, b)
     # A repeated vertex makes a zero-length edge in the ring; it is not exported.
     ring = Polygon([(0, 0), (5, 0), (5, 0), (5, 5), (0, 5)])
@@ -779,23 +567,12 @@ def test_zero_length_edges_change_nothing() -> None:
 
 #: Convex sectors (0.5, pi/2), non-convex ones (2.27, 3.0: a blind cone behind) and all around.
 SECTOR_HALF_ANGLES = (0.5, math.pi / 2, 2.27, 3.0, math.pi)
-SENSOR_COLUMNS = [COL_D_WALL_LEFT, COL_D_WALL_RIGHT, COL_D_SIGHT_LEFT, COL_D_SIGHT_RIGHT]
-GROUND_TRUTH_COLUMNS = [COL_D, COL_BETA, COL_VISIBLE, COL_OCCLUDED, COL_CLEARANCE]
-
-#: (free space, poses, d_con, beta_con, proximity range, half-angle) -> (N, 9) array.
-SectorSenseFn = Callable[
-    [BaseGeometry, NDArray[np.float64], float, float, float, float], NDArray[np.float64]
-]
-
-
-@pytest.fixture(scope="module")
-def kernel_sense_sector() -> SectorSenseFn:
-    """The kernel under test with a proximity sector of the given half-angle."""
-    return _kernel_sense
+#: The proximity sensor's four clearances, and what the sector does not change.
+PROXIMITY = ["d_W_l", "d_W_r", "d_l", "d_r"]
+GROUND_TRUTH = ["d", "beta", "visible", "occluded", "clearance"]
 
 
 def _check_sector_state(
-    kernel_sense_sector: SectorSenseFn,
     workspace: Workspace,
     poses: NDArray[np.float64],
     prox: float,
@@ -803,65 +580,48 @@ def _check_sector_state(
     context: str,
 ) -> None:
     """Kernel and oracle agree with the sector; only the four clearances may change."""
-    args = (poses, workspace.d_con, workspace.beta_con, prox)
-    kernel = kernel_sense_sector(workspace.free_space, *args, half_angle)
+    params = workspace.sensors(prox, half_angle)
+    kernel = kernel_sense(workspace.free_space, poses, params)
     context = f"{context}, half_angle={half_angle}, prox={prox}, poses={poses.tolist()}"
-    assert_agree(kernel, oracle_sense(workspace.free_space, *args, half_angle), context)
-    everywhere = kernel_sense_sector(workspace.free_space, *args, math.pi)
+    assert_agree(kernel, oracle_sense(workspace.free_space, poses, params), context)
+    everywhere = kernel_sense(workspace.free_space, poses, workspace.sensors(prox))
     np.testing.assert_array_equal(
-        kernel[:, GROUND_TRUTH_COLUMNS], everywhere[:, GROUND_TRUTH_COLUMNS], err_msg=context
+        named(kernel)[GROUND_TRUTH], named(everywhere)[GROUND_TRUTH], err_msg=context
     )
 
 
 @pytest.mark.parametrize("workspace", all_workspaces(), ids=lambda w: w.name)
-def test_sector_kernel_matches_oracle_random_states(
-    kernel_sense_sector: SectorSenseFn, workspace: Workspace
-) -> None:
+def test_sector_kernel_matches_oracle_random_states(workspace: Workspace) -> None:
     """The random states of the tests above, each with one sector (cycling the half-angles)."""
     for k, poses, prox in random_states(workspace):
         half_angle = SECTOR_HALF_ANGLES[k % len(SECTOR_HALF_ANGLES)]
-        _check_sector_state(
-            kernel_sense_sector, workspace, poses, prox, half_angle, f"{workspace.name} state {k}"
-        )
+        _check_sector_state(workspace, poses, prox, half_angle, f"{workspace.name} state {k}")
 
 
 @pytest.mark.parametrize("workspace", LATTICE_WORKSPACES, ids=lambda w: w.name)
-def test_sector_kernel_matches_oracle_lattice_states(
-    kernel_sense_sector: SectorSenseFn, workspace: Workspace
-) -> None:
+def test_sector_kernel_matches_oracle_lattice_states(workspace: Workspace) -> None:
     """The lattice states (robots exactly on walls, the apex of the sector on an edge)."""
     for k, poses, prox in lattice_states(workspace):
         half_angle = SECTOR_HALF_ANGLES[k % len(SECTOR_HALF_ANGLES)]
-        _check_sector_state(
-            kernel_sense_sector,
-            workspace,
-            poses,
-            prox,
-            half_angle,
-            f"{workspace.name} lattice state {k}",
-        )
+        context = f"{workspace.name} lattice state {k}"
+        _check_sector_state(workspace, poses, prox, half_angle, context)
 
 
-def test_sector_of_pi_is_all_around(kernel_sense: SenseFn) -> None:
-    """``half_angle = pi`` gives the result without a sector bit for bit, also with the grid."""
-    from platoon_env.geometry.grid import EdgeGrid
-    from platoon_env.geometry.sensing import sense
-    from platoon_env.geometry.workspace import boundary_edges
-
+def test_sector_of_pi_is_all_around() -> None:
+    """A half-angle of ``pi`` or more is all around: ``pi`` and ``2 pi`` read the same bit for
+    bit, brute force and with the grid."""
     for workspace in all_workspaces():
         edges = boundary_edges(workspace.free_space)
         states = [*random_states(workspace)][:100]
         for k, poses, prox in states:
-            args = (poses, edges, workspace.d_con, workspace.beta_con, prox)
+            everywhere, beyond = workspace.sensors(prox, math.pi), workspace.sensors(prox, 6.0)
             grid = EdgeGrid.build(edges, reach=prox)
             context = f"{workspace.name} state {k}"
-            default = sense(*args)
-            np.testing.assert_array_equal(sense(*args, proximity_half_angle=math.pi), default)
             np.testing.assert_array_equal(
-                sense(*args, grid, proximity_half_angle=math.pi), sense(*args, grid), context
+                sense(poses, edges, beyond), sense(poses, edges, everywhere), context
             )
             np.testing.assert_array_equal(
-                kernel_sense(workspace.free_space, *args[:1], *args[2:]), default, context
+                sense(poses, edges, beyond, grid), sense(poses, edges, everywhere, grid), context
             )
 
 
@@ -874,35 +634,30 @@ def _room(*obstacles: Polygon) -> Polygon:
 
 
 def _sense_both(
-    kernel_sense_sector: SectorSenseFn,
-    free_space: Polygon,
-    poses: NDArray[np.float64],
-    prox: float,
-    half_angle: float,
-    name: str,
-) -> NDArray[np.float64]:
-    """The kernel's reading of follower 1 after checking it against the oracle's."""
-    kernel = kernel_sense_sector(free_space, poses, 4.0, 0.5, prox, half_angle)
-    assert_agree(kernel, oracle_sense(free_space, poses, 4.0, 0.5, prox, half_angle), name)
-    return kernel[0]
+    free_space: Polygon, poses: NDArray[np.float64], prox: float, half_angle: float, name: str
+) -> np.void:
+    """The kernel's reading of follower 1 (a :func:`oracle.named` record) after checking it
+    against the oracle's."""
+    params = sensors(4.0, prox, half_angle)
+    kernel = kernel_sense(free_space, poses, params)
+    assert_agree(kernel, oracle_sense(free_space, poses, params), name)
+    return named(kernel)[0]
 
 
-def test_sector_hides_a_wall_behind(kernel_sense_sector: SectorSenseFn) -> None:
+def test_sector_hides_a_wall_behind() -> None:
     """A post 1 m straight behind the robot (all of it at bearings beyond 153 deg): seen all
     around, unseen with study B's ±130 deg; the clearance still reports it."""
     free = _room(box(3.0, 9.5, 4.0, 10.5))
     poses = np.array([[6.0, 10.0, 0.0], [5.0, 10.0, 0.0]])
-    everywhere = _sense_both(kernel_sense_sector, free, poses, 3.0, math.pi, "all around")
-    assert everywhere[SENSOR_COLUMNS].tolist() == [1.0, 1.0, 1.0, 1.0]
-    sector = _sense_both(kernel_sense_sector, free, poses, 3.0, math.radians(130), "±130 deg")
-    assert sector[SENSOR_COLUMNS].tolist() == [3.0, 3.0, 3.0, 3.0]
-    assert sector[COL_CLEARANCE] == everywhere[COL_CLEARANCE] == 1.0
-    assert sector[COL_VISIBLE] == everywhere[COL_VISIBLE] == 1.0
+    everywhere = _sense_both(free, poses, 3.0, math.pi, "all around")
+    assert everywhere[PROXIMITY].tolist() == (1.0, 1.0, 1.0, 1.0)
+    sector = _sense_both(free, poses, 3.0, math.radians(130), "±130 deg")
+    assert sector[PROXIMITY].tolist() == (3.0, 3.0, 3.0, 3.0)
+    assert sector["clearance"] == everywhere["clearance"] == 1.0
+    assert sector["visible"] == everywhere["visible"] == 1.0
 
 
-def test_sector_splits_an_edge_crossing_the_blind_cone(
-    kernel_sense_sector: SectorSenseFn,
-) -> None:
+def test_sector_splits_an_edge_crossing_the_blind_cone() -> None:
     """A wall x = 4 behind a robot at (5, 10) heading 0.1 rad, predecessor at (5, 9): the whole
     wall lies right of ``L_i``, and the blind cone (beyond ±130 deg) cuts it into two sensed
     pieces, which end where the sector's rays meet it. The upper piece is nearest to ``p``
@@ -910,22 +665,20 @@ def test_sector_splits_an_edge_crossing_the_blind_cone(
     theta, alpha = 0.1, math.radians(130)
     free = _room(box(3.0, 7.0, 4.0, 12.0))
     poses = np.array([[5.0, 9.0, 0.0], [5.0, 10.0, theta]])
-    out = _sense_both(kernel_sense_sector, free, poses, 3.0, alpha, "blind cone")
+    out = _sense_both(free, poses, 3.0, alpha, "blind cone")
     upper_y = 10.0 - math.tan(theta + alpha)  # where the ray theta + alpha meets x = 4
     lower_y = 10.0 - math.tan(theta - alpha)
     assert 7.0 < lower_y < 9.0 and 10.0 < upper_y < 12.0
-    assert out[COL_D_WALL_RIGHT] == pytest.approx(math.hypot(1.0, upper_y - 10.0), abs=1e-12)
-    assert out[COL_D_SIGHT_RIGHT] == pytest.approx(math.hypot(1.0, 9.0 - lower_y), abs=1e-12)
-    assert out[COL_D_WALL_LEFT] == out[COL_D_SIGHT_LEFT] == 3.0
-    everywhere = _sense_both(kernel_sense_sector, free, poses, 3.0, math.pi, "all around")
-    assert everywhere[COL_D_WALL_RIGHT] == everywhere[COL_D_SIGHT_RIGHT] == 1.0
+    assert out["d_W_r"] == pytest.approx(math.hypot(1.0, upper_y - 10.0), abs=1e-12)
+    assert out["d_r"] == pytest.approx(math.hypot(1.0, 9.0 - lower_y), abs=1e-12)
+    assert out["d_W_l"] == out["d_l"] == 3.0
+    everywhere = _sense_both(free, poses, 3.0, math.pi, "all around")
+    assert everywhere["d_W_r"] == everywhere["d_r"] == 1.0
 
 
 @pytest.mark.parametrize("half_angle", [0.5, 2.27])
 @pytest.mark.parametrize("lift", [0.0, 1e-9])
-def test_point_on_a_sector_ray_is_sensed(
-    kernel_sense_sector: SectorSenseFn, half_angle: float, lift: float
-) -> None:
+def test_point_on_a_sector_ray_is_sensed(half_angle: float, lift: float) -> None:
     """A triangle in the blind region touching the ray ``theta + alpha`` (exactly +x, as
     ``theta = -alpha``) with one vertex, 1 m from the robot: that vertex is sensed (closed
     sector), on the left of ``L_i``; lifted 1e-9 m off the ray, nothing is."""
@@ -933,42 +686,40 @@ def test_point_on_a_sector_ray_is_sensed(
     theta = -half_angle
     triangle = Polygon([(px + 1.0, py + lift), (px + 2.0, py + 0.5), (px + 1.2, py + 1.0)])
     poses = np.array([[px + math.cos(theta), py + math.sin(theta), 0.0], [px, py, theta]])
-    out = _sense_both(kernel_sense_sector, _room(triangle), poses, 3.0, half_angle, "ray")
+    out = _sense_both(_room(triangle), poses, 3.0, half_angle, "ray")
     # L_i (1 m along theta) is alpha away from the ray: its nearest point to the vertex is its
     # foot when alpha < pi/2, else p.
     sight = math.sin(half_angle) if half_angle < math.pi / 2 else 1.0
-    assert out[COL_D_WALL_LEFT] == pytest.approx(1.0 if lift == 0.0 else 3.0, abs=1e-12)
-    assert out[COL_D_SIGHT_LEFT] == pytest.approx(sight if lift == 0.0 else 3.0, abs=1e-12)
-    assert out[COL_D_WALL_RIGHT] == out[COL_D_SIGHT_RIGHT] == 3.0
-    assert out[COL_CLEARANCE] == pytest.approx(math.hypot(1.0, lift), abs=1e-12)
+    assert out["d_W_l"] == pytest.approx(1.0 if lift == 0.0 else 3.0, abs=1e-12)
+    assert out["d_l"] == pytest.approx(sight if lift == 0.0 else 3.0, abs=1e-12)
+    assert out["d_W_r"] == out["d_r"] == 3.0
+    assert out["clearance"] == pytest.approx(math.hypot(1.0, lift), abs=1e-12)
 
 
 @pytest.mark.parametrize(
     ("predecessor", "theta"), [((0.0, 4.0), math.pi), ((0.3, 3.1), 3.0)], ids=["along", "across"]
 )
-def test_sector_apex_on_a_wall(
-    kernel_sense_sector: SectorSenseFn, predecessor: tuple[float, float], theta: float
-) -> None:
+def test_sector_apex_on_a_wall(predecessor: tuple[float, float], theta: float) -> None:
     """A robot exactly on the wall x = 0 at 0.4 of its edge, facing it with a ±0.5 rad sector
     (both directions along the wall are blind): its own position is a sensed boundary point
     on ``L_i``, so all four read 0 (clipping alone would lose that point to rounding)."""
     free = box(0.0, 0.0, 10.0, 10.0)
     poses = np.array([[*predecessor, 0.0], [0.0, 3.0, theta]])
-    out = _sense_both(kernel_sense_sector, free, poses, 3.0, 0.5, "apex")
-    assert out[SENSOR_COLUMNS].tolist() == [0.0, 0.0, 0.0, 0.0]
-    assert out[COL_OCCLUDED] == 1.0 and out[COL_CLEARANCE] == 0.0
+    out = _sense_both(free, poses, 3.0, 0.5, "apex")
+    assert out[PROXIMITY].tolist() == (0.0, 0.0, 0.0, 0.0)
+    assert out["occluded"] == 1.0 and out["clearance"] == 0.0
 
 
-def test_occlusion_behind_the_sector(kernel_sense_sector: SectorSenseFn) -> None:
+def test_occlusion_behind_the_sector() -> None:
     """The predecessor 3 m behind the robot, beyond a post, outside a ±90 deg sector: the
     camera reports the occlusion, but the post is not sensed, so ``d_l``, ``d_r`` are the
     distances to the sensed boundary (a box ahead on the right; nothing on the left), not 0."""
     free = _room(box(3.0, 9.0, 4.0, 11.0), box(7.0, 11.5, 8.0, 12.5))
     poses = np.array([[2.0, 10.0, 0.0], [5.0, 10.0, 0.0]])  # looking back along -x: +y is right
-    everywhere = _sense_both(kernel_sense_sector, free, poses, 3.0, math.pi, "all around")
-    assert everywhere[COL_OCCLUDED] == 1.0 and everywhere[COL_VISIBLE] == 0.0
-    assert everywhere[SENSOR_COLUMNS].tolist() == [1.0, 1.0, 0.0, 0.0]
-    out = _sense_both(kernel_sense_sector, free, poses, 3.0, math.pi / 2, "±90 deg")
-    assert out[COL_OCCLUDED] == 1.0 and out[COL_VISIBLE] == 0.0
+    everywhere = _sense_both(free, poses, 3.0, math.pi, "all around")
+    assert everywhere["occluded"] == 1.0 and everywhere["visible"] == 0.0
+    assert everywhere[PROXIMITY].tolist() == (1.0, 1.0, 0.0, 0.0)
+    out = _sense_both(free, poses, 3.0, math.pi / 2, "±90 deg")
+    assert out["occluded"] == 1.0 and out["visible"] == 0.0
     corner = math.hypot(2.0, 1.5)  # p to the box's corner (7, 11.5)
-    assert out[SENSOR_COLUMNS].tolist() == pytest.approx([3.0, corner, 3.0, corner], abs=1e-12)
+    assert out[PROXIMITY].tolist() == pytest.approx((3.0, corner, 3.0, corner), abs=1e-12)

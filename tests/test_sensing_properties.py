@@ -21,30 +21,23 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import pytest
 import shapely
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 from oracle import (
-    COL_BETA,
-    COL_CLEARANCE,
-    COL_D,
-    COL_D_SIGHT_LEFT,
-    COL_D_SIGHT_RIGHT,
-    COL_D_WALL_LEFT,
-    COL_D_WALL_RIGHT,
-    COL_OCCLUDED,
-    COL_VISIBLE,
-    SenseFn,
     assert_agree,
+    kernel_sense,
     mirror_geometry,
     mirror_poses,
+    named,
     oracle_sense,
 )
 from shapely.geometry import Polygon, box
 from shapely.geometry.base import BaseGeometry
 from workspaces import star_polygon
+
+from platoon_env.geometry.sensing import sensing_params
 
 #: Tolerance of the identities between columns (pure rounding noise).
 IDENTITY_TOL = 1e-12
@@ -67,29 +60,11 @@ class Scene:
     beta_con: float
     proximity_range: float
 
-    def args(self) -> tuple[NDArray[np.float64], float, float, float]:
-        """``(poses, d_con, beta_con, proximity_range)``, the arguments after the world."""
-        return (self.poses, self.d_con, self.beta_con, self.proximity_range)
-
-
-@pytest.fixture(scope="module")
-def kernel_sense() -> SenseFn:
-    """The kernel under test, wrapped to take a shapely free space like the oracle does."""
-    from platoon_env.geometry.sensing import sense
-    from platoon_env.geometry.workspace import boundary_edges
-
-    def run(
-        free_space: BaseGeometry,
-        poses: NDArray[np.float64],
-        d_con: float,
-        beta_con: float,
-        proximity_range: float,
-    ) -> NDArray[np.float64]:
-        return np.asarray(
-            sense(poses, boundary_edges(free_space), d_con, beta_con, proximity_range)
+    def params(self) -> np.void:
+        """The sensors as the params record both senses read."""
+        return sensing_params(
+            d_con=self.d_con, beta_con=self.beta_con, proximity_range=self.proximity_range
         )
-
-    return run
 
 
 # --------------------------------------------------------------------------------------------
@@ -220,69 +195,71 @@ def scenes(draw: st.DrawFn) -> Scene:
 
 @PROPERTY_SETTINGS
 @given(scene=scenes())
-def test_kernel_matches_oracle(kernel_sense: SenseFn, scene: Scene) -> None:
+def test_kernel_matches_oracle(scene: Scene) -> None:
     """The kernel equals the shapely oracle in every column."""
+    sensors = (scene.d_con, scene.beta_con, scene.proximity_range)
     assert_agree(
-        kernel_sense(scene.free_space, *scene.args()),
-        oracle_sense(scene.free_space, *scene.args()),
-        f"poses={scene.poses.tolist()}, params={scene.args()[1:]}, world={scene.free_space.wkt}",
+        kernel_sense(scene.free_space, scene.poses, scene.params()),
+        oracle_sense(scene.free_space, scene.poses, scene.params()),
+        f"poses={scene.poses.tolist()}, sensors={sensors}, world={scene.free_space.wkt}",
     )
 
 
 def _check_identities(out: NDArray[np.float64], scene: Scene, who: str) -> None:
     """The identities between columns that the definitions imply."""
     prox = scene.proximity_range
-    for row in out:
-        context = f"{who}: row={row.tolist()}, poses={scene.poses.tolist()}"
-        assert row[COL_D_SIGHT_LEFT] <= row[COL_D_WALL_LEFT] + IDENTITY_TOL, context
-        assert row[COL_D_SIGHT_RIGHT] <= row[COL_D_WALL_RIGHT] + IDENTITY_TOL, context
-        nearest_side = min(row[COL_D_WALL_LEFT], row[COL_D_WALL_RIGHT])
-        assert abs(nearest_side - min(row[COL_CLEARANCE], prox)) <= IDENTITY_TOL, context
-        capped = row[[COL_D_WALL_LEFT, COL_D_WALL_RIGHT, COL_D_SIGHT_LEFT, COL_D_SIGHT_RIGHT]]
+    for row in named(out):
+        context = f"{who}: row={row}, poses={scene.poses.tolist()}"
+        assert row["d_l"] <= row["d_W_l"] + IDENTITY_TOL, context
+        assert row["d_r"] <= row["d_W_r"] + IDENTITY_TOL, context
+        nearest_side = min(row["d_W_l"], row["d_W_r"])
+        assert abs(nearest_side - min(row["clearance"], prox)) <= IDENTITY_TOL, context
+        capped = np.array(row[["d_W_l", "d_W_r", "d_l", "d_r"]].tolist())
         assert np.all((capped >= 0.0) & (capped <= prox)), context
-        assert -math.pi < row[COL_BETA] <= math.pi, context
-        if row[COL_VISIBLE] == 1.0:
-            assert row[COL_OCCLUDED] == 0.0, context
-            assert row[COL_D] < scene.d_con and abs(row[COL_BETA]) < scene.beta_con, context
+        assert -math.pi < row["beta"] <= math.pi, context
+        if row["visible"] == 1.0:
+            assert row["occluded"] == 0.0, context
+            assert row["d"] < scene.d_con and abs(row["beta"]) < scene.beta_con, context
 
 
 @PROPERTY_SETTINGS
 @given(scene=scenes())
-def test_sensing_identities(kernel_sense: SenseFn, scene: Scene) -> None:
+def test_sensing_identities(scene: Scene) -> None:
     """``d_l <= d_W_l``, ``d_r <= d_W_r``, ``min(d_W_l, d_W_r) == min(clearance, range)``,
     occluded with the predecessor within the proximity range ⇒ ``d_l == d_r == 0`` (exactly,
     in the kernel); likewise for the oracle. (A crossing beyond the range of the follower is not
     sensed, so a farther predecessor's occluded ``L_i`` may read ``d_l, d_r > 0``.)"""
-    kernel = kernel_sense(scene.free_space, *scene.args())
-    reference = oracle_sense(scene.free_space, *scene.args())
+    kernel = kernel_sense(scene.free_space, scene.poses, scene.params())
+    reference = oracle_sense(scene.free_space, scene.poses, scene.params())
     _check_identities(kernel, scene, "kernel")
     _check_identities(reference, scene, "oracle")
-    in_range = kernel[:, COL_D] <= scene.proximity_range
-    occluded = (kernel[:, COL_OCCLUDED] == 1.0) & in_range
-    assert np.all(kernel[occluded, COL_D_SIGHT_LEFT] == 0.0)
-    assert np.all(kernel[occluded, COL_D_SIGHT_RIGHT] == 0.0)
-    occluded = (reference[:, COL_OCCLUDED] == 1.0) & in_range
-    assert np.all(reference[occluded][:, [COL_D_SIGHT_LEFT, COL_D_SIGHT_RIGHT]] <= IDENTITY_TOL)
+    kernel, reference = named(kernel), named(reference)
+    in_range = kernel["d"] <= scene.proximity_range
+    occluded = (kernel["occluded"] == 1.0) & in_range
+    assert np.all(kernel["d_l"][occluded] == 0.0)
+    assert np.all(kernel["d_r"][occluded] == 0.0)
+    occluded = (reference["occluded"] == 1.0) & in_range
+    assert np.all(reference["d_l"][occluded] <= IDENTITY_TOL)
+    assert np.all(reference["d_r"][occluded] <= IDENTITY_TOL)
 
 
 def _mirror_columns(out: NDArray[np.float64]) -> NDArray[np.float64]:
     """What a mirrored world should read: left and right swapped, ``beta`` negated."""
     swapped = out.copy()
-    swapped[:, [COL_D_WALL_LEFT, COL_D_WALL_RIGHT]] = out[:, [COL_D_WALL_RIGHT, COL_D_WALL_LEFT]]
-    swapped[:, [COL_D_SIGHT_LEFT, COL_D_SIGHT_RIGHT]] = out[
-        :, [COL_D_SIGHT_RIGHT, COL_D_SIGHT_LEFT]
-    ]
-    swapped[:, COL_BETA] = -out[:, COL_BETA]  # assert_agree compares beta on the circle
+    mirrored, original = named(swapped), named(out)
+    for left, right in (("d_W_l", "d_W_r"), ("d_l", "d_r")):
+        mirrored[left], mirrored[right] = original[right], original[left]
+    mirrored["beta"] = -original["beta"]  # assert_agree compares beta on the circle
     return swapped
 
 
 @PROPERTY_SETTINGS
 @given(scene=scenes())
-def test_mirrored_world_swaps_left_and_right(kernel_sense: SenseFn, scene: Scene) -> None:
+def test_mirrored_world_swaps_left_and_right(scene: Scene) -> None:
     """Mirroring (``y -> -y``, ``theta -> -theta``) swaps the left and right readings."""
     mirrored_world = mirror_geometry(scene.free_space)
-    mirrored = kernel_sense(mirrored_world, mirror_poses(scene.poses), *scene.args()[1:])
-    original = kernel_sense(scene.free_space, *scene.args())
+    mirrored = kernel_sense(mirrored_world, mirror_poses(scene.poses), scene.params())
+    original = kernel_sense(scene.free_space, scene.poses, scene.params())
     assert_agree(mirrored, _mirror_columns(original), f"mirror, poses={scene.poses.tolist()}")
 
 

@@ -137,14 +137,16 @@ def test_space_contains_every_observation(name: str) -> None:
 def test_task_features_are_the_config_over_its_scales(name: str) -> None:
     env = platoon_env.make(name, **TASK)
     cfg = env.source.config
-    values = (
-        cfg.formation.d_des,
-        cfg.safety.d_col,
-        cfg.camera.range,
-        cfg.camera.half_angle,
-        cfg.robot.radius,
-    )
-    expected = np.array([v / s for v, s in zip(values, TASK_SCALES, strict=True)], np.float32)
+    # The config's value of each feature by its name, so the columns' order is checked too.
+    value = {
+        "d_des": cfg.formation.d_des,
+        "d_col": cfg.safety.d_col,
+        "d_con": cfg.camera.range,
+        "beta_con": cfg.camera.half_angle,
+        "r": cfg.robot.radius,
+    }
+    scaled = [value[name] / s for name, s in zip(OBS_TASK_NAMES, TASK_SCALES, strict=True)]
+    expected = np.array(scaled, np.float32)
     assert np.all((expected > 0) & (expected < 1))  # no shipped scenario clips
     np.testing.assert_array_equal(task_features(cfg), expected)
     for obs in _rollout(env, seed=1, steps=30):

@@ -22,6 +22,8 @@ from numpy.typing import NDArray
 from shapely.geometry import MultiPolygon, Point, Polygon, box
 from shapely.geometry.base import BaseGeometry
 
+from platoon_env.geometry.sensing import sensing_params
+
 Coords = Sequence[tuple[float, float]]
 
 
@@ -33,6 +35,16 @@ class Workspace:
     free_space: Polygon | MultiPolygon
     d_con: float  # [m] camera range
     beta_con: float  # [rad] camera half-angle
+
+    def sensors(self, proximity_range: float, proximity_half_angle: float = math.pi) -> np.void:
+        """The params record of this camera with a proximity sensor of the given range and
+        sector half-angle (``pi``: all around)."""
+        return sensing_params(
+            d_con=self.d_con,
+            beta_con=self.beta_con,
+            proximity_range=proximity_range,
+            proximity_half_angle=proximity_half_angle,
+        )
 
 
 def _checked(name: str, geometry: Polygon | MultiPolygon) -> Polygon | MultiPolygon:

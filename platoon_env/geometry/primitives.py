@@ -1,4 +1,4 @@
-"""Compiled 2D primitives: point/segment distances and segment intersection.
+"""Compiled 2D primitives: point/segment and box distances, segment intersection.
 
 All functions are numba ``njit`` scalar kernels used inside the per-step loops. Points and
 vectors are ``(x, y)`` tuples and axis-aligned boxes ``(x0, y0, x1, y1)`` tuples of floats:
@@ -23,24 +23,6 @@ Box = tuple[float, float, float, float]
 def cross(a: Point, b: Point) -> float:
     """z-component of the cross product ``a x b``."""
     return a[0] * b[1] - a[1] * b[0]
-
-
-@njit(cache=True)
-def point_segment_distance(p: Point, a: Point, b: Point) -> float:
-    """Euclidean distance from point ``p`` to the closed segment ``[a, b]``."""
-    px, py = p
-    ax, ay = a
-    dx = b[0] - ax
-    dy = b[1] - ay
-    len2 = dx * dx + dy * dy
-    if len2 <= 0.0:
-        return math.hypot(px - ax, py - ay)
-    t = ((px - ax) * dx + (py - ay) * dy) / len2
-    if t < 0.0:
-        t = 0.0
-    elif t > 1.0:
-        t = 1.0
-    return math.hypot(px - (ax + t * dx), py - (ay + t * dy))
 
 
 @njit(cache=True)
@@ -94,33 +76,13 @@ def segments_intersect(a: Point, b: Point, c: Point, d: Point) -> bool:
     return False
 
 
-@njit(cache=True)
-def segment_segment_distance(a: Point, b: Point, c: Point, d: Point) -> float:
-    """Distance between the closed segments ``[a, b]`` and ``[c, d]`` (0 if they touch)."""
-    if segments_intersect(a, b, c, d):
-        return 0.0
-    return min(
-        point_segment_distance(a, c, d),
-        point_segment_distance(b, c, d),
-        point_segment_distance(c, a, b),
-        point_segment_distance(d, a, b),
-    )
-
-
-@njit(cache=True, inline="always")
-def box_distance(a: Box, b: Box) -> float:
-    """Distance between two axis-aligned boxes ``(x0, y0, x1, y1)`` (0 if they overlap).
-
-    A lower bound of the distance between any geometry inside them, used to skip edges.
-    """
-    gx = max(0.0, max(a[0], b[0]) - min(a[2], b[2]))
-    gy = max(0.0, max(a[1], b[1]) - min(a[3], b[3]))
-    return math.hypot(gx, gy)
-
-
 @njit(cache=True, inline="always")
 def box_distance2(a: Box, b: Box) -> float:
-    """Squared :func:`box_distance` (no square root: used to skip edges cheaply)."""
+    """Squared distance between two axis-aligned boxes ``(x0, y0, x1, y1)`` (0 if they overlap).
+
+    A lower bound of the squared distance between any geometry inside them, used to skip edges
+    cheaply (no square root).
+    """
     gx = max(0.0, max(a[0], b[0]) - min(a[2], b[2]))
     gy = max(0.0, max(a[1], b[1]) - min(a[3], b[3]))
     return gx * gx + gy * gy

@@ -50,8 +50,8 @@ lists within its sensed range or near its line of sight, and skips those whose b
 cannot improve a current minimum or lies beyond the sensed range; distances are compared
 squared, with one square root per output. The uncapped clearance falls back to a widening
 grid search when no edge lies within the sensed range. The brute-force entry points
-(:func:`sense_into`, :func:`sense` without a grid) visit every edge and give the same
-results. With a sector, each left / right part of an edge is clipped to it before its
+(:func:`sense_into` without culling, :func:`sense` without a grid) visit every edge and give
+the same results. With a sector, each left / right part of an edge is clipped to it before its
 distances are taken (a clipped part is never nearer, so the culling bounds stay valid); without
 one (``alpha = pi``) none of that code runs. For ``d_l``, ``d_r`` a part reaching beyond the
 sensed range is clipped to its disk as well (only when an end lies outside it).
@@ -93,6 +93,7 @@ __all__ = [
     "SENSE_D_WALL_RIGHT",
     "SENSE_NAMES",
     "SENSE_OCCLUDED",
+    "SENSE_PROXIMITY",
     "SENSE_SIZE",
     "SENSE_VISIBLE",
     "edge_boxes",
@@ -101,7 +102,6 @@ __all__ = [
     "sense_candidates",
     "sense_follower_grid",
     "sense_into",
-    "sense_into_grid",
     "sensing_params",
 ]
 
@@ -115,6 +115,9 @@ SENSE_D_SIGHT_LEFT = 6
 SENSE_D_SIGHT_RIGHT = 7
 SENSE_CLEARANCE = 8
 SENSE_SIZE = 9
+#: The proximity sensor's four clearance columns ``d_W_l, d_W_r, d_l, d_r``, in this order: for
+#: the code that treats the four alike or reads them together.
+SENSE_PROXIMITY = (SENSE_D_WALL_LEFT, SENSE_D_WALL_RIGHT, SENSE_D_SIGHT_LEFT, SENSE_D_SIGHT_RIGHT)
 SENSE_NAMES: tuple[str, ...] = (
     "d",
     "beta",
@@ -557,95 +560,81 @@ def sense_follower_grid(
 
 
 @njit(cache=True)
-def sense_into(poses: np.ndarray, walls: Walls, p: np.record, out: np.ndarray) -> None:
+def sense_into(
+    poses: np.ndarray, walls: Walls, p: np.record, out: np.ndarray, culled: bool
+) -> None:
     """Sense every follower ``i = 1..N`` of ``poses`` ((N+1) x 3) into ``out`` (N x SENSE_SIZE).
 
-    Brute force over every edge of ``walls`` (its grid is not read); :func:`sense_into_grid`
-    culls. The proximity sector is ``theta_i ± p.proximity_half_angle``.
+    ``culled``: each follower visits the edges the grid of ``walls`` lists near it
+    (:func:`sense_follower_grid`); otherwise brute force over every edge (:func:`sense_candidates`,
+    the grid is not read). The same results. The proximity sector is
+    ``theta_i ± p.proximity_half_angle``.
     """
+    # Brute force reads these indices; culling overwrites them as its scratch.
     cand = np.arange(walls.edges.shape[0])
     for i in range(1, poses.shape[0]):
-        sense_candidates(
-            (poses[i, 0], poses[i, 1], poses[i, 2]),
-            (poses[i - 1, 0], poses[i - 1, 1]),
-            (poses[i, 0], poses[i, 1]),
-            False,
-            walls,
-            cand,
-            p,
-            out[i - 1],
-        )
-
-
-@njit(cache=True)
-def sense_into_grid(poses: np.ndarray, walls: Walls, p: np.record, out: np.ndarray) -> None:
-    """:func:`sense_into` with grid culling (same results)."""
-    cand = np.empty(walls.edges.shape[0], dtype=np.int64)
-    for i in range(1, poses.shape[0]):
-        sense_follower_grid(
-            (poses[i, 0], poses[i, 1], poses[i, 2]),
-            (poses[i - 1, 0], poses[i - 1, 1]),
-            (poses[i, 0], poses[i, 1]),
-            False,
-            walls,
-            cand,
-            p,
-            out[i - 1],
-        )
+        pose = (poses[i, 0], poses[i, 1], poses[i, 2])
+        pred = (poses[i - 1, 0], poses[i - 1, 1])
+        here = (poses[i, 0], poses[i, 1])
+        if culled:
+            sense_follower_grid(pose, pred, here, False, walls, cand, p, out[i - 1])
+        else:
+            sense_candidates(pose, pred, here, False, walls, cand, p, out[i - 1])
 
 
 def sensing_params(
+    *,
     d_con: float,
     beta_con: float,
     proximity_range: float,
     proximity_half_angle: float = math.pi,
     inflation: float = 0.0,
-) -> np.ndarray:
-    """A ``(1,)`` :data:`~platoon_env.records.PARAMS_DTYPE` array holding the sensing
-    parameters (every other field 0); pass its record ``[0]`` to the kernels."""
+) -> np.record:
+    """A :data:`~platoon_env.records.PARAMS_DTYPE` record holding only the fields the sensing
+    reads (every other field 0): the camera's ``d_con``, ``beta_con`` (eq. 5), the proximity
+    range ``R_p``, its sector's half-angle (default ``pi``: all around) and the obstacle
+    inflation ``m`` [m] (``safety.inflation``; default 0). For :func:`sense` where no scenario
+    gives the record (:func:`platoon_env.records.constraint_params` does for a config)."""
     params = np.zeros(1, dtype=PARAMS_DTYPE)
     params["d_con"] = d_con
     params["beta_con"] = beta_con
     params["proximity_range"] = proximity_range
     params["proximity_half_angle"] = proximity_half_angle
     params["inflation"] = inflation
-    return params
+    return params[0]
 
 
 def sense(
-    poses: np.ndarray,
-    edges: np.ndarray,
-    d_con: float,
-    beta_con: float,
-    proximity_range: float,
-    grid: EdgeGrid | None = None,
-    *,
-    proximity_half_angle: float = math.pi,
-    inflation: float = 0.0,
+    poses: np.ndarray, edges: np.ndarray, params: np.record, grid: EdgeGrid | None = None
 ) -> np.ndarray:
     """Sense all followers; returns an ``(N, SENSE_SIZE)`` float64 array of ``SENSE_*`` columns.
 
     Convenience entry point for tests and plots; the env calls the compiled kernel directly.
-    ``grid`` (built over the same ``edges``) culls distant edges; without it every edge is
-    visited. Both give the same result. ``proximity_half_angle``: the proximity sensor's
-    sector ``theta_i ± proximity_half_angle`` (default ``pi``: all around). ``inflation``: the
-    obstacle inflation ``m`` [m] (``safety.inflation``; default 0).
+    ``params`` is a :data:`~platoon_env.records.PARAMS_DTYPE` record, read by name as the
+    compiled step reads it: ``d_con``, ``beta_con``, ``proximity_range``,
+    ``proximity_half_angle`` (the sector ``theta_i ± proximity_half_angle``; ``pi``: all
+    around) and ``inflation`` (``m``) — :func:`sensing_params` builds one,
+    :func:`platoon_env.records.constraint_params` gives a scenario's. ``grid`` (built over the
+    same ``edges``) culls distant edges; without it every edge is visited. Both give the same
+    result.
     """
     poses = np.ascontiguousarray(poses, dtype=np.float64)
     edges = np.ascontiguousarray(edges, dtype=np.float64).reshape(-1, 4)
     if poses.ndim != 2 or poses.shape[1] != 3 or poses.shape[0] < 2:
         raise ValueError(f"poses must have shape (N+1, 3) with N >= 1, got {poses.shape}")
-    half_angle = float(proximity_half_angle)
+    if getattr(params, "dtype", None) != PARAMS_DTYPE or np.ndim(params) != 0:
+        raise TypeError(f"params must be one PARAMS_DTYPE record, got {params!r}")
+    half_angle = float(params["proximity_half_angle"])
     if not 0.0 < half_angle:
-        raise ValueError(f"proximity_half_angle must be > 0, got {proximity_half_angle}")
+        raise ValueError(f"proximity_half_angle must be > 0, got {half_angle}")
+    inflation = float(params["inflation"])
     if not (math.isfinite(inflation) and inflation >= 0.0):
         raise ValueError(f"inflation must be finite and >= 0, got {inflation}")
-    params = sensing_params(d_con, beta_con, proximity_range, half_angle, float(inflation))
     out = np.empty((poses.shape[0] - 1, SENSE_SIZE), dtype=np.float64)
     if grid is None:
-        sense_into(poses, EdgeGrid.single_cell(edges).walls, params[0], out)
+        sense_into(poses, EdgeGrid.single_cell(edges).walls, params, out, False)
     else:
         if grid.n_edges != edges.shape[0]:
             raise ValueError(f"grid indexes {grid.n_edges} edges, got {edges.shape[0]}")
-        sense_into_grid(poses, grid.walls, params[0], out)
+        sense_into(poses, grid.walls, params, out, True)
     return out
