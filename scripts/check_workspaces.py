@@ -71,7 +71,6 @@ from platoon_env.geometry.sensing import (  # noqa: E402
     SENSE_D_SIGHT_LEFT,
     SENSE_D_SIGHT_RIGHT,
     sense,
-    sensing_params,
 )
 from platoon_env.geometry.workspace import LEADER_PATH_MARGIN, check_leader_path  # noqa: E402
 from platoon_env.scenarios.loader import load_config  # noqa: E402
@@ -250,13 +249,14 @@ def sense_pairs(scenario: Scenario, followers: np.ndarray, predecessors: np.ndar
     chain = np.zeros((2 * len(followers), 3))
     chain[0::2, :2] = predecessors
     chain[1::2] = followers
-    sensors = sensing_params(
-        d_con=cfg.camera.range,
-        beta_con=cfg.camera.half_angle,
-        proximity_range=cfg.proximity_range,
+    out = sense(
+        chain,
+        scenario.workspace.edges,
+        cfg.camera.range,
+        cfg.camera.half_angle,
+        cfg.proximity_range,
         proximity_half_angle=cfg.proximity_half_angle,
     )
-    out = sense(chain, scenario.workspace.edges, sensors)
     return out[0::2]
 
 
@@ -759,18 +759,22 @@ def measure(job: tuple[str, int, bool]) -> Measured:
     return measured
 
 
-def generation_ms(name: str, layouts: int) -> float:
-    """The median time [ms] to generate one of the first ``layouts`` layouts of ``name``."""
+def generation_ms(names: list[str], layouts: int) -> dict[str, float]:
+    """The median time [ms] to generate one of the first ``layouts`` layouts of each of
+    ``names``, the scenarios taken in turn for each layout number (so that a changing load on
+    the machine weighs on all alike)."""
     import time
 
-    template = load_config(name)
-    generate_scenario(template, layouts)  # warm up
-    times = []
+    templates = {name: load_config(name) for name in names}
+    times: dict[str, list[float]] = {name: [] for name in names}
+    for template in templates.values():
+        generate_scenario(template, layouts)  # warm up
     for k in range(layouts):
-        start = time.perf_counter()
-        generate_scenario(template, k)
-        times.append(time.perf_counter() - start)
-    return 1000.0 * float(np.median(times))
+        for name, template in templates.items():
+            start = time.perf_counter()
+            generate_scenario(template, k)
+            times[name].append(time.perf_counter() - start)
+    return {name: 1000.0 * float(np.median(t)) for name, t in times.items()}
 
 
 def _spread(values: list[float], digits: int = 2) -> str:
@@ -799,6 +803,7 @@ def tiers_table(layouts: int, workers: int) -> str:
     jobs = [(name, seed, label in SHARP_TIERS) for label, name, n in rows for seed in range(n)]
     with Pool(workers) as pool:
         results = pool.map(measure, jobs, chunksize=1)
+    generation = generation_ms([name for label, name, _ in rows if label not in STUDIES], layouts)
     by_name: dict[str, list[Measured]] = {}
     for m in results:
         by_name.setdefault(m.name, []).append(m)
@@ -827,7 +832,7 @@ def tiers_table(layouts: int, workers: int) -> str:
                     _spread([m.turn_radius for m in ms]),
                     _spread([float(q.obstacles) for q in props], 0),
                     f"{sum(ran)}/{len(ran)}" if ran else "-",
-                    "-" if study else f"{generation_ms(name, n):.1f}",
+                    "-" if study else f"{generation[name]:.1f}",
                 ]
             )
             + " |"
@@ -842,7 +847,8 @@ def tiers_table(layouts: int, workers: int) -> str:
         "Each cell is min / median / max over the layouts (one value: all equal). The leader's "
         "turn radius is the driven leader's for the studies and the tiers the PPC ran on (a "
         "turn in place shows as a radius below 0.1 m), the leader path's arcs for the others. "
-        "The generation time is that of `generate_scenario`, on the machine the command ran on.",
+        "The generation time is that of `generate_scenario` on the machine the command ran on, "
+        "the tiers taken in turn for each layout number.",
     ]
     if failures:
         notes += ["", "Episodes the ideal PPC failed (first violation):", "", *failures]
