@@ -141,7 +141,10 @@ def mean_success(counts: ArrayLike, *, reps: int = 4000, seed: int = 0) -> Inter
     rates = rng.beta(k[picks] + 0.5, n[picks] - k[picks] + 0.5)  # (reps, seeds, tasks)
     means = rates.mean(axis=(1, 2))
     low, high = np.quantile(means, [ALPHA / 2, 1 - ALPHA / 2])
-    return Interval(point, float(low), float(high))
+    # The Jeffreys posterior puts no mass at exactly 0 or 1, so an entry at the floor or the
+    # ceiling everywhere would get an interval that excludes its own rate: the bounds are
+    # extended to the point (the usual boundary modification of the Jeffreys interval).
+    return Interval(point, min(float(low), point), max(float(high), point))
 
 
 def newcombe_difference(k1: int, n1: int, k2: int, n2: int) -> Interval:

@@ -13,7 +13,7 @@ pytest.importorskip("rliable")
 from experiments.policies import PolicySpec
 from experiments.stats import bootstrap_episodes
 from experiments.studies import leaderboard as lb
-from experiments.suites import ARUCO, IDEAL
+from experiments.suites import ARUCO, IDEAL, suite
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -61,7 +61,9 @@ def test_entries_group_seed_folders_into_configurations(tmp_path: Path) -> None:
 
 def test_tasks_cover_both_suites_with_their_seeds() -> None:
     tasks = lb.tasks()
-    assert len(tasks) == 12 and len(set(tasks)) == 12
+    # 3 studies and every procedural tier's test split, each ideal and aruco
+    n = 2 * (3 + len(suite("heldout").scenarios))
+    assert len(tasks) == n and len(set(tasks)) == n
     assert {t.seeds for t in tasks if t.suite == "paper"} == {20}
     assert {t.seeds for t in tasks if t.suite == "heldout"} == {200}
     assert {t.condition_label for t in tasks} == {"ideal", "aruco"}
@@ -77,8 +79,9 @@ def test_a_model_the_sensors_refuse_is_refused_not_run(tmp_path: Path) -> None:
     entries = [e for e in lb.entries(tmp_path) if e.learned]
     cells, refused = lb.cells(entries, lb.tasks(1, 1))
     assert {t.condition_label for (_, t) in refused} == {"aruco"}
-    assert len(refused) == 6 and all("frame_rate" in why for why in refused.values())
-    assert len(cells) == 6  # the ideal tasks, one seed each
+    n = len(lb.tasks(1, 1)) // 2  # tasks per condition
+    assert len(refused) == n and all("frame_rate" in why for why in refused.values())
+    assert len(cells) == n  # the ideal tasks, one seed each
 
 
 def test_suite_row_counts_violations_per_1000_steps_of_10_ms() -> None:
@@ -95,18 +98,29 @@ def test_suite_row_counts_violations_per_1000_steps_of_10_ms() -> None:
     assert row["rms_e_d"] == pytest.approx(0.1)
 
 
-def test_success_of_a_deterministic_law_bootstraps_its_episodes() -> None:
+def test_success_of_a_deterministic_law_is_the_plain_mean_over_tasks() -> None:
     t = _tasks()
     rates = {t[0]: 4, t[1]: 3, t[2]: 2, t[3]: 0}
     runs = [{task: [_ep(i < rates.get(task, 4)) for i in range(4)] for task in t}]
     board = _board({"ppc": runs})
     agg = lb.success_aggregate(board, board.entries[0], board.suite_tasks("paper"))
     assert agg is not None
-    # task means 1, .75, .5, 0 -> IQM of 4 values trims one at each end: (.75 + .5) / 2
-    assert agg.value == pytest.approx(0.625)
+    # task means 1, .75, .5, 0: the mean keeps every task (an IQM would give .625)
+    assert agg.value == pytest.approx(0.5625)
     assert agg.low < agg.value < agg.high
+    # 4 scores of one run: too few for an IQM
+    assert lb.success_iqm(board, board.entries[0], board.suite_tasks("paper")) is None
+
+
+def test_a_floor_or_ceiling_law_gets_an_interval_of_width() -> None:
+    """0/4 and 4/4 on every task: the interval is not a point (the episode bootstrap's was)."""
+    t = _tasks()
+    runs = [{task: [_ep(task.condition_label == "ideal")] * 4 for task in t}]
+    board = _board({"ppc": runs})
+    agg = lb.success_aggregate(board, board.entries[0], board.suite_tasks("paper"))
+    assert agg is not None and agg.value == 0.5 and agg.high - agg.low > 0.05
     same = bootstrap_episodes(board.episode_matrix("ppc", board.suite_tasks("paper")))
-    assert (same.value, same.low, same.high) == (agg.value, agg.low, agg.high)
+    assert same.low == same.high
 
 
 def test_success_of_a_configuration_is_over_its_seeds() -> None:
@@ -118,9 +132,11 @@ def test_success_of_a_configuration_is_over_its_seeds() -> None:
     assert m.shape == (3, 4) and m[:2].min() == 1 and m[2].max() == 0
     agg = lb.success_aggregate(board, board.entries[0], board.suite_tasks("paper"))
     assert agg is not None
+    assert agg.value == pytest.approx(2 / 3)  # two seeds of three succeed everywhere
+    assert agg.low < 0.5 and agg.high > 0.85  # the seeds disagree: a wide interval
+    iqm = lb.success_iqm(board, board.entries[0], board.suite_tasks("paper"))
     # 12 scores, 8 ones and 4 zeros; IQM trims 3 at each end: 5 ones of 6
-    assert agg.value == pytest.approx(5 / 6)
-    assert agg.low <= agg.value <= agg.high
+    assert iqm is not None and iqm.value == pytest.approx(5 / 6)
 
 
 def test_a_missing_task_gives_no_aggregate() -> None:
@@ -151,9 +167,9 @@ def test_tables_and_readme_splice(tmp_path: Path) -> None:
     board = _board({"ppc": [{task: [_ep(True)] * 4 for task in t}]})
     rows = [lb.suite_row(board, e, s) for s in lb.SUITES for e in board.entries]
     table = lb.table_markdown(rows)
-    assert table.count("\n") == 4 and "| ppc | paper | 1 × 16 | 1.00 [1.00, 1.00] | 1.00 |" in table
+    assert table.count("\n") == 4 and "| ppc | paper | all | 1 × 16 | 1.00 [0.7" in table
     tasks_md = lb.task_table_markdown(board)
-    assert "study_a/aruco" in tasks_md and "1.00" in tasks_md
+    assert "study_a/aruco" in tasks_md and "4/4 [0.51, 1.00] ⊤" in tasks_md
     readme = tmp_path / "README.md"
     readme.write_text(f"intro\n{lb.MARKERS[0]}\nold\n{lb.MARKERS[1]}\nend\n")
     lb.splice_readme(readme, table)
@@ -173,17 +189,58 @@ def test_a_tiny_leaderboard_run_writes_its_outputs(
     argv = [
         "--models", str(models), "--store", str(tmp_path / "store"), "--paper-seeds", "1",
         "--heldout-seeds", "1", "--docs", str(docs), "--no-readme", "--workers", "1",
-        "--no-progress",
+        "--no-progress", "--allow-mixed",
     ]  # fmt: skip
     rc = lb.main(argv)
     assert rc == 0
     text = (docs / "leaderboard.md").read_text()
     for name in lb.ANALYTIC:
-        assert f"| {name} | paper | 1 × 6 |" in text
-        assert f"| {name} | heldout | 1 × 6 |" in text
+        for suite_name in ("paper", "heldout"):
+            for condition in ("ideal", "aruco"):
+                n = len(suite(suite_name).scenarios)
+                assert f"| {name} | {suite_name} | {condition} | 1 × {n} |" in text
+    assert "## Pairwise comparisons" in text and "tests in the family" in text
     assert (docs / "figures" / "leaderboard_tasks.png").stat().st_size > 0
+    assert (docs / "figures" / "leaderboard_separation.png").stat().st_size > 0
     assert (docs / "figures" / "leaderboard_profiles.png").stat().st_size > 0
     # a second run finds every episode in the store
     rc = lb.main(argv)
     assert rc == 0
-    assert "0 episode(s) run, 36 already in the store" in capsys.readouterr().out
+    n_cells = len(lb.ANALYTIC) * len(lb.tasks(1, 1))
+    assert f"0 episode(s) run, {n_cells} already in the store" in capsys.readouterr().out
+
+
+def test_the_pairwise_family_flags_ties_and_names_the_winner() -> None:
+    t = _tasks()
+    good = {task: [_ep(True)] * 20 for task in t}
+    bad = {task: [_ep(task.condition_label == "ideal", "occluded")] * 20 for task in t}
+    board = _board({"ppc": [good], "m": [bad]})
+    found = lb.comparisons(board)
+    by_task = {c.task: c for c in found}
+    aruco = next(x for x in t if x.condition_label == "aruco")
+    ideal = next(x for x in t if x.condition_label == "ideal")
+    assert by_task[aruco.label].verdict == "ppc"
+    assert by_task[ideal.label].tie == "ceiling"
+    text = lb.comparisons_markdown(found, board.tasks)
+    assert "tie at ceiling" in text and "significant after Holm" in text
+
+
+def test_a_board_from_mixed_code_versions_is_refused(tmp_path: Path) -> None:
+    """Rows written at another commit: refused (exit 2) unless --allow-mixed."""
+    from experiments.store import Store
+
+    store_dir = tmp_path / "store"
+    argv = [
+        "--models", str(tmp_path), "--store", str(store_dir), "--paper-seeds", "1",
+        "--heldout-seeds", "1", "--docs", str(tmp_path / "docs"), "--no-readme",
+        "--workers", "1", "--no-progress", "--no-cards",
+    ]  # fmt: skip
+    (tmp_path / "m_s0").mkdir()  # no model: the board holds the analytic laws only
+    assert lb.main([*argv, "--allow-mixed"]) == 0
+    with Store(store_dir / "results.sqlite") as store, store.transaction() as db:
+        db.execute("UPDATE runs SET stamp = ?", ('{"commit": "0000000other"}',))
+    (tmp_path / "docs" / "leaderboard.md").unlink()
+    assert lb.main(argv) == 2
+    assert not (tmp_path / "docs" / "leaderboard.md").exists()  # refused before writing
+    assert lb.main([*argv, "--allow-mixed"]) == 0
+    assert "Mixed code versions" in (tmp_path / "docs" / "leaderboard.md").read_text()

@@ -39,6 +39,8 @@ def test_mean_success_keeps_every_task() -> None:
     m = mean_success(counts)
     assert m.value == pytest.approx((1 + 0 + 0.3) / 3)
     assert m.low < m.value < m.high
+    top = mean_success(np.array([[20, 20], [20, 20]]))
+    assert top.value == top.high == 1.0 and top.low < 0.95  # the point lies in its interval
     bounds = mean_success(np.array([[20, 20], [0, 20]]))
     assert bounds.value == 0.5 and bounds.high - bounds.low > 0.02
 

@@ -23,7 +23,7 @@ from experiments.suites import LEADERBOARD_SUITES as SUITES
 from training.curves import plot_learning_curves, read_progress
 
 if TYPE_CHECKING:
-    from experiments.studies.leaderboard import Board, Entry
+    from experiments.studies.board import Board, Entry
 
 __all__ = ["card_markdown", "index_markdown", "write_cards"]
 

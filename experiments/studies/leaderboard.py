@@ -48,21 +48,19 @@ from __future__ import annotations
 
 import argparse
 import math
-import re
 import sys
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from experiments.cli import count
-from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_file
-from experiments.policies import PolicySpec, analytic_policies, default_models_dir, shipped_models
+from experiments.grid import run_grid, store_file
+from experiments.policies import default_models_dir
 from experiments.report import provenance_markdown
+from experiments.significance import Comparison, compare, mean_success, task_rate
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.stats import (
     Aggregate,
@@ -72,9 +70,19 @@ from experiments.stats import (
     probability_of_improvement,
 )
 from experiments.store import Store, StoreError
+from experiments.studies.board import (
+    ANALYTIC,
+    SUITES,
+    Board,
+    Entry,
+    Task,
+    build_board,
+    cells,
+    entries,
+    tasks,
+)
 from experiments.studies.cards import write_cards
-from experiments.suites import LEADERBOARD_SUITES, Condition, suite
-from platoon_env.scenarios.schema import ScenarioError
+from experiments.suites import suite
 from platoon_env.violations import VIOLATION_CAUSES
 
 __all__ = [
@@ -89,177 +97,10 @@ __all__ = [
 ]
 
 _TOOL = "platoon-leaderboard"
-#: The analytic laws on the board (registry names).
-ANALYTIC: tuple[str, ...] = tuple(analytic_policies("leaderboard"))
-#: The suites on the board.
-SUITES = LEADERBOARD_SUITES
 #: The step a violation rate is counted per (the analytic laws' control period) [s].
 RATE_STEP = 0.01
 #: README markers between which the table is written.
 MARKERS = ("<!-- leaderboard:start -->", "<!-- leaderboard:end -->")
-_SEED_SUFFIX = re.compile(r"_s(\d+)$")
-
-
-@dataclass(frozen=True)
-class Entry:
-    """One row group of the board: a policy configuration and its runs (training seeds)."""
-
-    name: str
-    runs: tuple[PolicySpec, ...]
-    learned: bool
-
-
-@dataclass(frozen=True)
-class Task:
-    """A scenario under a condition, in a suite, with its episode seeds ``0 .. seeds-1``."""
-
-    suite: str
-    scenario: str
-    condition_label: str
-    seeds: int
-    #: The condition itself (its overrides are a dict: the label stands for it in comparisons).
-    condition: Condition = field(compare=False, default=Condition("ideal"))
-
-    @property
-    def label(self) -> str:
-        short = self.scenario.removeprefix("procedural_").removesuffix("_test")
-        return f"{short}/{self.condition.label}"
-
-
-def entries(models_dir: Path) -> list[Entry]:
-    """The analytic laws, then the configurations of ``models_dir`` (its ``*_s<seed>``
-    folders grouped by the name before the suffix; a folder without one is a configuration of
-    one run)."""
-    out = [Entry(name, (PolicySpec.of(name),), False) for name in ANALYTIC]
-    groups: dict[str, list[PolicySpec]] = {}
-    for spec in shipped_models(Path(models_dir)):
-        groups.setdefault(_SEED_SUFFIX.sub("", spec.name), []).append(spec)
-    out += [Entry(name, tuple(specs), True) for name, specs in sorted(groups.items())]
-    return out
-
-
-def tasks(paper_seeds: int | None = None, heldout_seeds: int | None = None) -> list[Task]:
-    """Every task of the board's suites (``None``: the suite's own number of seeds)."""
-    counts = {"paper": paper_seeds, "heldout": heldout_seeds}
-    out = []
-    for name in SUITES:
-        s = suite(name)
-        given = counts[name]
-        n = s.seeds if given is None else given
-        if n < 1:
-            raise ValueError(f"{name} seeds must be >= 1, got {n}")
-        for scenario in s.scenarios:
-            for condition in s.conditions:
-                out.append(Task(name, scenario, condition.label, n, condition))
-    return out
-
-
-def cells(
-    board_entries: Sequence[Entry], board_tasks: Sequence[Task]
-) -> tuple[list[ResolvedCell], dict[tuple[str, Task], str]]:
-    """The resolved cells of every entry run × task × seed, and the (entry, task) pairs that
-    cannot run at all, with the reason (a model whose control period the condition's sensors
-    refuse, e.g. a 20 Hz policy with a 30 Hz camera)."""
-    out: list[ResolvedCell] = []
-    refused: dict[tuple[str, Task], str] = {}
-    for e in board_entries:
-        for spec in e.runs:
-            for t in board_tasks:
-                group = [
-                    Cell.of(spec, t.scenario, seed, t.condition.overrides)
-                    for seed in range(t.seeds)
-                ]
-                try:
-                    out += resolve_cells(group, unique=True)
-                except ScenarioError as exc:
-                    refused[(e.name, t)] = f"{spec.name}: {exc}"
-    return list({rc.key: rc for rc in out}.values()), refused
-
-
-# ----------------------------------------------------------------------------------------------
-# The board: per-episode metrics arranged by entry, run and task
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass
-class Board:
-    """The metrics of every episode, ``metrics[entry][run][task]`` = a list over seeds, and
-    the cells that were refused (the policy cannot run there) or failed."""
-
-    entries: list[Entry]
-    tasks: list[Task]
-    metrics: dict[str, list[dict[Task, list[dict[str, Any]]]]]
-    refused: dict[tuple[str, Task], str] = field(default_factory=dict)
-    missing: int = 0
-
-    def suite_tasks(self, name: str) -> list[Task]:
-        return [t for t in self.tasks if t.suite == name]
-
-    def episodes(self, entry: str, suite_name: str) -> list[dict[str, Any]]:
-        """Every episode of ``entry`` on ``suite_name`` (all runs, tasks and seeds)."""
-        return [
-            m
-            for run in self.metrics[entry]
-            for t in self.suite_tasks(suite_name)
-            for m in run.get(t, [])
-        ]
-
-    def success_matrix(self, entry: str, task_list: Sequence[Task]) -> NDArray[np.float64]:
-        """``(runs, tasks)`` success rates of ``entry`` (NaN for a task it has no episode of)."""
-        out = np.full((len(self.metrics[entry]), len(task_list)), math.nan)
-        for i, run in enumerate(self.metrics[entry]):
-            for j, t in enumerate(task_list):
-                eps = run.get(t, [])
-                if eps:
-                    out[i, j] = np.mean([bool(m["success"]) for m in eps])
-        return out
-
-    def episode_matrix(self, entry: str, task_list: Sequence[Task]) -> NDArray[np.float64]:
-        """``(episodes, tasks)`` 0/1 successes of a one-run entry (seed ``s`` is row ``s``)."""
-        run = self.metrics[entry][0]
-        n = max((len(run.get(t, [])) for t in task_list), default=0)
-        out = np.full((n, len(task_list)), math.nan)
-        for j, t in enumerate(task_list):
-            for s, m in enumerate(run.get(t, [])):
-                out[s, j] = float(bool(m["success"]))
-        return out
-
-
-def build_board(
-    board_entries: Sequence[Entry],
-    board_tasks: Sequence[Task],
-    result: GridResult,
-    refused: Mapping[tuple[str, Task], str] | None = None,
-) -> Board:
-    """Arrange a grid's records by entry, run and task (in seed order); ``refused``: the pairs
-    :func:`cells` could not resolve."""
-    records = result.records
-    by_cell = {rc.cell: rc for rc in result.cells}
-    metrics: dict[str, list[dict[Task, list[dict[str, Any]]]]] = {}
-    refused = dict(refused or {})
-    missing = 0
-    for e in board_entries:
-        runs = []
-        for spec in e.runs:
-            per_task: dict[Task, list[dict[str, Any]]] = {}
-            for t in board_tasks:
-                eps = []
-                if (e.name, t) in refused:
-                    continue
-                for seed in range(t.seeds):
-                    rc = by_cell.get(Cell.of(spec, t.scenario, seed, t.condition.overrides))
-                    rec = None if rc is None else records.get(rc.key)
-                    if rec is None or rec.status == "failed":
-                        missing += 1
-                    elif rec.status == "refused":
-                        refused[(e.name, t)] = rec.error.strip().splitlines()[-1][:200]
-                    else:
-                        eps.append(rec.metrics)
-                if eps:
-                    per_task[t] = eps
-            runs.append(per_task)
-        metrics[e.name] = runs
-    return Board(list(board_entries), list(board_tasks), metrics, refused, missing)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -267,18 +108,31 @@ def build_board(
 # ----------------------------------------------------------------------------------------------
 
 
+#: An IQM is reported only for an entry with at least this many run × task scores: below it
+#: the 25 % trimming drops whole tasks (6 tasks × 1 run keeps 3).
+IQM_MIN_SCORES = 8
+
+
 def success_aggregate(board: Board, entry: Entry, task_list: Sequence[Task]) -> Aggregate | None:
-    """The success IQM of ``entry`` over ``task_list`` and its 95 % interval (module doc);
-    None when the entry has no episode of some task."""
-    if entry.learned or len(entry.runs) > 1:
-        m = board.success_matrix(entry.name, task_list)
-        if np.isnan(m).any():
-            return None
+    """The mean success rate of ``entry`` over ``task_list`` (every task weighs the same) with
+    its 95 % hierarchical-bootstrap interval (:func:`experiments.significance.mean_success`:
+    training seeds, then each seed's episodes); None when the entry lacks a task."""
+    counts = board.counts(entry.name, task_list)
+    if counts.size == 0 or np.any(counts[..., 1] == 0):
+        return None
+    return mean_success(counts)
+
+
+def success_iqm(board: Board, entry: Entry, task_list: Sequence[Task]) -> Aggregate | None:
+    """The IQM over runs × tasks of the task success rates with rliable's stratified bootstrap,
+    only where the entry has at least :data:`IQM_MIN_SCORES` scores (else None)."""
+    m = board.success_matrix(entry.name, task_list)
+    if m.size < IQM_MIN_SCORES or np.isnan(m).any():
+        return None
+    if m.shape[0] > 1:
         return aggregate({entry.name: m}, "iqm")[entry.name]
     e = board.episode_matrix(entry.name, task_list)
-    if e.size == 0 or np.isnan(e).any():
-        return None
-    return bootstrap_episodes(e)
+    return None if np.isnan(e).any() else bootstrap_episodes(e)
 
 
 def _finite_mean(values: Sequence[float]) -> float:
@@ -286,18 +140,27 @@ def _finite_mean(values: Sequence[float]) -> float:
     return float(np.mean(v)) if v else math.nan
 
 
-def suite_row(board: Board, entry: Entry, suite_name: str) -> dict[str, Any]:
-    """The leaderboard's numbers for ``entry`` on ``suite_name`` (module doc)."""
-    eps = board.episodes(entry.name, suite_name)
-    task_list = board.suite_tasks(suite_name)
+def suite_row(
+    board: Board, entry: Entry, suite_name: str, condition: str | None = None
+) -> dict[str, Any]:
+    """The leaderboard's numbers for ``entry`` on ``suite_name``, on the tasks of one
+    ``condition`` (``ideal``, ``aruco``) or all of them (None) (module doc)."""
+    task_list = [
+        t
+        for t in board.suite_tasks(suite_name)
+        if condition is None or t.condition.label == condition
+    ]
+    eps = [m for run in board.metrics[entry.name] for t in task_list for m in run.get(t, [])]
     steps = sum(float(m["sim_time"]) for m in eps) / RATE_STEP
     causes = Counter(m["violation"] for m in eps if m["violation"])
     return {
         "policy": entry.name,
         "suite": suite_name,
+        "condition": condition or "all",
         "runs": len(entry.runs),
         "episodes": len(eps),
         "success": success_aggregate(board, entry, task_list),
+        "iqm": success_iqm(board, entry, task_list),
         "success_mean": float(np.mean([bool(m["success"]) for m in eps])) if eps else math.nan,
         "violations_per_1k": {
             c: 1000.0 * causes.get(c, 0) / steps if steps else math.nan for c in VIOLATION_CAUSES
@@ -306,7 +169,7 @@ def suite_row(board: Board, entry: Entry, suite_name: str) -> dict[str, Any]:
         "rms_e_beta": _finite_mean([m["rms_e_beta"] for m in eps]),
         "effort": _finite_mean([m["control_effort"] for m in eps]),
         "refused": [
-            t.label for (name, t) in board.refused if name == entry.name and t.suite == suite_name
+            t.label for (name, t) in board.refused if name == entry.name and t in task_list
         ],
     }
 
@@ -373,23 +236,29 @@ def _violations(v: Mapping[str, float]) -> str:
 
 
 def table_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
-    """The main table: a row per policy and suite."""
+    """The main table: a row per policy, suite and condition."""
     lines = [
-        "| policy | suite | runs × episodes per run | success IQM [95 % CI] | success, all "
-        "episodes | violations / 1,000 steps (10 ms) by cause | rms e_d [m] | rms e_β [rad] | "
-        "effort |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| policy | suite | condition | runs × episodes per run | mean success [95 % CI] | "
+        f"IQM (≥ {IQM_MIN_SCORES} scores) | violations / 1,000 steps (10 ms) by cause | "
+        "rms e_d [m] | rms e_β [rad] | effort |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         per_run = r["episodes"] // max(r["runs"], 1)
         refused = f" (refused: {', '.join(r['refused'])})" if r["refused"] else ""
         lines.append(
-            f"| {r['policy']} | {r['suite']} | {r['runs']} × {per_run} | {_agg(r['success'])}"
-            f"{refused} | {_f(r['success_mean'], 2)} | {_violations(r['violations_per_1k'])} | "
-            f"{_f(r['rms_e_d'])} | "
+            f"| {r['policy']} | {r['suite']} | {r['condition']} | {r['runs']} × {per_run} | "
+            f"{_agg(r['success'])}{refused} | {_agg(r['iqm'])} | "
+            f"{_violations(r['violations_per_1k'])} | {_f(r['rms_e_d'])} | "
             f"{_f(r['rms_e_beta'])} | {_f(r['effort'], 2)} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def task_counts(board: Board, entry: str, task: Task) -> tuple[int, int]:
+    """(successes, episodes) of ``entry`` on ``task``, its runs' episodes pooled."""
+    eps = [m for run in board.metrics[entry] for m in run.get(task, [])]
+    return sum(bool(m["success"]) for m in eps), len(eps)
 
 
 def task_outcome(board: Board, entry: str, task: Task) -> tuple[float, str] | None:
@@ -403,7 +272,8 @@ def task_outcome(board: Board, entry: str, task: Task) -> tuple[float, str] | No
 
 
 def task_table_markdown(board: Board) -> str:
-    """Success rate per policy and task (mean over runs) and the most frequent failure."""
+    """Per policy and task: successes/episodes (runs pooled) with the 95 % Wilson interval, a
+    floor (⊥: none succeeded) or ceiling (⊤: all did) mark, and the most frequent failure."""
     head = "| policy | " + " | ".join(t.label for t in board.tasks) + " |"
     lines = [head, "|---|" + "---|" * len(board.tasks)]
     for e in board.entries:
@@ -413,11 +283,103 @@ def task_table_markdown(board: Board) -> str:
             if outcome is None:
                 cells_.append("refused" if (e.name, t) in board.refused else "–")
                 continue
-            rate, worst = outcome
+            rate = task_rate(*task_counts(board, e.name, t))
+            worst = outcome[1]
+            mark = " ⊥" if rate.floor else " ⊤" if rate.ceiling else ""
             note = f" ({worst.replace('collision_', 'coll. ')})" if worst else ""
-            cells_.append(f"{rate:.2f}{note}")
+            cells_.append(f"{rate}{mark}{note}")
         lines.append(f"| {e.name} | " + " | ".join(cells_) + " |")
     return "\n".join(lines) + "\n"
+
+
+def comparisons(board: Board) -> list[Comparison]:
+    """The stated family: every pair of board entries on every task both ran, each a Fisher
+    exact test on the runs' pooled episodes, Holm-adjusted together
+    (:func:`experiments.significance.compare`)."""
+    rates = {
+        e.name: {
+            t.label: task_counts(board, e.name, t)
+            for t in board.tasks
+            if task_counts(board, e.name, t)[1] > 0
+        }
+        for e in board.entries
+    }
+    names = [e.name for e in board.entries]
+    pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1 :]]
+    return compare(rates, pairs)
+
+
+def comparisons_markdown(found: Sequence[Comparison], tasks_: Sequence[Task]) -> str:
+    """A row per pair, a column per task: who is significantly better (Holm, family-wise
+    5 %), ``n.s.``, or a tie at the floor/ceiling; then the significant differences."""
+    labels = [t.label for t in tasks_]
+    by_pair: dict[tuple[str, str], dict[str, Comparison]] = {}
+    for c in found:
+        by_pair.setdefault((c.a, c.b), {})[c.task] = c
+    lines = [
+        "| A vs B | " + " | ".join(labels) + " |",
+        "|---|" + "---|" * len(labels),
+    ]
+    for (a, b), per_task in by_pair.items():
+        cells_ = [per_task[t].verdict if t in per_task else "–" for t in labels]
+        lines.append(f"| {a} vs {b} | " + " | ".join(cells_) + " |")
+    sig = [c for c in found if c.significant]
+    tested = sum(1 for c in found if not c.tie)
+    lines += [
+        "",
+        f"{tested} tests in the family ({len(found) - tested} ties at a bound, not tested); "
+        f"{len(sig)} significant after Holm's correction.",
+        "",
+    ]
+    if sig:
+        lines += ["| task | A | B | success A − B [95 % CI] | p (Fisher) | p (Holm) |"]
+        lines += ["|---|---|---|---|---|---|"]
+        for c in sig:
+            lines.append(
+                f"| {c.task} | {c.a} | {c.b} | {c.difference.value:+.2f} "
+                f"[{c.difference.low:+.2f}, {c.difference.high:+.2f}] | {c.p_value:.2g} | "
+                f"{c.p_holm:.2g} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def plot_separation(
+    found: Sequence[Comparison], tasks_: Sequence[Task], out: Path, metadata: Mapping[str, str]
+) -> Path:
+    """Who beats whom on which task: a pair × task grid, green where A is significantly
+    better, red where B is, grey where the difference is not significant, white for a tie at
+    a bound (marked ⊥/⊤)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = [t.label for t in tasks_]
+    pairs = list(dict.fromkeys((c.a, c.b) for c in found))
+    grid = np.full((len(pairs), len(labels)), np.nan)
+    text = [["" for _ in labels] for _ in pairs]
+    for c in found:
+        i, j = pairs.index((c.a, c.b)), labels.index(c.task)
+        if c.tie:
+            text[i][j] = "⊥" if c.tie == "floor" else "⊤"
+        elif c.significant:
+            grid[i, j] = 1.0 if c.difference.value > 0 else -1.0
+            text[i][j] = f"{c.difference.value:+.2f}"
+        else:
+            grid[i, j] = 0.0
+            text[i][j] = "n.s."
+    fig, ax = plt.subplots(figsize=(1.0 * len(labels) + 3.5, 0.45 * len(pairs) + 1.6))
+    ax.imshow(grid, vmin=-1, vmax=1, cmap="RdYlGn", aspect="auto")
+    for i in range(len(pairs)):
+        for j in range(len(labels)):
+            ax.text(j, i, text[i][j], ha="center", va="center", fontsize=7)
+    ax.set_xticks(range(len(labels)), labels, rotation=40, ha="right", fontsize=8)
+    ax.set_yticks(range(len(pairs)), [f"{a} vs {b}" for a, b in pairs], fontsize=8)
+    ax.set_title("A vs B: success difference where significant (Fisher, Holm 5 %)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=120, metadata=dict(metadata))
+    plt.close(fig)
+    return out
 
 
 def plot_tasks(board: Board, out: Path, metadata: Mapping[str, str]) -> Path:
@@ -541,6 +503,16 @@ def splice_readme(readme: Path, text: str) -> None:
 # ----------------------------------------------------------------------------------------------
 
 
+def code_versions(store: Store, records: Sequence[Any]) -> list[tuple[str, bool]]:
+    """The distinct (commit, uncommitted changes?) of the runs that wrote ``records``."""
+    runs = {r["run_id"]: r["stamp"] for r in store.runs({rec.run_id for rec in records})}
+    out = {
+        (str(st.get("commit", "unknown")), bool(st.get("modified")))
+        for st in (runs.get(rec.run_id, {}) for rec in records)
+    }
+    return sorted(out)
+
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="platoon-leaderboard",
@@ -583,6 +555,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "(default: ./README.md)",
     )
     p.add_argument("--no-readme", action="store_true", help="leave the README alone")
+    p.add_argument(
+        "--allow-mixed",
+        action="store_true",
+        help="publish rows from several commits or an uncommitted tree (the board says so)",
+    )
     p.add_argument("--no-cards", action="store_true", help="leave the model cards alone")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p.parse_args(argv)
@@ -630,8 +607,33 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 130
         records = [result.records[rc.key] for rc in result.cells if rc.key in result.records]
         provenance = provenance_markdown(store, records, result.run_id)
+        # the rows' code versions and this run's own: rows from another commit than the one
+        # running now are as mixed as rows from two commits
+        mixed = sorted(
+            {
+                *code_versions(store, records),
+                (str(stamp.get("commit", "unknown")), bool(stamp.get("modified"))),
+            }
+        )
+    if len(mixed) > 1 or any(dirty for _, dirty in mixed):
+        shown = "; ".join(f"{c[:12]}{' + uncommitted changes' if d else ''}" for c, d in mixed)
+        if not args.allow_mixed:
+            print(
+                f"platoon-leaderboard: error: the board's rows come from {len(mixed)} code "
+                f"version(s) ({shown}); a published board is made at one clean commit. Commit, "
+                "use a fresh --store, or pass --allow-mixed to publish it anyway (it says so).",
+                file=sys.stderr,
+            )
+            return 2
+        provenance = f"**Mixed code versions (--allow-mixed)**: {shown}.\n\n" + provenance
     board = build_board(board_entries, board_tasks, result, refused)
-    rows = [suite_row(board, e, s) for s in SUITES for e in board_entries]
+    rows = [
+        suite_row(board, e, s, c.label)
+        for s in SUITES
+        for c in suite(s).conditions
+        for e in board_entries
+    ]
+    found = comparisons(board)
     ppc_aruco = [
         m["rms_e_d"]
         for run in board.metrics["ppc"]
@@ -648,6 +650,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     meta = png_metadata(stamp)
     plot_tasks(board, figures / "leaderboard_tasks.png", meta)
     plot_profiles(board, figures / "leaderboard_profiles.png", meta)
+    plot_separation(found, board.tasks, figures / "leaderboard_separation.png", meta)
     table = table_markdown(rows)
     seeds = ", ".join(f"{s}: {board.suite_tasks(s)[0].seeds} episodes per task" for s in SUITES)
     doc = [
@@ -659,18 +662,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         "seeds are the runs.\n",
         "## Per policy and suite\n",
         table,
-        "\nSuccess IQM: the interquartile mean over runs × tasks of the task success rates (it "
-        "drops the best and the worst quarter of those scores, so it can differ much from the "
-        "plain success rate over all episodes beside it when whole tasks fail); its interval "
-        "resamples training seeds (learned) or episodes (the deterministic analytic laws). "
+        "\nMean success: the mean over the condition's tasks of the task success rates (every "
+        "task weighs the same, nothing is trimmed), with a 95 % hierarchical-bootstrap interval: "
+        "training seeds resampled, then each seed's task rate drawn from its Jeffreys posterior "
+        "(the episode noise; an analytic law is one seed). IQM: rliable's interquartile mean "
+        f"over runs × tasks, shown only where an entry has ≥ {IQM_MIN_SCORES} scores (below "
+        "that the trimming drops whole tasks). "
         "Violations are counted per 1,000 control steps of 10 ms (per 10 s of driving), since "
         "the models act every 25 ms. rms e_d and e_β: the mean of the episodes' rms errors "
         "(after a 5 s transient, while the predecessor is visible). Effort: the time integral of "
         "u² + ω² per follower.\n",
-        "## Per task: success rate (mean over runs) and the most frequent violation\n",
+        "## Per task: successes (runs pooled) [95 % Wilson interval] and the most frequent "
+        "violation\n",
+        "⊥: no episode succeeded (floor), ⊤: every episode did (ceiling): no interval inside the "
+        "data separates two policies there.\n",
         task_table_markdown(board),
         "![success per task](figures/leaderboard_tasks.png)\n",
-        "## Probability of improvement (success rates of all 12 tasks)\n",
+        "## Pairwise comparisons (who beats whom on which task)\n",
+        "The family: every pair of policies on every task both ran. Each comparison is a "
+        "two-sided Fisher exact test on the 2×2 table of episodes (a configuration's seeds "
+        "pooled); the family's p-values are adjusted by Holm's step-down method (family-wise "
+        "error 5 %). A pair at the floor or the ceiling on a task is a tie, not a test. The "
+        "difference interval is Newcombe's hybrid score interval. Method: docs/leaderboard.md "
+        "is written by this tool; the functions are in experiments/significance.py.\n",
+        comparisons_markdown(found, board.tasks),
+        "![who beats whom](figures/leaderboard_separation.png)\n",
+        f"## Probability of improvement (success rates of all {len(board.tasks)} tasks)\n",
         improvements,
         "## Performance profiles\n",
         "![performance profiles](figures/leaderboard_profiles.png)\n",

@@ -1,0 +1,216 @@
+"""The leaderboard's data: its entries (policies and their training seeds), its tasks (a
+scenario under a condition, in a suite) and the board (every episode's metrics by entry, run
+and task), built from the evaluation store's grid.
+
+:mod:`experiments.studies.leaderboard` computes the statistics and writes the tables from a
+:class:`Board`; :mod:`experiments.studies.cards` writes the model cards from one. Both import
+this module, and it imports neither.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells
+from experiments.policies import PolicySpec, analytic_policies, shipped_models
+from experiments.suites import LEADERBOARD_SUITES, Condition, suite
+from platoon_env.scenarios.schema import ScenarioError
+
+__all__ = [
+    "ANALYTIC",
+    "SUITES",
+    "Board",
+    "Entry",
+    "Task",
+    "build_board",
+    "cells",
+    "entries",
+    "tasks",
+]
+
+#: The analytic laws on the board (registry names).
+ANALYTIC: tuple[str, ...] = tuple(analytic_policies("leaderboard"))
+#: The suites on the board.
+SUITES = LEADERBOARD_SUITES
+#: A model folder ``<config>_s<seed>`` is training seed ``seed`` of configuration ``config``.
+_SEED_SUFFIX = re.compile(r"_s(\d+)$")
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One row group of the board: a policy configuration and its runs (training seeds)."""
+
+    name: str
+    runs: tuple[PolicySpec, ...]
+    learned: bool
+
+
+@dataclass(frozen=True)
+class Task:
+    """A scenario under a condition, in a suite, with its episode seeds ``0 .. seeds-1``."""
+
+    suite: str
+    scenario: str
+    condition_label: str
+    seeds: int
+    #: The condition itself (its overrides are a dict: the label stands for it in comparisons).
+    condition: Condition = field(compare=False, default=Condition("ideal"))
+
+    @property
+    def label(self) -> str:
+        short = self.scenario.removeprefix("procedural_").removesuffix("_test")
+        return f"{short}/{self.condition.label}"
+
+
+def entries(models_dir: Path) -> list[Entry]:
+    """The analytic laws, then the configurations of ``models_dir`` (its ``*_s<seed>``
+    folders grouped by the name before the suffix; a folder without one is a configuration of
+    one run)."""
+    out = [Entry(name, (PolicySpec.of(name),), False) for name in ANALYTIC]
+    groups: dict[str, list[PolicySpec]] = {}
+    for spec in shipped_models(Path(models_dir)):
+        groups.setdefault(_SEED_SUFFIX.sub("", spec.name), []).append(spec)
+    out += [Entry(name, tuple(specs), True) for name, specs in sorted(groups.items())]
+    return out
+
+
+def tasks(paper_seeds: int | None = None, heldout_seeds: int | None = None) -> list[Task]:
+    """Every task of the board's suites (``None``: the suite's own number of seeds)."""
+    counts = {"paper": paper_seeds, "heldout": heldout_seeds}
+    out = []
+    for name in SUITES:
+        s = suite(name)
+        given = counts[name]
+        n = s.seeds if given is None else given
+        if n < 1:
+            raise ValueError(f"{name} seeds must be >= 1, got {n}")
+        for scenario in s.scenarios:
+            for condition in s.conditions:
+                out.append(Task(name, scenario, condition.label, n, condition))
+    return out
+
+
+def cells(
+    board_entries: Sequence[Entry], board_tasks: Sequence[Task]
+) -> tuple[list[ResolvedCell], dict[tuple[str, Task], str]]:
+    """The resolved cells of every entry run × task × seed, and the (entry, task) pairs that
+    cannot run at all, with the reason (a model whose control period the condition's sensors
+    refuse, e.g. a 20 Hz policy with a 30 Hz camera)."""
+    out: list[ResolvedCell] = []
+    refused: dict[tuple[str, Task], str] = {}
+    for e in board_entries:
+        for spec in e.runs:
+            for t in board_tasks:
+                group = [
+                    Cell.of(spec, t.scenario, seed, t.condition.overrides)
+                    for seed in range(t.seeds)
+                ]
+                try:
+                    out += resolve_cells(group, unique=True)
+                except ScenarioError as exc:
+                    refused[(e.name, t)] = f"{spec.name}: {exc}"
+    return list({rc.key: rc for rc in out}.values()), refused
+
+
+# ----------------------------------------------------------------------------------------------
+# The board: per-episode metrics arranged by entry, run and task
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Board:
+    """The metrics of every episode, ``metrics[entry][run][task]`` = a list over seeds, and
+    the cells that were refused (the policy cannot run there) or failed."""
+
+    entries: list[Entry]
+    tasks: list[Task]
+    metrics: dict[str, list[dict[Task, list[dict[str, Any]]]]]
+    refused: dict[tuple[str, Task], str] = field(default_factory=dict)
+    missing: int = 0
+
+    def suite_tasks(self, name: str) -> list[Task]:
+        return [t for t in self.tasks if t.suite == name]
+
+    def episodes(self, entry: str, suite_name: str) -> list[dict[str, Any]]:
+        """Every episode of ``entry`` on ``suite_name`` (all runs, tasks and seeds)."""
+        return [
+            m
+            for run in self.metrics[entry]
+            for t in self.suite_tasks(suite_name)
+            for m in run.get(t, [])
+        ]
+
+    def success_matrix(self, entry: str, task_list: Sequence[Task]) -> NDArray[np.float64]:
+        """``(runs, tasks)`` success rates of ``entry`` (NaN for a task it has no episode of)."""
+        out = np.full((len(self.metrics[entry]), len(task_list)), math.nan)
+        for i, run in enumerate(self.metrics[entry]):
+            for j, t in enumerate(task_list):
+                eps = run.get(t, [])
+                if eps:
+                    out[i, j] = np.mean([bool(m["success"]) for m in eps])
+        return out
+
+    def counts(self, entry: str, task_list: Sequence[Task]) -> NDArray[np.int64]:
+        """``(runs, tasks, 2)``: per run and task, (successes, episodes); episodes 0 for a
+        task the run has no episode of."""
+        out = np.zeros((len(self.metrics[entry]), len(task_list), 2), dtype=np.int64)
+        for i, run in enumerate(self.metrics[entry]):
+            for j, t in enumerate(task_list):
+                eps = run.get(t, [])
+                out[i, j] = (sum(bool(m["success"]) for m in eps), len(eps))
+        return out
+
+    def episode_matrix(self, entry: str, task_list: Sequence[Task]) -> NDArray[np.float64]:
+        """``(episodes, tasks)`` 0/1 successes of a one-run entry (seed ``s`` is row ``s``)."""
+        run = self.metrics[entry][0]
+        n = max((len(run.get(t, [])) for t in task_list), default=0)
+        out = np.full((n, len(task_list)), math.nan)
+        for j, t in enumerate(task_list):
+            for s, m in enumerate(run.get(t, [])):
+                out[s, j] = float(bool(m["success"]))
+        return out
+
+
+def build_board(
+    board_entries: Sequence[Entry],
+    board_tasks: Sequence[Task],
+    result: GridResult,
+    refused: Mapping[tuple[str, Task], str] | None = None,
+) -> Board:
+    """Arrange a grid's records by entry, run and task (in seed order); ``refused``: the pairs
+    :func:`cells` could not resolve."""
+    records = result.records
+    by_cell = {rc.cell: rc for rc in result.cells}
+    metrics: dict[str, list[dict[Task, list[dict[str, Any]]]]] = {}
+    refused = dict(refused or {})
+    missing = 0
+    for e in board_entries:
+        runs = []
+        for spec in e.runs:
+            per_task: dict[Task, list[dict[str, Any]]] = {}
+            for t in board_tasks:
+                eps = []
+                if (e.name, t) in refused:
+                    continue
+                for seed in range(t.seeds):
+                    rc = by_cell.get(Cell.of(spec, t.scenario, seed, t.condition.overrides))
+                    rec = None if rc is None else records.get(rc.key)
+                    if rec is None or rec.status == "failed":
+                        missing += 1
+                    elif rec.status == "refused":
+                        refused[(e.name, t)] = rec.error.strip().splitlines()[-1][:200]
+                    else:
+                        eps.append(rec.metrics)
+                if eps:
+                    per_task[t] = eps
+            runs.append(per_task)
+        metrics[e.name] = runs
+    return Board(list(board_entries), list(board_tasks), metrics, refused, missing)
