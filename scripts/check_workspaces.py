@@ -71,6 +71,7 @@ from platoon_env.geometry.sensing import (  # noqa: E402
     SENSE_D_SIGHT_LEFT,
     SENSE_D_SIGHT_RIGHT,
     sense,
+    sensing_params,
 )
 from platoon_env.geometry.workspace import LEADER_PATH_MARGIN, check_leader_path  # noqa: E402
 from platoon_env.scenarios.loader import load_config  # noqa: E402
@@ -249,14 +250,13 @@ def sense_pairs(scenario: Scenario, followers: np.ndarray, predecessors: np.ndar
     chain = np.zeros((2 * len(followers), 3))
     chain[0::2, :2] = predecessors
     chain[1::2] = followers
-    out = sense(
-        chain,
-        scenario.workspace.edges,
-        cfg.camera.range,
-        cfg.camera.half_angle,
-        cfg.proximity_range,
+    sensors = sensing_params(
+        d_con=cfg.camera.range,
+        beta_con=cfg.camera.half_angle,
+        proximity_range=cfg.proximity_range,
         proximity_half_angle=cfg.proximity_half_angle,
     )
+    out = sense(chain, scenario.workspace.edges, sensors)
     return out[0::2]
 
 
