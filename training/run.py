@@ -28,7 +28,6 @@ import os
 import platform
 import shutil
 import socket
-import subprocess
 import sys
 import time
 import types
@@ -41,6 +40,7 @@ from typing import Any
 import numpy as np
 
 import platoon_env
+from platoon_env.provenance import code_version
 from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping
 from training.config import TrainConfig, check_scenario, config_differences
 from training.policies import zip_mismatch
@@ -673,18 +673,14 @@ def library_versions(*modules: types.ModuleType) -> dict[str, str]:
 
 
 def git_commit() -> dict[str, Any]:
-    """The repository's commit and whether the work tree is dirty (None when unavailable)."""
-    repo = Path(__file__).resolve().parents[1]
-
-    def git(*args: str) -> str | None:
-        try:
-            res = subprocess.run(
-                ["git", "-C", str(repo), *args], capture_output=True, text=True, timeout=10
-            )
-        except (OSError, subprocess.SubprocessError):
-            return None
-        return res.stdout.strip() if res.returncode == 0 else None
-
-    commit = git("rev-parse", "HEAD")
-    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
-    return {"git_commit": commit, "git_dirty": None if status is None else bool(status)}
+    """The checkout's commit, whether its source folders hold uncommitted changes, and the
+    content hash of each changed file (:func:`platoon_env.provenance.code_version`, the one
+    provenance rule; None / {} outside a git checkout)."""
+    version = code_version()
+    if not version:
+        return {"git_commit": None, "git_dirty": None, "git_modified_sha256": {}}
+    return {
+        "git_commit": version["commit"],
+        "git_dirty": bool(version["modified"]),
+        "git_modified_sha256": version["modified_sha256"],
+    }
