@@ -331,6 +331,8 @@ def test_suites() -> None:
         "procedural_easy_test",
         "procedural_medium_test",
         "procedural_hard_test",
+        "procedural_sharp_test",
+        "procedural_paper_test",
     )
     assert heldout.seeds >= 200
     robust = suite("robustness")
