@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Create ./.venv (Python 3.11) and install platoon_env with all extras.
+# Create ./.venv (Python 3.11) and install platoon_env with its extras (all but rllib and bench).
 # torch==2.13.0 is named with them: any other torch request pulls a multi-GB CUDA build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -12,4 +12,4 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install -q --upgrade pip
 # torch is named in the same command as the packages that depend on it (see README).
-.venv/bin/python -m pip install -q "torch==2.13.0" -e ".[train,plot,stats,dev]"
+.venv/bin/python -m pip install -q "torch==2.13.0" -e ".[train,plot,stats,tune,dev]"
