@@ -14,12 +14,13 @@ for its pillars.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Protocol
 
 import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon, box
+from shapely.geometry.base import BaseGeometry
 
 from platoon_env.scenarios._layout import (
     BOUNDS_MARGIN,
@@ -36,6 +37,23 @@ from platoon_env.scenarios._layout import (
 )
 
 _OBSTACLE_GAP = 0.4  # [m] free-standing obstacles keep this gap to walls and to each other
+
+
+def rooms_free_space(
+    walls_x: Sequence[float] | np.ndarray,
+    door_y: Sequence[float] | np.ndarray,
+    door_half: Sequence[float] | np.ndarray,
+    wall: float,
+    width: float,
+    height: float,
+) -> BaseGeometry:
+    """A ``width`` × ``height`` row of rooms: a wall of thickness ``wall`` at each ``walls_x``
+    with a door centred at ``door_y`` of half-width ``door_half`` [m]."""
+    walls = []
+    for wx, wy, wh in zip(walls_x, door_y, door_half, strict=True):
+        walls.append(box(wx - wall / 2, 0.0, wx + wall / 2, wy - wh))
+        walls.append(box(wx - wall / 2, wy + wh, wx + wall / 2, height))
+    return box(0.0, 0.0, width, height).difference(shapely.union_all(walls))
 
 
 def _l_shape(rng: np.random.Generator, size: float) -> np.ndarray:
@@ -249,11 +267,7 @@ def sample_rooms(rng: np.random.Generator, p: Params) -> Layout | None:
     length = path_length(path)
     if not p.len_min <= length <= p.len_max:
         return None
-    walls = []
-    for wx, wy, wh in zip(walls_x, door_y, door_half, strict=True):
-        walls.append(box(wx - wall / 2, 0.0, wx + wall / 2, wy - wh))
-        walls.append(box(wx - wall / 2, wy + wh, wx + wall / 2, height))
-    free = box(0.0, 0.0, total_width, height).difference(shapely.union_all(walls))
+    free = rooms_free_space(walls_x, door_y, door_half, wall, total_width, height)
     if not isinstance(free, Polygon) or not path_is_clear(free, path, r):
         return None
     free = place_obstacles(rng, free, LineString(path), level, r, (total_width, height))

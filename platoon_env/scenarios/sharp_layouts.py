@@ -38,8 +38,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import shapely
-from shapely.geometry import LineString, Polygon, box
+from shapely.geometry import LineString, Polygon
 
 from platoon_env.scenarios._layout import (
     _PATH_LENGTH,
@@ -55,7 +54,11 @@ from platoon_env.scenarios._layout import (
 )
 from platoon_env.scenarios.corridor_layouts import corridor_polygon
 from platoon_env.scenarios.leader_planner import Limits, PlannerParams, follow
-from platoon_env.scenarios.room_layouts import place_obstacles, random_orientation
+from platoon_env.scenarios.room_layouts import (
+    place_obstacles,
+    random_orientation,
+    rooms_free_space,
+)
 from platoon_env.scenarios.schema import ScenarioConfig, ScenarioError
 
 __all__ = ["SharpParams", "sample_sharp_corridor", "sample_sharp_rooms"]
@@ -251,11 +254,7 @@ def sample_sharp_rooms(rng: np.random.Generator, p: SharpParams) -> Layout | Non
     span = LAYOUT_BOUNDS[2] - LAYOUT_BOUNDS[0] - 2.0 * BOUNDS_MARGIN
     if total_width > span or not p.len_min <= path_length(path) <= p.len_max:
         return None
-    walls = []
-    for wx, wy, wh in zip(walls_x, door_y, door_half, strict=True):
-        walls.append(box(wx - wall / 2, 0.0, wx + wall / 2, wy - wh))
-        walls.append(box(wx - wall / 2, wy + wh, wx + wall / 2, height))
-    free = box(0.0, 0.0, total_width, height).difference(shapely.union_all(walls))
+    free = rooms_free_space(walls_x, door_y, door_half, wall, total_width, height)
     if not isinstance(free, Polygon) or not path_is_clear(free, path, r):
         return None
     placed = place_obstacles(rng, free, LineString(path), level, r, (total_width, height))
