@@ -26,6 +26,7 @@ Usage::
     python scripts/docs_blocks.py --list                 # every block and page, and its command
     python scripts/docs_blocks.py --write [--only RE]    # run the commands, rewrite the bodies
     python scripts/docs_blocks.py --write --dry-run      # what --write would run
+    python scripts/docs_blocks.py --write --no-run       # file blocks from their files, as they are
     python scripts/docs_blocks.py --check                # static; runs nothing (exit 1: a problem)
     python scripts/docs_blocks.py --diff --only RE       # run the commands, show what would change
 
@@ -33,6 +34,9 @@ Usage::
 the bodies of its blocks; a command that fails leaves its blocks as they were (exit 1).
 Several commands take an hour (the leaderboard, the frontiers): ``--only RE`` (a regular
 expression searched in ``FILE: COMMAND``) picks some.
+
+``--write --no-run`` runs nothing: the blocks of a file take that file as it is (after running
+an hour-long command by hand, or in a clean checkout); blocks of standard output are left.
 
 ``--check`` runs no command, so it is cheap enough for the test suite. It fails (exit 1) when
 a file's markers do not parse (an unclosed block, a block inside a block, an ``end`` without a
@@ -264,6 +268,8 @@ def run_command(command: str, root: Path) -> str:
     argv = shlex.split(command)
     if argv[0] in ("python", "python3"):
         argv[0] = sys.executable
+    elif (Path(sys.executable).parent / argv[0]).is_file():  # a console script of this venv
+        argv[0] = str(Path(sys.executable).parent / argv[0])
     env = dict(os.environ, MPLBACKEND="Agg")
     done = subprocess.run(argv, cwd=root, env=env, stdout=subprocess.PIPE, text=True)
     if done.returncode != 0:
@@ -347,8 +353,11 @@ def cmd_check(root: Path) -> int:
     return 1 if problems else 0
 
 
-def regenerate(root: Path, only: str | None, *, write: bool, dry_run: bool = False) -> int:
-    """``--write`` (``write=True``) or ``--diff``: run the selected blocks' commands once each."""
+def regenerate(
+    root: Path, only: str | None, *, write: bool, dry_run: bool = False, no_run: bool = False
+) -> int:
+    """``--write`` (``write=True``) or ``--diff``: run the selected blocks' commands once each
+    (``no_run``: none; the blocks of a file take it as it is, the others are left)."""
     blocks, errors = collect(root)
     for e in errors:
         print(f"error: {e}", file=sys.stderr)
@@ -356,6 +365,9 @@ def regenerate(root: Path, only: str | None, *, write: bool, dry_run: bool = Fal
         return 1
     chosen = [b for bs in blocks.values() for b in bs if _matches(only, b.path, b.command)]
     pages = [(p, c) for p, c in PAGES.items() if _matches(only, p, c) and (root / p).is_file()]
+    if no_run:
+        chosen = [b for b in chosen if b.file is not None and (root / b.file).is_file()]
+        pages = []
     commands = list(dict.fromkeys([b.command for b in chosen] + [c for _, c in pages]))
     status = 0
     for command in commands:
@@ -370,7 +382,7 @@ def regenerate(root: Path, only: str | None, *, write: bool, dry_run: bool = Fal
             print(command)
         return 0
     outputs: dict[str, str] = {}
-    for command in commands:
+    for command in commands if not no_run else []:
         print(f"== {command}", file=sys.stderr, flush=True)
         try:
             outputs[command] = run_command(command, root)
@@ -380,9 +392,9 @@ def regenerate(root: Path, only: str | None, *, write: bool, dry_run: bool = Fal
     for path, bs in blocks.items():
         bodies: dict[int, str] = {}
         for k, b in enumerate(bs):
-            if b in chosen and b.command in outputs:
+            if b in chosen and (no_run or b.command in outputs):
                 try:
-                    bodies[k] = source_text(b, outputs[b.command], root)
+                    bodies[k] = source_text(b, outputs.get(b.command, ""), root)
                 except BlockError as exc:
                     print(f"error: {exc}", file=sys.stderr)
                     status = 1
@@ -427,16 +439,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     mode.add_argument("--diff", action="store_true", help="run the commands, show the changes")
     parser.add_argument("--only", metavar="RE", help="blocks whose 'FILE: COMMAND' matches RE")
     parser.add_argument("--dry-run", action="store_true", help="with --write: print the commands")
+    parser.add_argument(
+        "--no-run",
+        action="store_true",
+        help="with --write or --diff: run nothing; blocks of a file take the file as it is",
+    )
     parser.add_argument("--root", type=Path, default=REPO, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     root: Path = args.root.resolve()
     if args.dry_run and not args.write:
         parser.error("--dry-run goes with --write")
+    if args.no_run and not (args.write or args.diff):
+        parser.error("--no-run goes with --write or --diff")
     if args.list:
         return cmd_list(root)
     if args.check:
         return cmd_check(root)
-    return regenerate(root, args.only, write=args.write, dry_run=args.dry_run)
+    return regenerate(root, args.only, write=args.write, dry_run=args.dry_run, no_run=args.no_run)
 
 
 if __name__ == "__main__":

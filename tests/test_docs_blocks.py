@@ -190,3 +190,14 @@ def test_the_repositorys_blocks_parse_and_name_known_commands() -> None:
     for page, command in db.PAGES.items():
         assert db.unknown_reason(command, REPO) is None, page
         assert f"`{command}`" in (REPO / page).read_text(), page
+
+
+def test_no_run_takes_files_as_they_are_and_leaves_stdout_blocks(tmp_path: Path) -> None:
+    root = _repo(tmp_path)
+    (root / "out").mkdir()
+    (root / "out" / "result.md").write_text("| 1 |\n\n| 2 |\n| 3 |\n")
+    assert db.main(["--root", str(root), "--write", "--no-run"]) == 0
+    text = (root / "README.md").read_text()
+    assert "table 2 -->\n| 2 |\n| 3 |\n<!-- end -->" in text
+    assert "-->\nold body\n<!-- end -->" in text  # standard output: nothing ran
+    assert (root / "out" / "result.md").read_text() == "| 1 |\n\n| 2 |\n| 3 |\n"
