@@ -1,18 +1,38 @@
-"""Command-line pieces every driver shares: counts, numbers and the grid's options.
+"""Command-line pieces every driver shares: the parser, counts, numbers, the grid's options
+and the rule for a store that fails.
 
-Every error is an ``argparse.ArgumentTypeError``, so argparse reports it as a usage error
-(exit 2) naming the option, before anything is written. Numbers are read as YAML reads them
-(``5e-2``, ``1e3``), so a value that works in a scenario file works on the command line.
+Every error in an option is an ``argparse.ArgumentTypeError``, so argparse reports it as a usage
+error (exit 2) naming the option, before anything is written. Numbers are read as YAML reads
+them (``5e-2``, ``1e3``), so a value that works in a scenario file works on the command line.
+A store that cannot be opened, or fails during the run, is one line ``TOOL: error: ...`` and
+an exit code (:func:`open_store`), never a traceback.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import NoReturn
 
-__all__ = ["add_grid_options", "count", "number"]
+from experiments.store import Store, StoreError
+
+__all__ = ["add_grid_options", "count", "new_parser", "number", "open_store"]
+
+
+def new_parser(prog: str, doc: str | None, *, out: Path | None = None) -> argparse.ArgumentParser:
+    """A driver's parser: named ``prog``, its description the driver's module docstring ``doc``
+    (its layout kept), and, when ``out`` is given, ``--out`` (the output folder, default
+    ``out``) as its first option."""
+    p = argparse.ArgumentParser(
+        prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    if out is not None:
+        p.add_argument("--out", type=Path, default=out, help="output folder")
+    return p
 
 
 def number(text: str) -> float:
@@ -61,3 +81,26 @@ def add_grid_options(
             default=store,
             help=f"the evaluation store the episodes go to and resume from (default: {store})",
         )
+
+
+def _fail(tool: str, exc: StoreError, code: int) -> NoReturn:
+    print(f"{tool}: error: {exc}", file=sys.stderr)
+    raise SystemExit(code)
+
+
+@contextmanager
+def open_store(tool: str, path: Path) -> Iterator[Store]:
+    """The evaluation store at ``path`` for a driver's run, closed at the end. A store that
+    cannot be opened (not a store, not ours, damaged) ends the process with exit code 2 before
+    any work, a store error during the run (a :class:`~experiments.store.ClaimTimeout`, a
+    store damaged mid-run) with exit code 1; each after the one line ``TOOL: error: ...`` on
+    stderr, the message naming the file."""
+    try:
+        store = Store(path)
+    except StoreError as exc:
+        _fail(tool, exc, 2)
+    try:
+        with store:
+            yield store
+    except StoreError as exc:
+        _fail(tool, exc, 1)

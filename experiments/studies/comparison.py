@@ -35,7 +35,6 @@ the run's metadata stamp, and printed.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -45,7 +44,7 @@ import numpy as np
 from tqdm import tqdm
 
 import platoon_env
-from experiments.cli import add_grid_options
+from experiments.cli import add_grid_options, new_parser, open_store
 from experiments.grid import Cell, GridResult, run_grid
 from experiments.policies import PolicySpec, analytic_policies, build_policy
 from experiments.report import mean_ci, provenance_markdown, wilson
@@ -86,6 +85,8 @@ OVERRIDES: dict[str, Any] = {"terminate_on": list(COLLISIONS)}
 #: The measure of a comparison episode (:func:`comparison_metrics`).
 MEASURE = "experiments.studies.comparison:comparison_metrics"
 _TOOL = "python -m experiments.studies.comparison"
+#: The default ``--store``: the episodes of every run, so that a re-run resumes.
+_STORE = Path("results/comparison/results.sqlite")
 
 #: Display name -> the registered policy: those whose ``studies`` include the comparison
 #: (:func:`experiments.policies.analytic_policies`).
@@ -362,18 +363,8 @@ def trace_figure(episode: Episode, out: Path, metadata: dict[str, str] | None = 
 
 def main(argv: Sequence[str] | None = None) -> str:
     """Run the comparison; write the figures and ``comparison.md``; return the table."""
-    parser = argparse.ArgumentParser(
-        prog=_TOOL,
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument("--out", type=Path, default=Path("docs/figures"), help="output folder")
-    add_grid_options(
-        parser,
-        seeds=20,
-        seeds_help="seeds per study and policy",
-        store=Path("results/comparison/results.sqlite"),
-    )
+    parser = new_parser(_TOOL, __doc__, out=Path("docs/figures"))
+    add_grid_options(parser, seeds=20, seeds_help="seeds per study and policy", store=_STORE)
     args = parser.parse_args(argv)
     out: Path = args.out
     cells = [
@@ -383,7 +374,7 @@ def main(argv: Sequence[str] | None = None) -> str:
         for spec in POLICIES.values()
     ]
     stamp = metadata_stamp(_TOOL, {"seeds": args.seeds, "overrides": OVERRIDES}, argv)
-    with Store(args.store) as store:
+    with open_store(_TOOL, args.store) as store:
         result = run_grid(
             store, cells, tool=_TOOL, stamp=stamp, workers=args.workers,
             keep=lambda cell: cell.seed == 0,

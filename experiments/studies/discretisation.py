@@ -13,7 +13,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -21,7 +20,7 @@ from tqdm import tqdm
 
 import platoon_env
 from baselines.ppc import PPCPolicy
-from experiments.cli import add_grid_options, count, number
+from experiments.cli import add_grid_options, count, new_parser, number
 from experiments.suites import STUDIES
 from platoon_env.rollout import episode_metrics, run_episode
 
@@ -37,11 +36,7 @@ def run_one(study: str, period: float, substeps: int, seed: int) -> dict[str, ob
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog="python -m experiments.studies.discretisation",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    parser = new_parser("python -m experiments.studies.discretisation", __doc__)
     parser.add_argument("--study", action="append", choices=STUDIES, help="default: all")
     parser.add_argument("--periods", type=number, nargs="+", default=list(DEFAULT_PERIODS))
     parser.add_argument("--substeps", type=count(1, "substeps"), nargs="+", default=[2])

@@ -58,7 +58,7 @@ from typing import Any
 from tqdm import tqdm
 
 import platoon_env
-from experiments.cli import count, number
+from experiments.cli import count, new_parser, number
 from experiments.grid import (
     DEFAULT_CLAIM_TIMEOUT,
     Cell,
@@ -411,11 +411,7 @@ def plot_scenario(
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     """Parse and validate the command line; every error is an argparse usage error (exit 2)
     raised before anything is written."""
-    parser = argparse.ArgumentParser(
-        prog=_TOOL,
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    parser = new_parser(_TOOL, __doc__)
     parser.add_argument(
         "--policy",
         action="append",

@@ -60,7 +60,7 @@ import numpy as np
 
 from baselines.ppc import EPS_MAX
 from experiments.axes import AXES, Axis, level_key
-from experiments.cli import add_grid_options, count
+from experiments.cli import add_grid_options, count, new_parser, open_store
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
 from experiments.policies import PolicySpec, analytic_policies
 from experiments.report import (
@@ -71,7 +71,6 @@ from experiments.report import (
     write_csv_stamp,
 )
 from experiments.stamp import metadata_stamp, png_metadata
-from experiments.store import Store
 from experiments.suites import STUDIES
 from platoon_env.geometry.sensing import SENSE_BETA, SENSE_D
 from platoon_env.rollout import Episode, episode_metrics
@@ -707,12 +706,7 @@ _TOOL = "python -m experiments.studies.frontiers"
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog=_TOOL,
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument("--out", type=Path, default=Path("results/frontiers"), help="output folder")
+    parser = new_parser(_TOOL, __doc__, out=Path("results/frontiers"))
     add_grid_options(
         parser, seeds=None, seeds_help=f"seeds per point (default {DEFAULT_SEEDS})", store=None
     )
@@ -773,7 +767,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     keys = [k for k, _ in grid]
     stamp = metadata_stamp(_TOOL, {k: str(v) for k, v in vars(args).items()}, argv)
-    with Store(store_path(out)) as store:
+    with open_store(_TOOL, store_path(out)) as store:
         result = run_grid(store, unique, tool=_TOOL, stamp=stamp, workers=args.workers)
         print(f"{result.ran} episode(s) run, {result.reused} already in the store")
         if result.interrupted:

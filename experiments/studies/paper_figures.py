@@ -16,7 +16,6 @@ written to ``OUT/ppc_record.md`` (and printed).
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +23,7 @@ from tqdm import tqdm
 
 import platoon_env
 from baselines.ppc import PPCPolicy
-from experiments.cli import add_grid_options
+from experiments.cli import add_grid_options, new_parser, open_store
 from experiments.grid import Cell, run_grid
 from experiments.policies import PolicySpec
 from experiments.report import provenance_markdown, seed_ranges, wilson
@@ -36,6 +35,8 @@ from platoon_env.rollout import run_episode
 
 PPC = PolicySpec.of("ppc", "PPC")
 _TOOL = "python -m experiments.studies.paper_figures"
+#: The default ``--store``: the episodes of every run, so that a re-run resumes.
+_STORE = Path("results/paper_figures/results.sqlite")
 
 
 def figures(study: str, out: Path, metadata: dict[str, str] | None = None) -> list[Path]:
@@ -61,22 +62,15 @@ def figures(study: str, out: Path, metadata: dict[str, str] | None = None) -> li
     return paths
 
 
-def record(
-    studies: list[str], seeds: int, store: Store | Path, workers: int = 1, argv: Any = None
-) -> str:
+def record(studies: list[str], seeds: int, store: Store, workers: int = 1, argv: Any = None) -> str:
     """Run PPC on every study for ``seeds`` seeds (into ``store``); return a markdown table
     of the outcome under the run's stamp."""
     cells = [Cell.of(PPC, s, k) for s in studies for k in range(seeds)]
     stamp = metadata_stamp(_TOOL, {"seeds": seeds, "studies": studies}, argv)
-    db = store if isinstance(store, Store) else Store(store)
-    try:
-        result = run_grid(db, cells, tool=_TOOL, stamp=stamp, workers=workers)
-        if result.interrupted:
-            raise SystemExit(130)
-        provenance = provenance_markdown(db, result.records.values(), result.run_id)
-    finally:
-        if not isinstance(store, Store):
-            db.close()
+    result = run_grid(store, cells, tool=_TOOL, stamp=stamp, workers=workers)
+    if result.interrupted:
+        raise SystemExit(130)
+    provenance = provenance_markdown(store, result.records.values(), result.run_id)
     per_study: dict[str, list[dict[str, Any]]] = {s: [] for s in studies}
     for rc, rec in result.finished():
         per_study[rc.cell.scenario].append(rec.metrics)
@@ -116,24 +110,17 @@ def record(
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog=_TOOL, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--out", type=Path, default=Path("docs/figures"), help="output folder")
-    add_grid_options(
-        parser,
-        seeds=20,
-        seeds_help="seeds per study for the record",
-        store=Path("results/paper_figures/results.sqlite"),
-    )
+    parser = new_parser(_TOOL, __doc__, out=Path("docs/figures"))
+    add_grid_options(parser, seeds=20, seeds_help="seeds per study for the record", store=_STORE)
     parser.add_argument("--study", action="append", choices=STUDIES, help="default: all three")
     args = parser.parse_args(argv)
     studies = args.study or list(STUDIES)
     stamp = png_metadata(metadata_stamp(_TOOL, {"seeds": 0, "studies": studies}, argv))
-    for study in tqdm(studies, desc="figures", unit="study"):
-        for path in figures(study, args.out, stamp):
-            tqdm.write(f"wrote {path}")
-    table = record(studies, args.seeds, args.store, args.workers, argv)
+    with open_store(_TOOL, args.store) as store:  # a store that is not ours: refused first
+        for study in tqdm(studies, desc="figures", unit="study"):
+            for path in figures(study, args.out, stamp):
+                tqdm.write(f"wrote {path}")
+        table = record(studies, args.seeds, store, args.workers, argv)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "ppc_record.md").write_text(table + "\n")
     print(table)
