@@ -17,6 +17,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from platoon_env.config import ScenarioError
 from platoon_env.core import PlatoonCore, compiled_entry
 from platoon_env.geometry.sensing import (
     SENSE_BETA,
@@ -28,12 +29,13 @@ from platoon_env.geometry.sensing import (
     SENSE_VISIBLE,
 )
 from platoon_env.observation import ACT_SIZE, action_space, observation_space
+from platoon_env.realism import add_realism_info
 from platoon_env.reward import REWARD_TERMS
-from platoon_env.scenarios.options import check_bool
+from platoon_env.scenarios.options import OVERRIDE_OPTIONS, check_bool, unexpected_keyword
 from platoon_env.scenarios.scenario import Scenario
 from platoon_env.scenarios.source import SourceLike, scenario_source
 from platoon_env.simulator import step_serial
-from platoon_env.violations import VIOLATION_INFO, first_cause
+from platoon_env.violations import VIOLATION_INFO, VIOLATION_NUMERIC_INFO, first_cause
 
 # _infos unpacks a row of the sensing array in its column order (picking the columns by name
 # instead cost about 2 us of a step of 7 followers, measured) ...
@@ -45,6 +47,15 @@ _UNPACKED_REWARD_TERMS = ("distance", "bearing", "effort", "alive", "violation",
 if REWARD_TERMS != _UNPACKED_REWARD_TERMS:  # pragma: no cover - guards a refactoring mistake
     raise ImportError(f"env._infos expects reward terms {_UNPACKED_REWARD_TERMS}")
 
+
+#: The views of ``info`` (``make(..., info_view=...)``): ``"rich"`` (the default: PettingZoo's
+#: dicts, cause names, None when nothing happened) and ``"numeric"`` (every value a number, the
+#: same keys at reset and at every step, for array-minded libraries such as TorchRL).
+INFO_VIEWS: tuple[str, ...] = ("rich", "numeric")
+
+#: The keywords of ``make()`` that configure the env rather than its scenario (the scenario's
+#: are :data:`~platoon_env.scenarios.options.OVERRIDE_OPTIONS`).
+ENV_OPTIONS: tuple[str, ...] = ("render_mode", "diagnostics", "info_view")
 
 #: Attributes of PlatoonParallelEnv that are views of its core's arrays (see ``_views``).
 _VIEW_NAMES = (
@@ -92,7 +103,11 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     ``e_d``, ``e_beta``, ``d_W_l``, ``d_W_r``, ``d_l``, ``d_r``, ``clearance``, ``visible``,
     and ``reward_terms``. With ``diagnostics=False`` only ``violation``, ``violations`` and
     ``cost``: building the full dicts is about a third of a step's cost, and training loops
-    rarely read them.
+    rarely read them. With ``info_view="numeric"`` every value is a number and the keys are
+    the same at reset and at every step (for TorchRL): ``violation`` is an integer code
+    (index into :data:`~platoon_env.violations.VIOLATION_CODE_NAMES`, 0 = none),
+    ``violation_mask`` the causes' bit mask, ``cost``; with diagnostics also the ground truth
+    above (``visible`` as 0/1) and each reward term flat as ``reward_<term>`` (0.0 at reset).
 
     **Ground truth** (for tests and plots, not policies): :attr:`poses`, :attr:`scenario`
     (``scenario.free_space`` is a shapely polygon), :attr:`sim_time`.
@@ -115,8 +130,21 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         *,
         render_mode: str | None = None,
         diagnostics: bool = True,
+        info_view: str = "rich",
         **overrides: Any,
     ) -> None:
+        # Python's wording for a keyword make() does not take, listing the env's own keywords
+        # beside the scenario's (apply_overrides, which runs next, knows only the latter).
+        unknown = [k for k, v in overrides.items() if v is not None and k not in OVERRIDE_OPTIONS]
+        if unknown:
+            raise unexpected_keyword("make()", unknown, (*OVERRIDE_OPTIONS, *ENV_OPTIONS))
+        if info_view not in INFO_VIEWS:
+            raise ScenarioError(
+                f"make(): info_view: expected one of {', '.join(map(repr, INFO_VIEWS))}, "
+                f"got {info_view!r}"
+            )
+        #: The view of ``info``: ``"rich"`` or ``"numeric"`` (see :data:`INFO_VIEWS`).
+        self.info_view = info_view
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of {self.metadata['render_modes']} or None, "
@@ -316,6 +344,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self._core.run(None, 0)
         obs = self._obs.copy()
         infos = self._infos([0] * self.n_followers, None)
+        add_realism_info(infos, self._core.realism[0])
         return {a: obs[i] for i, a in enumerate(self.agents)}, infos
 
     def step(
@@ -363,6 +392,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         terminations = dict.fromkeys(agents, terminated)
         truncations = dict.fromkeys(agents, truncated)
         infos = self._infos(self._violations.tolist(), self._terms.tolist())
+        add_realism_info(infos, self._core.realism[0])
         if ended:
             self.agents = []
         if self.render_mode == "human":
@@ -457,8 +487,10 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
 
         Built as literals in one loop: this runs every step and is about a third of its cost
         (``reward_terms`` lists :data:`~platoon_env.reward.REWARD_TERMS` in order); only the
-        violation entries without :attr:`diagnostics`.
+        violation entries without :attr:`diagnostics`. The numeric view is :meth:`_numeric_infos`.
         """
+        if self.info_view == "numeric":
+            return self._numeric_infos(masks, terms)
         infos: dict[str, dict[str, Any]] = {}
         if not self.diagnostics:
             for agent, mask in zip(self.agents, masks):  # noqa: B905 - equal lengths
@@ -497,6 +529,55 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 "clearance": clearance,
                 "visible": visible > 0.0,
                 "reward_terms": reward_terms,
+            }
+        return infos
+
+    def _numeric_infos(
+        self, masks: list[int], terms: list[list[float]] | None
+    ) -> dict[str, dict[str, int | float]]:
+        """``info[agent]`` of every live agent in the numeric view (``info_view="numeric"``).
+
+        The rich view's content with numbers only and fixed keys: the first violation as its
+        code (:data:`~platoon_env.violations.VIOLATION_CODE_NAMES`), all causes as
+        ``violation_mask`` (bit ``k`` = ``VIOLATION_CAUSES[k]``), ``visible`` as 0/1 and the
+        reward terms flat, 0.0 at reset (no step yet), so that a library which sizes its
+        buffers from the reset's infos (TorchRL) gets every later step's keys.
+        """
+        infos: dict[str, dict[str, int | float]] = {}
+        if not self.diagnostics:
+            for agent, mask in zip(self.agents, masks):  # noqa: B905 - equal lengths
+                code, _, cost = VIOLATION_NUMERIC_INFO[mask]
+                infos[agent] = {"violation": code, "violation_mask": mask, "cost": cost}
+            return infos
+        d_des = self._d_des
+        no_terms = [0.0] * len(REWARD_TERMS)
+        rows = zip(self.agents, self._sensed.tolist(), masks)  # noqa: B905 - equal lengths
+        for i, (agent, row, mask) in enumerate(rows):
+            d, beta, visible, _, wall_l, wall_r, sight_l, sight_r, clearance = row
+            code, _, cost = VIOLATION_NUMERIC_INFO[mask]
+            distance, bearing, effort, alive, violation, wall = (
+                no_terms if terms is None else terms[i]
+            )
+            infos[agent] = {
+                "violation": code,
+                "violation_mask": mask,
+                "cost": cost,
+                "d": d,
+                "beta": beta,
+                "e_d": d - d_des,
+                "e_beta": beta,
+                "d_W_l": wall_l,
+                "d_W_r": wall_r,
+                "d_l": sight_l,
+                "d_r": sight_r,
+                "clearance": clearance,
+                "visible": 1 if visible > 0.0 else 0,
+                "reward_distance": distance,
+                "reward_bearing": bearing,
+                "reward_effort": effort,
+                "reward_alive": alive,
+                "reward_violation": violation,
+                "reward_wall": wall,
             }
         return infos
 

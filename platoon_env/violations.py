@@ -66,3 +66,38 @@ def first_cause(mask: int) -> str | None:
 VIOLATION_INFO: tuple[tuple[str | None, tuple[str, ...], int], ...] = tuple(
     (first_cause(mask), causes, 1 if causes else 0) for mask, causes in enumerate(CAUSES_OF_MASK)
 )
+
+
+#: Names of the numeric info view's violation codes (``make(..., info_view="numeric")``,
+#: ``docs/api.md``): ``info["violation"]`` is the index into this table, ``0`` = no violation,
+#: then the causes in :data:`VIOLATION_CAUSES` order (``1`` = ``collision_robot``, ...,
+#: ``5`` = ``out_of_fov``).
+VIOLATION_CODE_NAMES: tuple[str, ...] = ("none", *VIOLATION_CAUSES)
+
+
+def violation_code(cause: str | None) -> int:
+    """The numeric view's code of ``cause`` (None -> 0; an unknown name is ``ValueError``)."""
+    if cause is None:
+        return 0
+    if cause not in VIOLATION_CAUSES:
+        raise ValueError(
+            f"unknown violation cause {cause!r}; expected None or one of "
+            f"{', '.join(VIOLATION_CAUSES)}"
+        )
+    return 1 + VIOLATION_CAUSES.index(cause)
+
+
+def violation_cause(code: int) -> str | None:
+    """The cause a numeric view's code stands for (0 -> None), the inverse of
+    :func:`violation_code`; a code outside ``0..len(VIOLATION_CAUSES)`` is ``ValueError``."""
+    code = int(code)
+    if not 0 <= code <= len(VIOLATION_CAUSES):
+        raise ValueError(f"violation code must be in 0..{len(VIOLATION_CAUSES)}, got {code}")
+    return None if code == 0 else VIOLATION_CAUSES[code - 1]
+
+
+#: ``(info["violation"], info["violation_mask"], info["cost"])`` of every mask in the numeric
+#: view: the first cause's code (:data:`VIOLATION_CODE_NAMES`), the mask itself, the cost.
+VIOLATION_NUMERIC_INFO: tuple[tuple[int, int, int], ...] = tuple(
+    (violation_code(first), mask, cost) for mask, (first, _, cost) in enumerate(VIOLATION_INFO)
+)

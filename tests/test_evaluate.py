@@ -263,7 +263,7 @@ def test_old_csv_folder_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture
         (["--policy", "=ppc"], "empty NAME"),
         (["--policy", "nope"], "not a policy kind"),
         (["--set", "max_episode_steps=-3"], "max_episode_steps"),
-        (["--set", "nonsense=1"], "unknown option 'nonsense'"),
+        (["--set", "nonsense=1"], "unexpected keyword argument 'nonsense'"),
         (["--set", "render_mode=human"], "not an option of an evaluation episode"),
         (["--set", "camera.latency=0.1"], "use the realism flag (--camera)"),
     ],

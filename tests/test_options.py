@@ -317,7 +317,7 @@ def test_unknown_option_is_a_type_error_listing_valid_ones(name: str) -> None:
     with pytest.raises(TypeError) as exc:
         apply_overrides(STUDY_C, {name: 1})
     message = str(exc.value)
-    assert message.startswith(f"make(): unknown option {name!r}")
+    assert message.startswith(f"make() got an unexpected keyword argument {name!r}")
     assert all(option in message for option in OVERRIDE_OPTIONS)
 
 

@@ -29,8 +29,10 @@ A value of None, for either kind, means "not overridden".
 Errors: a bad value is a :class:`~platoon_env.config.ScenarioError` (a
 ``ValueError``) whose message starts with ``where`` and names the option as passed, then the
 file path in parentheses, e.g. ``make(): physics_substeps: expected an integer, got 1.5
-(scenario.simulation.physics_substeps)``. An unknown option name is a ``TypeError``, as Python
-raises for an unexpected keyword argument, listing the valid names.
+(scenario.simulation.physics_substeps)``. An unknown option name is a ``TypeError`` in
+Python's own wording, ``make() got an unexpected keyword argument 'frameskip'`` (libraries
+such as TorchRL's ``GymEnv`` match that phrase to drop a keyword the env does not take), then
+the valid names (:func:`unexpected_keyword`).
 
 Env-level flags that are not part of the scenario (``diagnostics``) are checked with
 :func:`check_bool`.
@@ -84,6 +86,25 @@ PROFILE_OPTION = "sensor_profile"
 OVERRIDE_OPTIONS: tuple[str, ...] = (*SCENARIO_OPTIONS, *BLOCK_OPTIONS, PROFILE_OPTION)
 
 _ROOT = "scenario"
+
+
+def unexpected_keyword(where: str, unknown: Iterable[Any], valid: Iterable[str]) -> TypeError:
+    """The ``TypeError`` for keywords ``where`` does not take, worded as Python words it.
+
+    ``where`` is the callable with its parentheses (``"make()"``). The message names the first
+    unknown keyword as Python does (``make() got an unexpected keyword argument 'frameskip'``:
+    the phrase TorchRL's ``GymEnv`` and others match), then any further ones, then the valid
+    names, e.g. ``make() got an unexpected keyword argument 'u_maxx' (valid keywords:
+    control_period, ...)``.
+    """
+    names = [repr(k) for k in unknown]
+    if not names:
+        raise ValueError("unexpected_keyword() needs at least one unknown keyword")
+    also = f" (and {', '.join(names[1:])})" if len(names) > 1 else ""
+    return TypeError(
+        f"{where} got an unexpected keyword argument {names[0]}{also} "
+        f"(valid keywords: {', '.join(valid)})"
+    )
 
 
 def check_bool(name: str, value: Any, where: str) -> bool:
@@ -179,17 +200,15 @@ def apply_overrides(
         ``cfg`` itself if nothing is overridden, else a newly parsed :class:`ScenarioConfig`.
 
     Raises:
-        TypeError: an option name is not in :data:`OVERRIDE_OPTIONS`.
+        TypeError: an option name is not in :data:`OVERRIDE_OPTIONS` (worded by
+            :func:`unexpected_keyword`).
         ScenarioError: a value is invalid, a block value is not a mapping, or a field is given
             both as a shortcut and in its block; the message names the option and the value.
     """
     given = {k: v for k, v in overrides.items() if v is not None}
-    unknown = sorted(repr(k) for k in given if k not in OVERRIDE_OPTIONS)
+    unknown = [k for k in given if k not in OVERRIDE_OPTIONS]
     if unknown:
-        raise TypeError(
-            f"{where}: unknown option {', '.join(unknown)} "
-            f"(expected one of {', '.join(OVERRIDE_OPTIONS)})"
-        )
+        raise unexpected_keyword(where, unknown, OVERRIDE_OPTIONS)
     if not given:
         return cfg
     data = config_to_mapping(cfg)
@@ -254,4 +273,5 @@ __all__ = [
     "SCENARIO_OPTIONS",
     "apply_overrides",
     "check_bool",
+    "unexpected_keyword",
 ]
