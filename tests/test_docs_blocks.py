@@ -201,3 +201,17 @@ def test_no_run_takes_files_as_they_are_and_leaves_stdout_blocks(tmp_path: Path)
     assert "table 2 -->\n| 2 |\n| 3 |\n<!-- end -->" in text
     assert "-->\nold body\n<!-- end -->" in text  # standard output: nothing ran
     assert (root / "out" / "result.md").read_text() == "| 1 |\n\n| 2 |\n| 3 |\n"
+
+
+def test_the_repositorys_blocks_of_committed_files_equal_those_files() -> None:
+    """A block quoting a committed output (``docs/figures/*.md``) equals it: a hand edit of the
+    quote, or a regenerated output not copied into its quotes, fails. (Outputs under the
+    uncommitted ``results/`` differ from machine to machine and are not compared here.)"""
+    blocks, _ = db.collect(REPO)
+    compared = 0
+    for b in (b for bs in blocks.values() for b in bs):
+        if b.file is None or b.file.startswith("results/") or not (REPO / b.file).is_file():
+            continue
+        assert db.source_text(b, "", REPO) == b.body.strip("\n"), b.label()
+        compared += 1
+    assert compared >= 2  # the README's PPC record and comparison
