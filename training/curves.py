@@ -50,6 +50,7 @@ __all__ = [
     "PROGRESS_COLUMNS",
     "PROGRESS_FILE",
     "LearningCurveCallback",
+    "ProgressLog",
     "curve_on_grid",
     "plot_learning_curves",
     "read_progress",
@@ -69,8 +70,88 @@ PROGRESS_COLUMNS = (
 )
 
 
+class ProgressLog:
+    """The writer of ``progress.csv`` (:data:`PROGRESS_COLUMNS`), shared by both engines.
+
+    A driver calls :meth:`start` once, :meth:`add` with the follower episodes that ended (in
+    any order, as they end), :meth:`due` to ask whether ``every`` timesteps have passed since
+    the last row, and :meth:`write` to append a row about the episodes added since that row
+    (and forget them). SB3 asks after every vectorised step (:class:`LearningCurveCallback`),
+    RLlib after every training iteration (:mod:`training.rllib`).
+
+    Args:
+        path: the CSV file (``DIR/progress.csv``).
+        every: follower transitions between rows (> 0).
+        resume_from: the timesteps a resumed run continues from: rows after it are dropped and
+            the others kept; ``None`` (a fresh run) starts the file anew.
+    """
+
+    def __init__(self, path: Path, every: int, *, resume_from: int | None = None) -> None:
+        if every <= 0:
+            raise ValueError(f"every must be > 0, got {every}")
+        self.path = Path(path)
+        self.every = int(every)
+        self.resume_from = resume_from
+        self._returns: list[float] = []
+        self._costs: list[float] = []
+        self._teams: list[bool] = []
+        #: The timesteps of the last row (or of :meth:`start`).
+        self.last = 0
+        self._t0 = 0.0
+
+    def start(self, timesteps: int) -> None:
+        """Write the header (and, resuming, the kept rows); count from ``timesteps``."""
+        kept: list[dict[str, str]] = []
+        if self.resume_from is not None and self.path.exists():
+            kept = [r for r in read_rows(self.path) if int(r["timesteps"]) <= self.resume_from]
+        with self.path.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=PROGRESS_COLUMNS)
+            writer.writeheader()
+            writer.writerows(kept)
+        self.last = int(timesteps)
+        self._t0 = time.perf_counter()
+
+    def add(
+        self,
+        *,
+        returns: Sequence[float] = (),
+        costs: Sequence[float] = (),
+        teams: Sequence[bool] = (),
+    ) -> None:
+        """Add ended episodes: follower returns (unpenalised), follower episode costs (one per
+        follower episode: the ``episodes`` column counts them) and team successes."""
+        self._returns.extend(float(r) for r in returns)
+        self._costs.extend(float(c) for c in costs)
+        self._teams.extend(bool(t) for t in teams)
+
+    def due(self, timesteps: int) -> bool:
+        """Whether ``every`` timesteps have passed since the last row."""
+        return int(timesteps) - self.last >= self.every
+
+    def write(self, timesteps: int, multiplier: float | None = None) -> None:
+        """Append the row at ``timesteps`` (``multiplier``: the Lagrange multiplier, or None)."""
+        self.last = int(timesteps)
+        n = len(self._costs)
+        costs = np.asarray(self._costs)
+        row: dict[str, Any] = {
+            "timesteps": int(timesteps),
+            "wall_time_s": f"{time.perf_counter() - self._t0:.1f}",
+            "episodes": n,
+            "return_mean": f"{np.mean(self._returns):.6g}" if self._returns else "",
+            "success_rate": f"{np.mean(self._teams):.6g}" if self._teams else "",
+            "cost_mean": f"{np.mean(costs):.6g}" if n else "",
+            "lambda": "" if multiplier is None else f"{float(multiplier):.6g}",
+        }
+        with self.path.open("a", newline="") as f:
+            csv.DictWriter(f, fieldnames=PROGRESS_COLUMNS).writerow(row)
+        self._returns.clear()
+        self._costs.clear()
+        self._teams.clear()
+
+
 class LearningCurveCallback(BaseCallback):
-    """Append a :data:`PROGRESS_COLUMNS` row to ``path`` every ``every`` timesteps.
+    """Append a :data:`PROGRESS_COLUMNS` row to ``path`` every ``every`` timesteps (SB3; the
+    rows are :class:`ProgressLog`'s).
 
     Args:
         path: the CSV file (``DIR/progress.csv``).
@@ -89,74 +170,48 @@ class LearningCurveCallback(BaseCallback):
         multiplier: Any = None,
     ) -> None:
         super().__init__()
-        if every <= 0:
-            raise ValueError(f"every must be > 0, got {every}")
-        self.path = Path(path)
-        self.every = int(every)
+        self.log = ProgressLog(path, every, resume_from=resume_from)
+        self.path = self.log.path
+        self.every = self.log.every
         self.resume_from = resume_from
         self.multiplier = multiplier
-        self._returns: list[float] = []
-        self._costs: list[float] = []
-        self._teams: list[bool] = []
         self._episode_cost: NDArray[np.float64] = np.zeros(0)
         self._team_of: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
-        self._last = 0
-        self._t0 = 0.0
 
     def _on_training_start(self) -> None:
-        kept: list[dict[str, str]] = []
-        if self.resume_from is not None and self.path.exists():
-            kept = [r for r in read_rows(self.path) if int(r["timesteps"]) <= self.resume_from]
-        with self.path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=PROGRESS_COLUMNS)
-            writer.writeheader()
-            writer.writerows(kept)
+        self.log.start(self.num_timesteps)
         self._episode_cost = np.zeros(self.training_env.num_envs)
         self._team_of = _slot_teams(self.training_env)
-        self._last = self.num_timesteps
-        self._t0 = time.perf_counter()
 
     def _on_step(self) -> bool:
         dones = np.asarray(self.locals["dones"], dtype=bool)
         infos = self.locals["infos"]
         for k, info in enumerate(infos):
             self._episode_cost[k] += float(info.get("cost", 0.0))
+        returns: list[float] = []
+        costs: list[float] = []
         for k in np.flatnonzero(dones).tolist():
             episode = infos[k].get("episode")
             if episode is not None:
-                self._returns.append(float(episode["r"]))
-            self._costs.append(float(self._episode_cost[k]))
-        for team in np.unique(self._team_of[dones]).tolist():
-            slots = self._team_of == team
-            self._teams.append(bool(np.all(self._episode_cost[slots] == 0)))
+                returns.append(float(episode["r"]))
+            costs.append(float(self._episode_cost[k]))
+        teams = [
+            bool(np.all(self._episode_cost[self._team_of == team] == 0))
+            for team in np.unique(self._team_of[dones]).tolist()
+        ]
+        self.log.add(returns=returns, costs=costs, teams=teams)
         self._episode_cost[dones] = 0.0
-        if self.num_timesteps - self._last >= self.every:
-            self._last = self.num_timesteps
+        if self.log.due(self.num_timesteps):
             self._write_row()
         return True
 
     def _on_training_end(self) -> None:
-        if self.num_timesteps > self._last:
+        if self.num_timesteps > self.log.last:
             self._write_row()
 
     def _write_row(self) -> None:
-        n = len(self._costs)
-        costs = np.asarray(self._costs)
         lam = None if self.multiplier is None else float(self.multiplier())
-        row: dict[str, Any] = {
-            "timesteps": self.num_timesteps,
-            "wall_time_s": f"{time.perf_counter() - self._t0:.1f}",
-            "episodes": n,
-            "return_mean": f"{np.mean(self._returns):.6g}" if self._returns else "",
-            "success_rate": f"{np.mean(self._teams):.6g}" if self._teams else "",
-            "cost_mean": f"{np.mean(costs):.6g}" if n else "",
-            "lambda": "" if lam is None else f"{lam:.6g}",
-        }
-        with self.path.open("a", newline="") as f:
-            csv.DictWriter(f, fieldnames=PROGRESS_COLUMNS).writerow(row)
-        self._returns.clear()
-        self._costs.clear()
-        self._teams.clear()
+        self.log.write(self.num_timesteps, lam)
 
 
 def _slot_teams(venv: Any) -> NDArray[np.int64]:
