@@ -210,7 +210,7 @@ from platoon_env.observation import (
     OBS_Y_REL,
 )
 from platoon_env.perception import frame_due_at
-from platoon_env.scenarios.schema import ScenarioConfig
+from platoon_env.scenarios.schema import ObservationConfig, ScenarioConfig
 
 __all__ = [
     "FILTER_KERNEL_DTYPE",
@@ -802,12 +802,13 @@ class _Scenario:
 
 class _InnerEnv:
     """The env as the inner law sees it: the same agents and control period, the scenario's
-    constraints tightened (:meth:`FilterParams.tightened`)."""
+    constraints tightened (:meth:`FilterParams.tightened`), and observations in metres (the
+    filter's estimates; a scale-free env's are un-scaled on the way in)."""
 
     def __init__(self, env: PolicyEnv, config: ScenarioConfig) -> None:
         self.possible_agents = tuple(env.possible_agents)
         self.control_period = float(env.control_period)
-        self.scenario = _Scenario(config)
+        self.scenario = _Scenario(dc_replace(config, observation=ObservationConfig()))
 
 
 class FilteredPPCPolicy:
@@ -852,7 +853,7 @@ class FilteredPPCPolicy:
                 f"the tightened constraints are infeasible for the PPC law ({err}); lower "
                 "margin_sigmas or set d_col_margin, beta_margin, range_margin"
             ) from None
-        self._followers = Followers(env.possible_agents)
+        self._followers = Followers(env.possible_agents, env.scenario.config)
         self.agents: tuple[str, ...] = self._followers.agents
         self._kernel: NDArray[np.void] = _kernel_params(self.params)
         n = len(self.agents)

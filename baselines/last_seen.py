@@ -360,7 +360,7 @@ class LastSeenPolicy:
         self.params: LastSeenParams = LastSeenParams.from_config(
             env.scenario.config, float(env.control_period), **overrides
         )
-        self._followers = Followers(env.possible_agents)
+        self._followers = Followers(env.possible_agents, env.scenario.config)
         self.agents: tuple[str, ...] = self._followers.agents
         n = len(self.agents)
         self._target = np.zeros((2, n))  # last-seen / measured point, body frame

@@ -15,7 +15,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from platoon_env.observation import OBS_SIZE, OBS_SIZE_TASK
+from platoon_env.observation import OBS_SIZE, OBS_SIZE_SCALE_FREE, OBS_SIZE_TASK, sensor_columns
 from platoon_env.scenarios.schema import ScenarioConfig
 
 __all__ = [
@@ -61,14 +61,28 @@ class Policy(Protocol):
         ...
 
 
-def sensor_part(obs: NDArray[np.float64], n: int) -> NDArray[np.float64]:
-    """The ``(n, 7)`` sensor part of ``n`` stacked observations: the 7-vector itself, or the
-    first 7 columns of a task-aware 13-vector (the analytic laws read their task from the
-    scenario, not from the observation). Any other shape is a ``ValueError``."""
-    if obs.ndim != 2 or obs.shape[0] != n or obs.shape[1] not in (OBS_SIZE, OBS_SIZE_TASK):
+_SIZES = (OBS_SIZE, OBS_SIZE_TASK, OBS_SIZE_SCALE_FREE)
+
+
+def sensor_part(
+    obs: NDArray[np.float64], n: int, config: ScenarioConfig | None = None
+) -> NDArray[np.float64]:
+    """The ``(n, 7)`` physical sensor part of ``n`` stacked observations: the 7-vector itself,
+    or the first 7 columns of a task-aware 13-vector (the analytic laws read their task from
+    the scenario, not from the observation), or of a scale-free 15-vector un-scaled by
+    :func:`platoon_env.observation.sensor_columns` (which needs the env's ``config``). Any
+    other shape, or a scale-free shape without ``config``, is a ``ValueError``."""
+    if obs.ndim != 2 or obs.shape[0] != n or obs.shape[1] not in _SIZES:
         raise ValueError(
-            f"expected observations of shape ({OBS_SIZE},) or ({OBS_SIZE_TASK},), got "
-            f"{obs.shape[1:]}"
+            f"expected observations of shape ({OBS_SIZE},), ({OBS_SIZE_TASK},) or "
+            f"({OBS_SIZE_SCALE_FREE},), got {obs.shape[1:]}"
+        )
+    if config is not None:
+        return sensor_columns(obs, config)
+    if obs.shape[1] == OBS_SIZE_SCALE_FREE:
+        raise ValueError(
+            "scale-free observations (observation.scale_free) are read back into metres with "
+            "the env's scenario config: pass it (Followers(agents, env.scenario.config))"
         )
     return obs[:, :OBS_SIZE]
 
@@ -91,7 +105,14 @@ class Followers:
     """The followers a policy acts for, indexed as ``env.possible_agents`` (the order of the
     policy's state arrays), and the reading of one ``act`` call's observations."""
 
-    def __init__(self, agents: Sequence[str]) -> None:
+    def __init__(self, agents: Sequence[str], config: ScenarioConfig | None = None) -> None:
+        """``agents``: ``env.possible_agents``; ``config``: the env's scenario config, by which
+        :meth:`read` un-scales scale-free observations (``observation.scale_free``); None:
+        observations in metres (the 7- or 13-vector)."""
+        #: the scenario config whose observation layout :meth:`read` undoes (None: physical)
+        self.config: ScenarioConfig | None = (
+            config if config is not None and config.observation.scale_free else None
+        )
         #: the followers, in ``env.possible_agents`` order
         self.agents: tuple[str, ...] = tuple(agents)
         #: follower name -> its index
@@ -103,10 +124,11 @@ class Followers:
         self, observations: Mapping[str, ArrayLike]
     ) -> tuple[tuple[str, ...], NDArray[np.float64], NDArray[np.intp] | None]:
         """``(keys, obs, found)``: the agents of ``observations`` in their order, their
-        ``(n, 7)`` float64 sensor parts (:func:`sensor_part`) and :func:`agent_indices` (None
-        when they are all followers in order)."""
+        ``(n, 7)`` float64 physical sensor parts (:func:`sensor_part`) and
+        :func:`agent_indices` (None when they are all followers in order)."""
         keys = tuple(observations)
-        obs = sensor_part(np.array(list(observations.values()), dtype=np.float64), len(keys))
+        stacked = np.array(list(observations.values()), dtype=np.float64)
+        obs = sensor_part(stacked, len(keys), self.config)
         return keys, obs, agent_indices(keys, self.agents, self.index)
 
 

@@ -738,7 +738,7 @@ class PPCPolicy:
         config = env.scenario.config
         period = float(env.control_period) if dt is None else float(dt)
         self.params: PPCParams = PPCParams.from_config(config, period, **overrides)
-        self._followers = Followers(env.possible_agents)
+        self._followers = Followers(env.possible_agents, env.scenario.config)
         self.agents: tuple[str, ...] = self._followers.agents
         n = len(self.agents)
         p = self.params

@@ -287,9 +287,16 @@ class ObservationConfig:
     True: those 7, then what a real follower knows of its task and sensors, each over a fixed
     reference scale: ``d_des``, ``d_col``, ``d_con``, ``beta_con``, ``r``, and the time since
     its predecessor was last perceived visible (13 values).
+
+    ``scale_free`` (needs ``task_aware``; default False): every length in the task's own unit
+    ``d_con`` (``x~, y~`` and the four clearances over ``d_con``; ``d_des``, ``d_col``, ``r``
+    over ``d_con``, ``d_con`` itself still over the fixed 5 m), then ``d / d_con`` and
+    ``beta / beta_con`` (15 values), so that one policy's inputs keep fixed bounds across
+    every formation (:data:`platoon_env.observation.OBS_NAMES_SCALE_FREE`).
     """
 
     task_aware: bool = identity(False)
+    scale_free: bool = False
 
 
 #: Kinds of procedural workspace (see :mod:`platoon_env.scenarios.procedural`).
@@ -302,6 +309,34 @@ GENERATOR_SPLITS: tuple[str, ...] = ("train", "test")
 #: (:data:`platoon_env.scenarios.procedural.SHARP_TIERS`). Appended: the earlier tiers keep
 #: their seed blocks.
 GENERATOR_TIERS: tuple[str, ...] = ("easy", "medium", "hard", "sharp", "paper")
+
+
+#: Bounds of ``generator.formation.followers``: each drawn episode has 1 to this many followers.
+MAX_DRAWN_FOLLOWERS = 10
+#: [m] The least gap the drawn distances keep: ``d_col + gap <= d_des`` and
+#: ``d_des + gap <= d_con`` (a start at chord ``d_des``, perturbed, stays inside both limits).
+FORMATION_GAP = 0.1
+
+
+@dataclass(frozen=True)
+class FormationRanges:
+    """``generator.formation``: each layout draws its formation from these ranges
+    (``docs/scenarios.md``; :func:`platoon_env.scenarios.procedural.draw_formation`).
+
+    Every field is a closed range ``[lo, hi]`` (``lo == hi`` pins it), None keeps the
+    template's value. The draw is consistent by construction: ``r`` first, then ``d_col`` in
+    ``[max(lo, 2 r), ..]``, ``d_des`` in ``[max(lo, d_col + FORMATION_GAP), ..]``, ``d_con``
+    in ``[max(lo, d_des + FORMATION_GAP), ..]``, each upper end lowered so that the next one
+    can still be drawn; ranges that admit no consistent draw are a ``ScenarioError``.
+    """
+
+    followers: tuple[int, int] | None = None  # N, in [1, MAX_DRAWN_FOLLOWERS]
+    radius: tuple[float, float] | None = None  # [m] r
+    d_col: tuple[float, float] | None = None  # [m] (eq. 4)
+    d_des: tuple[float, float] | None = None  # [m] (Problem 1)
+    d_con: tuple[float, float] | None = None  # [m] camera range (eq. 5)
+    beta_con: tuple[float, float] | None = None  # [rad] camera half-angle (eq. 5)
+    leader_speed: tuple[float, float] | None = None  # [m/s] leader.speed
 
 
 @dataclass(frozen=True)
@@ -318,6 +353,9 @@ class GeneratorConfig:
     kind: str = identity("mixed")
     split: str = identity("train")
     tier: str | None = None
+    #: None (default): every layout keeps the template's formation; else the ranges each
+    #: layout draws its formation from (:class:`FormationRanges`).
+    formation: FormationRanges | None = None
 
 
 @dataclass(frozen=True)

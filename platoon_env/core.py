@@ -140,6 +140,8 @@ def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
     p["actuate"] = rob.lag > 0 or rob.accel_max is not None or rob.alpha_max is not None
     return p
 
+    p["scale_free"] = cfg.observation.scale_free
+    p["n_followers"] = cfg.followers
 
 class _MapSlots:
     """The padded arrays of a :class:`~platoon_env.records.MapBank` and the writes into them."""

@@ -41,6 +41,37 @@ schema requires ``2 r <= d_col < d_des < d_con``, every scenario with ``d_con <=
 ones: at most 4 m) has all five in ``[0, 1)`` unclipped; a larger ``d_con`` saturates at 1 (the
 schema bounds no distance, so a fixed scale must clip somewhere).
 
+**Scale-free observations** (``observation: {task_aware: true, scale_free: true}``, e.g.
+``make("procedural_formations_train", observation={"task_aware": True, "scale_free": True})``;
+``scale_free`` needs ``task_aware``): every length in the task's own unit, the camera range
+``d_con``, and the bearing over the camera half-angle ``beta_con``, so that one policy's
+inputs keep the same bounds in every formation (15 values, :data:`OBS_NAMES_SCALE_FREE`):
+
+======  =============  ======================================================  ============
+index   name           meaning                                                 range
+======  =============  ======================================================  ============
+0       visible        as above                                                {0, 1}
+1       x_rel/d_con    ``x~ / d_con``                                          [0, 1]
+2       y_rel/d_con    ``y~ / d_con``                                          [-1, 1]
+3-6     d_W_l/d_con..  the four clearances over ``d_con``                      [0, c]
+7       d_des/d_con    ``d_des / d_con``                                       [0, 1]
+8       d_col/d_con    ``d_col / d_con``                                       [0, 1]
+9       d_con          ``min(1, d_con / D)``: the one absolute scale kept      [0, 1]
+10      beta_con       ``beta_con / (pi / 2)``                                 [0, 1]
+11      r/d_con        ``r / d_con``                                           [0, 1]
+12      t_unseen       as above                                                [0, 1]
+13      d/d_con        ``d / d_con`` of the reported position (eq. 2)          [0, 1]
+14      beta/beta_con  ``beta / beta_con`` of the reported position (eq. 3)    [-1, 1]
+======  =============  ======================================================  ============
+
+``c`` is the proximity range over ``d_con``: 1 unless ``proximity.range`` is set. The schema's
+``2 r <= d_col < d_des < d_con`` puts columns 7, 8 and 11 in ``[0, 1)``. Columns 13 and 14 are
+0 when the predecessor is not reported, and clipped to their ranges (a noisy report may lie
+just beyond the field of view). The compiled step writes the scaled columns
+(:func:`scale_free_into`, after perception, so noise, dropouts and latency are those of the
+physical camera); the analytic laws read the physical 7-vector back with
+:func:`sensor_columns` (the one rule that undoes the scaling).
+
 ``t_u`` [s] is the time since the follower last *perceived* its predecessor: 0 in a step whose
 observation has ``visible = 1`` (the perceived flag, after detection dropouts, the frame rate's
 held frames and the latency of :mod:`platoon_env.perception`), else the previous value plus the
@@ -55,6 +86,7 @@ import math
 
 import numpy as np
 from gymnasium import spaces
+from numba import njit
 
 from platoon_env.scenarios.schema import ScenarioConfig
 
@@ -89,6 +121,25 @@ OBS_SIZE_TASK = 13
 OBS_TASK_NAMES: tuple[str, ...] = ("d_des", "d_col", "d_con", "beta_con", "r")
 OBS_NAMES_TASK: tuple[str, ...] = (*OBS_NAMES, *OBS_TASK_NAMES, "t_unseen")
 
+# Scale-free observations (``observation.scale_free``): the 13 task-aware columns in the task's
+# units, then these two.
+OBS_D_REL = 13
+OBS_BETA_REL = 14
+OBS_SIZE_SCALE_FREE = 15
+#: Names of the scale-free layout's columns (``observation.scale_free``; the module docstring).
+OBS_NAMES_SCALE_FREE: tuple[str, ...] = (
+    "visible",
+    *(f"{name}/d_con" for name in OBS_NAMES[1:]),
+    "d_des/d_con",
+    "d_col/d_con",
+    "d_con",
+    "beta_con",
+    "r/d_con",
+    "t_unseen",
+    "d/d_con",
+    "beta/beta_con",
+)
+
 #: [m] ``D``, the reference distance of ``d_des``, ``d_col`` and ``d_con`` (``r``: ``D / 2``).
 TASK_DISTANCE_SCALE = 5.0
 #: The divisors of the five task features, in :data:`OBS_TASK_NAMES` order ([m, m, m, rad, m]).
@@ -112,43 +163,111 @@ ACT_SIZE = 2
 
 def observation_names(cfg: ScenarioConfig) -> tuple[str, ...]:
     """The names of one follower's observation columns: :data:`OBS_NAMES`, or
-    :data:`OBS_NAMES_TASK` with ``observation.task_aware``."""
+    :data:`OBS_NAMES_TASK` with ``observation.task_aware``, or :data:`OBS_NAMES_SCALE_FREE`
+    with ``observation.scale_free`` too."""
+    if cfg.observation.scale_free:
+        return OBS_NAMES_SCALE_FREE
     return OBS_NAMES_TASK if cfg.observation.task_aware else OBS_NAMES
 
 
 def observation_size(cfg: ScenarioConfig) -> int:
-    """The length of one follower's observation: :data:`OBS_SIZE` or :data:`OBS_SIZE_TASK`."""
-    return OBS_SIZE_TASK if cfg.observation.task_aware else OBS_SIZE
+    """The length of one follower's observation: :data:`OBS_SIZE`, :data:`OBS_SIZE_TASK` or
+    :data:`OBS_SIZE_SCALE_FREE`."""
+    return len(observation_names(cfg))
 
 
 def task_features(cfg: ScenarioConfig) -> np.ndarray:
-    """The five task features ``[d_des, d_col, d_con, beta_con, r]`` of ``cfg``, each over its
-    :data:`TASK_SCALES` entry and clipped to ``[0, 1]`` (float32, the observation's dtype)."""
+    """The five task features ``[d_des, d_col, d_con, beta_con, r]`` of ``cfg`` (float32, the
+    observation's dtype), each over its :data:`TASK_SCALES` entry and clipped to ``[0, 1]``;
+    with ``observation.scale_free`` ``d_des``, ``d_col`` and ``r`` over ``d_con`` instead."""
+    d_con = cfg.camera.range
     values = (
         cfg.formation.d_des,
         cfg.safety.d_col,
-        cfg.camera.range,
+        d_con,
         cfg.camera.half_angle,
         cfg.robot.radius,
     )
-    scaled = [min(1.0, max(0.0, v / s)) for v, s in zip(values, TASK_SCALES, strict=True)]
+    scales = list(TASK_SCALES)
+    if cfg.observation.scale_free:
+        scales[0] = scales[1] = scales[4] = d_con
+    scaled = [min(1.0, max(0.0, v / s)) for v, s in zip(values, scales, strict=True)]
     return np.array(scaled, dtype=np.float32)
+
+
+def distance_bounds(cfg: ScenarioConfig) -> tuple[float, float, float]:
+    """``(d_con_lo, d_con_hi, prox_hi)`` [m]: the least and greatest camera range ``d_con`` and
+    the greatest proximity range of the episodes of ``cfg``. One value each for a fixed
+    formation; with ``generator.formation`` drawing ``d_con`` its range (the proximity range
+    is ``d_con`` unless ``proximity.range`` is set)."""
+    d_con = cfg.camera.range
+    lo = hi = d_con
+    gen = cfg.generator
+    drawn = None if gen is None or gen.formation is None else gen.formation.d_con
+    if drawn is not None:
+        lo, hi = drawn
+    prox = hi if cfg.proximity.range is None else cfg.proximity.range
+    return lo, hi, prox
 
 
 def observation_space(cfg: ScenarioConfig) -> spaces.Box:
     """The bounded float32 Box of one follower's observation (7 values, or 13 with
-    ``observation.task_aware``: the task features and ``t_unseen`` lie in ``[0, 1]``)."""
-    d_con = cfg.camera.range
-    prox = cfg.proximity_range
-    low = [0.0, 0.0, -d_con, 0.0, 0.0, 0.0, 0.0]
-    high = [1.0, d_con, d_con, prox, prox, prox, prox]
+    ``observation.task_aware``: the task features and ``t_unseen`` lie in ``[0, 1]``; 15 with
+    ``observation.scale_free``, the module docstring's ranges). Bounds hold every episode of
+    the scenario: with a drawn formation (``generator.formation``), its largest ``d_con``."""
+    d_lo, d_con, prox = distance_bounds(cfg)
+    if cfg.observation.scale_free:
+        # the clearances over d_con: at most the proximity range over the least d_con
+        c = 1.0 if cfg.proximity.range is None else prox / d_lo
+        low = [0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0]
+        high = [1.0, 1.0, 1.0, c, c, c, c]
+    else:
+        low = [0.0, 0.0, -d_con, 0.0, 0.0, 0.0, 0.0]
+        high = [1.0, d_con, d_con, prox, prox, prox, prox]
     if cfg.observation.task_aware:
         extra = OBS_SIZE_TASK - OBS_SIZE
         low += [0.0] * extra
         high += [1.0] * extra
+    if cfg.observation.scale_free:
+        low += [0.0, -1.0]
+        high += [1.0, 1.0]
     return spaces.Box(
         low=np.array(low, dtype=np.float32), high=np.array(high, dtype=np.float32), dtype=np.float32
     )
+
+
+@njit(cache=True)
+def scale_free_into(obs: np.ndarray, d_con: float, beta_con: float) -> None:
+    """Rewrite one env's observation rows ``obs`` (N, :data:`OBS_SIZE_SCALE_FREE`), whose
+    first :data:`OBS_SIZE` columns hold the physical (perceived) 7-vector, in the scale-free
+    layout: ``x~, y~`` and the four clearances over ``d_con``, then ``d / d_con`` and
+    ``beta / beta_con`` (eqs. 2-3, of the reported position; 0 when not reported), clipped to
+    ``[0, 1]`` and ``[-1, 1]``. The compiled step calls it last; the task columns are the
+    core's."""
+    inv = 1.0 / d_con
+    for i in range(obs.shape[0]):
+        x = float(obs[i, OBS_X_REL])
+        y = float(obs[i, OBS_Y_REL])
+        for c in range(OBS_X_REL, OBS_SIZE):
+            obs[i, c] = obs[i, c] * inv
+        if obs[i, OBS_VISIBLE] > 0.0:
+            obs[i, OBS_D_REL] = min(1.0, math.hypot(x, y) * inv)
+            obs[i, OBS_BETA_REL] = min(1.0, max(-1.0, math.atan2(y, x) / beta_con))
+        else:
+            obs[i, OBS_D_REL] = 0.0
+            obs[i, OBS_BETA_REL] = 0.0
+
+
+def sensor_columns(obs: np.ndarray, cfg: ScenarioConfig) -> np.ndarray:
+    """The physical 7-vector part ``(n, OBS_SIZE)`` (float64) of ``n`` stacked observations of
+    an env made with ``cfg``: the first :data:`OBS_SIZE` columns, times ``d_con`` for every
+    length with ``observation.scale_free`` (the inverse of :func:`scale_free_into`, up to
+    float32 rounding). The one rule by which an analytic law reads a scale-free observation."""
+    if not cfg.observation.scale_free:
+        return np.asarray(obs[:, :OBS_SIZE], dtype=np.float64)
+    out = np.array(obs[:, :OBS_SIZE], dtype=np.float64)  # a copy: the caller's stays scaled
+    out[:, OBS_X_REL:] *= cfg.camera.range
+    return out
 
 
 def action_space(cfg: ScenarioConfig) -> spaces.Box:

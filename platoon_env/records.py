@@ -109,6 +109,12 @@ PARAMS_DTYPE = np.dtype(
         ("lag_gain", _F8),  # 1 - exp(-control_period / lag); 1: no lag
         ("accel_max", _F8),  # [m/s^2] bound on the change of the applied u; inf: none
         ("alpha_max", _F8),  # [rad/s^2] bound on the change of the applied omega; inf: none
+        # the observation's layout (platoon_env.observation): lengths over d_con, bearing over
+        # beta_con (observation.scale_free)
+        ("scale_free", np.bool_),
+        # the followers of env b's current episode: rows 0 .. n_followers - 1 of its
+        # per-follower buffers are live, the rest (up to the buffers' N) inert
+        ("n_followers", _I8),
     ],
     align=True,
 )
@@ -180,7 +186,9 @@ PATH_SIZE = 4
 #: (a ``(P, 2)`` path serves them as well).
 Route = tuple[np.ndarray, np.ndarray]
 
-#: Per-follower arrays of ``B`` envs with ``N`` followers: ``poses`` ``(B, N+1, 3)`` (leader
+#: Per-follower arrays of ``B`` envs with up to ``N`` followers (env ``b`` has
+#: ``params[b].n_followers`` of them, in rows ``0 .. n_followers - 1``; the compiled step
+#: reads and writes only those): ``poses`` ``(B, N+1, 3)`` (leader
 #: first), ``actions`` ``(B, N, 2)`` the commands (clipped), ``applied`` ``(B, N, 2)`` the
 #: velocities the actuators applied, ``violations`` ``(B, N)`` int64 bit masks, ``sensed``
 #: ``(B, N, SENSE_SIZE)`` ground-truth sensing, ``obs`` ``(B, N, OBS_SIZE)`` float32, ``terms``

@@ -56,6 +56,7 @@ from platoon_env.observation import (
     OBS_VISIBLE,
     OBS_X_REL,
     OBS_Y_REL,
+    scale_free_into,
 )
 from platoon_env.perception import perceive
 from platoon_env.records import (
@@ -281,16 +282,18 @@ def step_env(
     sensing and observations (a reset)."""
     p = params[b]
     ep = episode[b]
+    # Env b's own followers only (p.n_followers of the buffers' N rows): the rest stay inert.
+    n = p.n_followers
     env = Buffers(
-        bufs.poses[b],
-        bufs.actions[b],
-        bufs.applied[b],
-        bufs.violations[b],
-        bufs.sensed[b],
-        bufs.obs[b],
-        bufs.terms[b],
-        bufs.rewards[b],
-        bufs.frames[b],
+        bufs.poses[b, : n + 1],
+        bufs.actions[b, :n],
+        bufs.applied[b, :n],
+        bufs.violations[b, :n],
+        bufs.sensed[b, :n],
+        bufs.obs[b, :n],
+        bufs.terms[b, :n],
+        bufs.rewards[b, :n],
+        bufs.frames[b, :n],
     )
     if n_substeps > 0:
         clip_actions(env.actions, p)
@@ -299,6 +302,8 @@ def step_env(
     ep.substeps = done
     if p.perceive:
         perceive(env.sensed, env.obs, env.frames, ep, p, ep.steps + 1 if n_substeps > 0 else 0)
+    if p.scale_free:
+        scale_free_into(env.obs, p.d_con, p.beta_con)
     if n_substeps == 0:
         ep.terminated = False
         ep.truncated = False
@@ -314,12 +319,13 @@ def step_env(
 
 
 @njit(cache=True)
-def first_bad_action(active: np.ndarray, actions: np.ndarray) -> int:
-    """``b * N + i`` of the first active env's action row holding NaN or inf, else -1."""
+def first_bad_action(active: np.ndarray, actions: np.ndarray, params: np.ndarray) -> int:
+    """``b * N + i`` of the first active env's action row holding NaN or inf, else -1 (only the
+    env's own followers, ``params[b].n_followers``, count: an inert row is never read)."""
     n = actions.shape[1]
     for b in range(actions.shape[0]):
         if active[b]:
-            for i in range(n):
+            for i in range(params[b].n_followers):
                 for j in range(actions.shape[2]):
                     if not math.isfinite(actions[b, i, j]):
                         return b * n + i
@@ -370,7 +376,7 @@ def _driver(name: str, parallel: bool, doc: str) -> Any:
         episode = episode_bytes.view(EPISODE_DTYPE)
         bank = MapBank(maps[0].view(MAP_INFO_DTYPE), *maps[1:])
         buf = Buffers(*bufs)
-        bad = first_bad_action(active, buf.actions) if n_substeps > 0 else -1
+        bad = first_bad_action(active, buf.actions, params) if n_substeps > 0 else -1
         if bad >= 0:
             return -1 - bad
         for b in prange(active.shape[0]):

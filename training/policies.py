@@ -80,7 +80,13 @@ from numpy.typing import NDArray
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from platoon_env.observation import ACT_SIZE, OBS_NAMES, OBS_NAMES_TASK, observation_names
+from platoon_env.observation import (
+    ACT_SIZE,
+    OBS_NAMES,
+    OBS_NAMES_SCALE_FREE,
+    OBS_NAMES_TASK,
+    observation_names,
+)
 from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping, file_sha256
 from training.vec_env import ActionRange
 
@@ -112,11 +118,19 @@ METADATA_VERSION = 2
 #: The default per-follower observation a policy reads, by name (``model.json``'s
 #: ``observation_layout``; :mod:`platoon_env.observation`): the 7-vector.
 OBSERVATION_LAYOUT: tuple[str, ...] = tuple(OBS_NAMES)
-#: Every observation layout a policy can read, by its length: the 7-vector, and the 13 values
-#: of task-aware observations (``observation.task_aware``).
+#: Every observation layout a policy can read, by its length: the 7-vector, the 13 values
+#: of task-aware observations (``observation.task_aware``) and the 15 of scale-free ones
+#: (``observation.scale_free``).
 OBSERVATION_LAYOUTS: dict[int, tuple[str, ...]] = {
     len(OBS_NAMES): tuple(OBS_NAMES),
     len(OBS_NAMES_TASK): tuple(OBS_NAMES_TASK),
+    len(OBS_NAMES_SCALE_FREE): tuple(OBS_NAMES_SCALE_FREE),
+}
+#: The ``observation`` option that gives each layout (what to pass to ``make()``).
+_LAYOUT_OPTIONS: dict[tuple[str, ...], str] = {
+    tuple(OBS_NAMES): "no observation option",
+    tuple(OBS_NAMES_TASK): "observation={'task_aware': True}",
+    tuple(OBS_NAMES_SCALE_FREE): "observation={'task_aware': True, 'scale_free': True}",
 }
 #: The per-follower action a policy outputs (``model.json``'s ``action_layout``).
 ACTION_LAYOUT: tuple[str, ...] = ("u", "omega")
@@ -422,6 +436,8 @@ def _input_size(model: Any) -> int | None:
 
 def _layout_text(layout: tuple[str, ...] | None) -> str:
     """``the 7-vector`` / ``task-aware observations (13 values)`` / ``N values``."""
+    if layout == OBS_NAMES_SCALE_FREE:
+        return f"scale-free task-aware observations ({len(layout)} values)"
     if layout == OBS_NAMES_TASK:
         return f"task-aware observations ({len(layout)} values)"
     if layout == OBS_NAMES:
@@ -438,16 +454,9 @@ def _observation_mismatch(
         f"observations: the model reads {_layout_text(model)}, the env gives "
         f"{_layout_text(env) if env is not None else 'shape ' + str(shape)}"
     )
-    if model == OBS_NAMES_TASK and env == OBS_NAMES:
-        text += (
-            " (the model was trained with task-aware observations: make the env with "
-            "observation={'task_aware': True})"
-        )
-    elif model == OBS_NAMES and env == OBS_NAMES_TASK:
-        text += (
-            " (the model was trained on the 7-vector: make the env without "
-            "observation={'task_aware': True})"
-        )
+    option = _LAYOUT_OPTIONS.get(tuple(model))
+    if option is not None and env is not None and tuple(env) != tuple(model):
+        text += f" (make the env with {option}, as the model was trained)"
     return text
 
 
@@ -592,8 +601,14 @@ class LearnedPolicy:
     @property
     def task_aware(self) -> bool:
         """Whether the model reads task-aware observations: act in envs made with
-        ``observation={"task_aware": True}``."""
-        return self.observation_layout == OBS_NAMES_TASK
+        ``observation={"task_aware": True}`` (and, :attr:`scale_free`, ``"scale_free": True``)."""
+        return self.observation_layout in (OBS_NAMES_TASK, OBS_NAMES_SCALE_FREE)
+
+    @property
+    def scale_free(self) -> bool:
+        """Whether the model reads scale-free observations: act in envs made with
+        ``observation={"task_aware": True, "scale_free": True}``."""
+        return self.observation_layout == OBS_NAMES_SCALE_FREE
 
     @property
     def scenario(self) -> str | None:

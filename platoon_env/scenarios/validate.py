@@ -15,11 +15,15 @@ from dataclasses import asdict
 import numpy as np
 
 from platoon_env.config import (
+    FORMATION_GAP,
     GENERATOR_KINDS,
     GENERATOR_SPLITS,
     GENERATOR_TIERS,
+    MAX_DRAWN_FOLLOWERS,
+    FormationRanges,
     Point,
     ScenarioConfig,
+    field_error,
     require,
     shown,
 )
@@ -104,6 +108,7 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
     _check_reward_and_initial(cfg, path)
     _check_ppc(cfg, path)
     _check_realism(cfg, path)
+    _check_observation(cfg, path)
 
 
 def _check_platoon(cfg: ScenarioConfig, path: str) -> None:
@@ -267,6 +272,115 @@ def _check_generator(cfg: ScenarioConfig, path: str) -> None:
 
 
 def _check_sensing_and_formation(cfg: ScenarioConfig, path: str) -> None:
+    if gen.formation is not None:
+        formation_limits(cfg, path)
+
+
+#: The distances of a drawn formation, in the order they are drawn, by their
+#: :class:`~platoon_env.config.FormationRanges` field.
+FORMATION_DISTANCES: tuple[str, ...] = ("radius", "d_col", "d_des", "d_con")
+
+
+def formation_gap(cfg: ScenarioConfig) -> float:
+    """[m] The least gap of a drawn formation between ``d_col`` and ``d_des`` and between
+    ``d_des`` and ``d_con``: :data:`~platoon_env.config.FORMATION_GAP`, plus ``2 rho_d_inf``
+    with a ``ppc`` block (so that its funnels fit inside the constraints, as
+    :func:`check_ranges` requires)."""
+    return FORMATION_GAP + (2.0 * cfg.ppc.rho_d_inf if cfg.ppc is not None else 0.0)
+
+
+def formation_limits(cfg: ScenarioConfig, path: str = "scenario") -> dict[str, tuple[float, float]]:
+    """The ranges a procedural template's ``generator.formation`` draws from, tightened so that
+    every sequential draw is consistent (:func:`platoon_env.scenarios.procedural.draw_formation`):
+    ``{field: (lo, hi)}`` for every :class:`~platoon_env.config.FormationRanges` field, a
+    field left out taking the template's value.
+
+    The distances are drawn in :data:`FORMATION_DISTANCES` order, each from ``[max(lo,
+    floor(previous)), hi']``: ``d_col >= 2 r``, ``d_des >= d_col + g``, ``d_con >= d_des + g``
+    (``g`` = :func:`formation_gap`), where ``hi'`` is the range's upper end lowered until the
+    later ones can still be drawn. The lower ends returned are the least values (the chain of
+    lower ends), the upper ends ``hi'``. Raises ``ScenarioError`` naming the field for an
+    empty range (``lo > hi``), a value out of the model's range, or ranges that admit no
+    consistent formation.
+    """
+    gen = cfg.generator
+    assert gen is not None and gen.formation is not None
+    ranges: FormationRanges = gen.formation
+    where = f"{path}.generator.formation"
+    template = {
+        "followers": (cfg.followers, cfg.followers),
+        "radius": (cfg.robot.radius, cfg.robot.radius),
+        "d_col": (cfg.safety.d_col, cfg.safety.d_col),
+        "d_des": (cfg.formation.d_des, cfg.formation.d_des),
+        "d_con": (cfg.camera.range, cfg.camera.range),
+        "beta_con": (cfg.camera.half_angle, cfg.camera.half_angle),
+        "leader_speed": (cfg.leader.speed, cfg.leader.speed),
+    }
+    raw: dict[str, tuple[float, float]] = {}
+    for name, default in template.items():
+        given = getattr(ranges, name)
+        lo, hi = default if given is None else given
+        require(lo <= hi, f"{where}.{name}", f"empty range: lo must be <= hi, got [{lo}, {hi}]")
+        raw[name] = (lo, hi)
+    n_lo, n_hi = raw["followers"]
+    require(
+        1 <= n_lo and n_hi <= MAX_DRAWN_FOLLOWERS,
+        f"{where}.followers",
+        f"must lie in [1, {MAX_DRAWN_FOLLOWERS}] (MAX_DRAWN_FOLLOWERS), got [{n_lo}, {n_hi}]",
+    )
+    r_lo = raw["radius"][0]
+    require(r_lo > 0, f"{where}.radius", f"must be > 0, got [{r_lo}, {raw['radius'][1]}]")
+    b_lo, b_hi = raw["beta_con"]
+    floor = 2.0 * cfg.ppc.rho_beta_inf if cfg.ppc is not None else 0.0
+    require(
+        floor < b_lo and b_hi < math.pi / 2,
+        f"{where}.beta_con",
+        f"must lie in ({floor:g}, pi/2) (0 < beta_con < pi/2, and 2 * ppc.rho_beta_inf < "
+        f"beta_con), got [{b_lo}, {b_hi}]",
+    )
+    v_lo, v_hi = raw["leader_speed"]
+    a_lo, a_hi = ACTION_BOUND_RANGE
+    require(
+        a_lo <= v_lo and v_hi <= a_hi,
+        f"{where}.leader_speed",
+        f"must lie in [{a_lo:g}, {a_hi:g}], got [{v_lo}, {v_hi}]",
+    )
+    gap = formation_gap(cfg)
+    # floors: what the previous distance imposes on each (r: none; d_col >= 2 r; ...)
+    lows = [raw["radius"][0]]
+    lows.append(max(raw["d_col"][0], 2.0 * lows[0]))
+    lows.append(max(raw["d_des"][0], lows[1] + gap))
+    lows.append(max(raw["d_con"][0], lows[2] + gap))
+    highs = [0.0, 0.0, 0.0, raw["d_con"][1]]
+    highs[2] = min(raw["d_des"][1], highs[3] - gap)
+    highs[1] = min(raw["d_col"][1], highs[2] - gap)
+    highs[0] = min(raw["radius"][1], 0.5 * highs[1])
+    for k, name in enumerate(FORMATION_DISTANCES):
+        if lows[k] > highs[k]:
+            given = raw[name]
+            raise field_error(
+                f"{where}.{name}",
+                f"no consistent formation: [{given[0]:g}, {given[1]:g}] leaves [{lows[k]:g}, "
+                f"{highs[k]:g}] under the chain 2 r <= d_col, d_col + g <= d_des, d_des + g <= "
+                f"d_con (g = {gap:g} m: FORMATION_GAP, plus 2 ppc.rho_d_inf with a ppc block)",
+            )
+    out = dict(raw)
+    for k, name in enumerate(FORMATION_DISTANCES):
+        out[name] = (lows[k], highs[k])
+    return out
+
+
+def _check_observation(cfg: ScenarioConfig, path: str) -> None:
+    """``observation.scale_free`` needs ``observation.task_aware`` (its layout holds the task
+    inputs)."""
+    obs = cfg.observation
+    require(
+        obs.task_aware or not obs.scale_free,
+        f"{path}.observation.scale_free",
+        "needs observation.task_aware: true (the scale-free layout expresses the task-aware "
+        "observation in the task's units; pass observation={'task_aware': True, "
+        "'scale_free': True})",
+    )
     """The camera's field of view (eq. 5) and ``2r <= d_col < d_des < d_con`` (eq. 4,
     Problem 1)."""
     r = cfg.robot.radius
