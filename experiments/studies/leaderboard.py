@@ -343,17 +343,49 @@ def comparisons_markdown(found: Sequence[Comparison], tasks_: Sequence[Task]) ->
     return "\n".join(lines) + "\n"
 
 
+def _pyplot() -> Any:
+    """``matplotlib.pyplot`` on the Agg backend, imported only when a figure is drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _annotated_grid(
+    values: np.ndarray,
+    text: Sequence[Sequence[str]],
+    rows: Sequence[str],
+    columns: Sequence[str],
+    size: tuple[float, float],
+    vmin: float,
+) -> tuple[Any, Any, Any]:
+    """A rows × columns colour grid of ``values`` (red to green over ``[vmin, 1]``, NaN blank)
+    with ``text[i][j]`` written in each cell; returns the figure, its axes and the image."""
+    fig, ax = _pyplot().subplots(figsize=size)
+    im = ax.imshow(values, vmin=vmin, vmax=1, cmap="RdYlGn", aspect="auto")
+    for i, row in enumerate(text):
+        for j, note in enumerate(row):
+            ax.text(j, i, note, ha="center", va="center", fontsize=7)
+    ax.set_xticks(range(len(columns)), columns, rotation=40, ha="right", fontsize=8)
+    ax.set_yticks(range(len(rows)), rows, fontsize=8)
+    return fig, ax, im
+
+
+def _save(fig: Any, out: Path, metadata: Mapping[str, str]) -> Path:
+    fig.tight_layout()
+    fig.savefig(out, dpi=120, metadata=dict(metadata))
+    _pyplot().close(fig)
+    return out
+
+
 def plot_separation(
     found: Sequence[Comparison], tasks_: Sequence[Task], out: Path, metadata: Mapping[str, str]
 ) -> Path:
     """Who beats whom on which task: a pair × task grid, green where A is significantly
     better, red where B is, grey where the difference is not significant, white for a tie at
     a bound (marked ⊥/⊤)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     labels = [t.label for t in tasks_]
     pairs = list(dict.fromkeys((c.a, c.b) for c in found))
     grid = np.full((len(pairs), len(labels)), np.nan)
@@ -368,28 +400,21 @@ def plot_separation(
         else:
             grid[i, j] = 0.0
             text[i][j] = "n.s."
-    fig, ax = plt.subplots(figsize=(1.0 * len(labels) + 3.5, 0.45 * len(pairs) + 1.6))
-    ax.imshow(grid, vmin=-1, vmax=1, cmap="RdYlGn", aspect="auto")
-    for i in range(len(pairs)):
-        for j in range(len(labels)):
-            ax.text(j, i, text[i][j], ha="center", va="center", fontsize=7)
-    ax.set_xticks(range(len(labels)), labels, rotation=40, ha="right", fontsize=8)
-    ax.set_yticks(range(len(pairs)), [f"{a} vs {b}" for a, b in pairs], fontsize=8)
+    fig, ax, _ = _annotated_grid(
+        grid,
+        text,
+        [f"{a} vs {b}" for a, b in pairs],
+        labels,
+        size=(1.0 * len(labels) + 3.5, 0.45 * len(pairs) + 1.6),
+        vmin=-1,
+    )
     ax.set_title("A vs B: success difference where significant (Fisher, Holm 5 %)")
-    fig.tight_layout()
-    fig.savefig(out, dpi=120, metadata=dict(metadata))
-    plt.close(fig)
-    return out
+    return _save(fig, out, metadata)
 
 
 def plot_tasks(board: Board, out: Path, metadata: Mapping[str, str]) -> Path:
     """A policy × task map of success rates (mean over runs), each cell annotated with its rate
     and its most frequent violation cause."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     rates = np.full((len(board.entries), len(board.tasks)), math.nan)
     notes = [["" for _ in board.tasks] for _ in board.entries]
     abbrev = {
@@ -407,32 +432,23 @@ def plot_tasks(board: Board, out: Path, metadata: Mapping[str, str]) -> Path:
                 notes[i][j] = f"{rates[i, j]:.2f}" + (f"\n{abbrev[worst]}" if worst else "")
             elif (e.name, t) in board.refused:
                 notes[i][j] = "refused"
-    fig, ax = plt.subplots(figsize=(1.1 * len(board.tasks) + 2.5, 0.55 * len(board.entries) + 1.6))
-    im = ax.imshow(rates, vmin=0, vmax=1, cmap="RdYlGn", aspect="auto")
-    for i in range(len(board.entries)):
-        for j in range(len(board.tasks)):
-            ax.text(j, i, notes[i][j], ha="center", va="center", fontsize=7)
-    ax.set_xticks(
-        range(len(board.tasks)), [t.label for t in board.tasks], rotation=40, ha="right", fontsize=8
+    fig, ax, im = _annotated_grid(
+        rates,
+        notes,
+        [e.name for e in board.entries],
+        [t.label for t in board.tasks],
+        size=(1.1 * len(board.tasks) + 2.5, 0.55 * len(board.entries) + 1.6),
+        vmin=0,
     )
-    ax.set_yticks(range(len(board.entries)), [e.name for e in board.entries], fontsize=8)
     fig.colorbar(im, ax=ax, label="success rate (mean over runs)")
     ax.set_title("Success per task, and the most frequent violation")
-    fig.tight_layout()
-    fig.savefig(out, dpi=120, metadata=dict(metadata))
-    plt.close(fig)
-    return out
+    return _save(fig, out, metadata)
 
 
 def plot_profiles(board: Board, out: Path, metadata: Mapping[str, str]) -> Path:
     """Performance profiles per suite: the fraction of run × task success rates > τ."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     taus = np.linspace(0, 1, 101)
-    fig, axes = plt.subplots(1, len(SUITES), figsize=(5 * len(SUITES), 3.6), sharey=True)
+    fig, axes = _pyplot().subplots(1, len(SUITES), figsize=(5 * len(SUITES), 3.6), sharey=True)
     for ax, name in zip(np.atleast_1d(axes), SUITES, strict=True):
         task_list = board.suite_tasks(name)
         data = {}
@@ -448,10 +464,7 @@ def plot_profiles(board: Board, out: Path, metadata: Mapping[str, str]) -> Path:
         ax.grid(alpha=0.3)
     np.atleast_1d(axes)[0].set_ylabel("fraction of runs × tasks > τ")
     np.atleast_1d(axes)[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out, dpi=120, metadata=dict(metadata))
-    plt.close(fig)
-    return out
+    return _save(fig, out, metadata)
 
 
 def improvement_markdown(board: Board) -> str:
