@@ -1,7 +1,7 @@
 """Plots of recorded episodes, as in the paper's figures (needs the ``plot`` extra).
 
 * :func:`plot_snapshots` — the platoon in its workspace at several instants, with fields of view
-  and the robots' traces (Fig. 5, 8, 12, 15);
+  and the robots' traces (Fig. 5, 8, 12, 15); :func:`draw_episode_at` — one instant;
 * :func:`plot_errors` — ``e_d`` and ``e_beta`` of every follower with the safety limits and, for
   PPC, the performance functions (Fig. 6, 9, 13, 14);
 * :func:`plot_commands` — the velocity commands ``u``, ``omega`` (Fig. 7, 10, 11);
@@ -30,7 +30,7 @@ except ImportError as exc:  # pragma: no cover - exercised by the install hint o
     raise ImportError("plotting needs matplotlib: pip install 'platoon-env[plot]'") from exc
 
 from platoon_env.geometry.sensing import SENSE_BETA, SENSE_D, SENSE_VISIBLE
-from platoon_env.rendering import draw_scene
+from platoon_env.rendering import SceneArtists, draw_scene
 from platoon_env.rollout import Episode
 from platoon_env.safety import first_cause
 from platoon_env.scenarios.scenario import Scenario
@@ -52,6 +52,31 @@ def _violations_at(ep: Episode, k: int) -> list[str | None]:
     return [first_cause(int(m)) for m in ep.violations[min(k, ep.steps) - 1]]
 
 
+def draw_episode_at(
+    ax: Axes,
+    scenario: Scenario,
+    ep: Episode,
+    k: int,
+    violations: Sequence[str | None] = (),
+    trail: np.ndarray | None = None,
+    *,
+    background: bool = True,
+) -> SceneArtists:
+    """The workspace and the platoon of ``ep`` at sample ``k``: its poses, which followers see
+    their predecessors and its time (:func:`platoon_env.rendering.draw_scene`)."""
+    return draw_scene(
+        ax,
+        scenario.free_space,
+        scenario.config,
+        ep.poses[k],
+        ep.sensed[k, :, SENSE_VISIBLE] > 0,
+        float(ep.times[k]),
+        violations,
+        trail,
+        background=background,
+    )
+
+
 def plot_snapshots(
     ax: Axes, scenario: Scenario, ep: Episode, n_snapshots: int = 6, title: str | None = None
 ) -> None:
@@ -65,13 +90,11 @@ def plot_snapshots(
     notes: list[str] = []
     for j, k in enumerate(idx):
         violations = _violations_at(ep, int(k))
-        artists = draw_scene(
+        artists = draw_episode_at(
             ax,
-            scenario.free_space,
-            cfg,
-            ep.poses[k],
-            ep.sensed[k, :, SENSE_VISIBLE] > 0,
-            float(ep.times[k]),
+            scenario,
+            ep,
+            int(k),
             violations,
             trail=ep.poses[: k + 1, :, :2] if j == len(idx) - 1 else None,
             background=j == 0,

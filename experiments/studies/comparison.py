@@ -266,18 +266,9 @@ def plot_last_seen_trace(ax: Any, scenario: Any, ep: Episode) -> str:
 
     Returns a one-line description of the losses (used as the title).
     """
-    from platoon_env.rendering import draw_scene
+    from platoon_env.plots import draw_episode_at
 
-    cfg = scenario.config
-    k = ep.times.size - 1
-    draw_scene(
-        ax,
-        scenario.free_space,
-        cfg,
-        ep.poses[k],
-        ep.sensed[k, :, SENSE_VISIBLE] > 0,
-        float(ep.times[k]),
-    )
+    draw_episode_at(ax, scenario, ep, ep.times.size - 1)
     colours = ("tab:blue", "black", "tab:purple", "tab:olive", "tab:cyan", "tab:brown")
     for i in range(ep.poses.shape[1]):
         name = "leader" if i == 0 else f"follower {i}"
@@ -305,7 +296,9 @@ def plot_last_seen_trace(ax: Any, scenario: Any, ep: Episode) -> str:
         notes.append(f"follower {i + 1} lost sight {lost.size}x (t = {times} s)")
     ax.legend(loc="upper left", fontsize=7)
     text = "; ".join(notes) if notes else "no loss of sight"
-    ax.set_title(f"{cfg.name}, last-seen controller [32], seed {ep.seed}: {text}", fontsize=9)
+    ax.set_title(
+        f"{scenario.config.name}, last-seen controller [32], seed {ep.seed}: {text}", fontsize=9
+    )
     return text
 
 
