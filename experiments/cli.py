@@ -20,7 +20,15 @@ from typing import NoReturn
 
 from experiments.store import Store, StoreError
 
-__all__ = ["add_grid_options", "count", "new_parser", "number", "open_store"]
+__all__ = [
+    "add_grid_options",
+    "add_models_option",
+    "add_workers_option",
+    "count",
+    "new_parser",
+    "number",
+    "open_store",
+]
 
 
 def new_parser(prog: str, doc: str | None, *, out: Path | None = None) -> argparse.ArgumentParser:
@@ -65,15 +73,34 @@ def count(minimum: int = 1, name: str = "count") -> Callable[[str], int]:
     return parse
 
 
+def add_workers_option(
+    parser: argparse.ArgumentParser,
+    text: str = "parallel worker processes (1: run in this process)",
+) -> None:
+    """Add ``--workers`` (default 2): how many processes run the episodes at once; ``text`` is
+    its help."""
+    parser.add_argument("--workers", type=count(1, "workers"), default=2, help=text)
+
+
+def add_models_option(parser: argparse.ArgumentParser, use: str) -> None:
+    """Add ``--models`` (default None: :func:`experiments.policies.default_models_dir`), the
+    folder of trained models, ``use`` saying what the driver does with them."""
+    parser.add_argument(
+        "--models",
+        type=Path,
+        default=None,
+        help=f"folder of models (DIR/*/model.zip) {use}; default: the source checkout's "
+        "models/, else ./models",
+    )
+
+
 def add_grid_options(
     parser: argparse.ArgumentParser, *, seeds: int | None, seeds_help: str, store: Path | None
 ) -> None:
     """Add ``--seeds`` (default ``seeds``), ``--workers`` (default 2) and, when ``store`` is
     given, ``--store`` (the evaluation store the episodes go to and resume from)."""
     parser.add_argument("--seeds", type=count(1, "seeds"), default=seeds, help=seeds_help)
-    parser.add_argument(
-        "--workers", type=count(1, "workers"), default=2, help="parallel worker processes"
-    )
+    add_workers_option(parser, "parallel worker processes")
     if store is not None:
         parser.add_argument(
             "--store",

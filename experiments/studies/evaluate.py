@@ -58,7 +58,7 @@ from typing import Any
 from tqdm import tqdm
 
 import platoon_env
-from experiments.cli import count, new_parser, number
+from experiments.cli import add_models_option, add_workers_option, count, new_parser, number
 from experiments.grid import (
     DEFAULT_CLAIM_TIMEOUT,
     Cell,
@@ -446,19 +446,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="first seed (>= 0); episodes use seed..seed+K-1",
     )
     parser.add_argument("--out", type=Path, default=Path("results/benchmark"), help="output folder")
-    parser.add_argument(
-        "--models",
-        type=Path,
-        default=None,
-        help="folder of models (DIR/*/model.zip) the default policies include; default: the "
-        "source checkout's models/, else ./models",
-    )
-    parser.add_argument(
-        "--workers",
-        type=count(1, "count"),
-        default=2,
-        help="parallel worker processes (1: run in this process)",
-    )
+    add_models_option(parser, "the default policies include")
+    add_workers_option(parser)
     parser.add_argument("--no-plots", action="store_true", help="skip plots and GIFs")
     parser.add_argument(
         "--claim-timeout",

@@ -56,7 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.cli import count
+from experiments.cli import add_models_option, add_workers_option, count
 from experiments.grid import run_grid, store_file
 from experiments.policies import default_models_dir
 from experiments.report import provenance_markdown
@@ -531,13 +531,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         prog="platoon-leaderboard",
         description=(__doc__ or "").split("\n\n")[0],
     )
-    p.add_argument(
-        "--models",
-        type=Path,
-        default=None,
-        help="folder of models (DIR/*/model.zip); default: the source checkout's models/, else "
-        "./models",
-    )
+    add_models_option(p, "on the board")
     p.add_argument(
         "--store",
         type=Path,
@@ -556,7 +550,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         default=None,
         help="layouts per held-out task (default: the suite's, 200)",
     )
-    p.add_argument("--workers", type=count(1), default=2, help="worker processes")
+    add_workers_option(p)
     p.add_argument(
         "--docs", type=Path, default=Path("docs"), help="where the tables go (default: ./docs)"
     )
