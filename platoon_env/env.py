@@ -534,20 +534,27 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
 
     def _numeric_infos(
         self, masks: list[int], terms: list[list[float]] | None
-    ) -> dict[str, dict[str, int | float]]:
+    ) -> dict[str, dict[str, np.generic]]:
         """``info[agent]`` of every live agent in the numeric view (``info_view="numeric"``).
 
-        The rich view's content with numbers only and fixed keys: the first violation as its
-        code (:data:`~platoon_env.violations.VIOLATION_CODE_NAMES`), all causes as
-        ``violation_mask`` (bit ``k`` = ``VIOLATION_CAUSES[k]``), ``visible`` as 0/1 and the
-        reward terms flat, 0.0 at reset (no step yet), so that a library which sizes its
-        buffers from the reset's infos (TorchRL) gets every later step's keys.
+        The rich view's content as numpy scalars (``int64``, ``float64``: they carry a
+        ``dtype``, which TorchRL's ``GymEnv`` info reader reads) under fixed keys: the first
+        violation as its code (:data:`~platoon_env.violations.VIOLATION_CODE_NAMES`), all
+        causes as ``violation_mask`` (bit ``k`` = ``VIOLATION_CAUSES[k]``), ``visible`` as 0/1
+        and the reward terms flat, 0.0 at reset (no step yet), so that a library which sizes
+        its buffers from the reset's infos (TorchRL's ``PettingZooWrapper``) gets every later
+        step's keys.
         """
-        infos: dict[str, dict[str, int | float]] = {}
+        i64, f64 = np.int64, np.float64
+        infos: dict[str, dict[str, np.generic]] = {}
         if not self.diagnostics:
             for agent, mask in zip(self.agents, masks):  # noqa: B905 - equal lengths
                 code, _, cost = VIOLATION_NUMERIC_INFO[mask]
-                infos[agent] = {"violation": code, "violation_mask": mask, "cost": cost}
+                infos[agent] = {
+                    "violation": i64(code),
+                    "violation_mask": i64(mask),
+                    "cost": i64(cost),
+                }
             return infos
         d_des = self._d_des
         no_terms = [0.0] * len(REWARD_TERMS)
@@ -559,25 +566,25 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
                 no_terms if terms is None else terms[i]
             )
             infos[agent] = {
-                "violation": code,
-                "violation_mask": mask,
-                "cost": cost,
-                "d": d,
-                "beta": beta,
-                "e_d": d - d_des,
-                "e_beta": beta,
-                "d_W_l": wall_l,
-                "d_W_r": wall_r,
-                "d_l": sight_l,
-                "d_r": sight_r,
-                "clearance": clearance,
-                "visible": 1 if visible > 0.0 else 0,
-                "reward_distance": distance,
-                "reward_bearing": bearing,
-                "reward_effort": effort,
-                "reward_alive": alive,
-                "reward_violation": violation,
-                "reward_wall": wall,
+                "violation": i64(code),
+                "violation_mask": i64(mask),
+                "cost": i64(cost),
+                "d": f64(d),
+                "beta": f64(beta),
+                "e_d": f64(d - d_des),
+                "e_beta": f64(beta),
+                "d_W_l": f64(wall_l),
+                "d_W_r": f64(wall_r),
+                "d_l": f64(sight_l),
+                "d_r": f64(sight_r),
+                "clearance": f64(clearance),
+                "visible": i64(1 if visible > 0.0 else 0),
+                "reward_distance": f64(distance),
+                "reward_bearing": f64(bearing),
+                "reward_effort": f64(effort),
+                "reward_alive": f64(alive),
+                "reward_violation": f64(violation),
+                "reward_wall": f64(wall),
             }
         return infos
 

@@ -35,8 +35,9 @@ _DRIVES: dict[str, Any] = {
 
 
 def _numeric(value: Any) -> bool:
-    """A plain number (bool excluded: the view promises numbers, and bool is an int)."""
-    return isinstance(value, int | float) and not isinstance(value, bool)
+    """A numpy integer or float scalar (array-minded readers look at its ``dtype``; a bool is
+    not a number here)."""
+    return isinstance(value, np.integer | np.floating) and value.shape == ()
 
 
 def _paired_rollout(
@@ -114,7 +115,7 @@ def test_numeric_view_has_fixed_keys_and_only_numbers(scenario: str, diagnostics
             assert list(info) == keys[agent]  # same keys, same order, at reset and every step
             bad = {k: v for k, v in info.items() if not _numeric(v)}
             assert not bad, f"non-numeric info values: {bad}"
-    assert all(isinstance(info["violation"], int) for info in history[-1].values())
+    assert all(info["violation"].dtype == np.int64 for info in history[-1].values())
 
 
 def test_rich_view_is_the_default(corridor: dict[str, Any]) -> None:
@@ -211,3 +212,14 @@ def test_apply_overrides_words_unknown_options_alike() -> None:
     assert str(exc.value).startswith("BatchedPlatoon() got an unexpected keyword argument 'nope'")
     with pytest.raises(ValueError, match="at least one unknown keyword"):
         unexpected_keyword("make()", [], OVERRIDE_OPTIONS)
+
+
+def test_the_published_code_table_matches_the_code() -> None:
+    """docs/api.md's table of violation codes is VIOLATION_CODE_NAMES, row for row."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "docs" / "api.md").read_text(encoding="utf-8")
+    table = text.split("| code | cause |", 1)[1].split("\n\n", 1)[0]
+    rows = re.findall(r"^\| (\d+) \| `?([a-z_]+)`? \|$", table, flags=re.MULTILINE)
+    assert [(int(code), name) for code, name in rows] == list(enumerate(VIOLATION_CODE_NAMES))
