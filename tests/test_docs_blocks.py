@@ -215,3 +215,23 @@ def test_the_repositorys_blocks_of_committed_files_equal_those_files() -> None:
         assert db.source_text(b, "", REPO) == b.body.strip("\n"), b.label()
         compared += 1
     assert compared >= 2  # the README's PPC record and comparison
+
+
+def test_the_readme_quick_start_prints_what_its_comment_says() -> None:
+    """The one number of the README outside a generated block, the quick start's output, is
+    checked here by running the snippet (``print(...)   # OUTPUT``)."""
+    import contextlib
+    import io
+    import re
+
+    readme = (REPO / "README.md").read_text()
+    quick = readme.split("## Quick start", 1)[1]
+    code = re.search(r"```python\n(.*?)```", quick, re.S)
+    assert code is not None
+    snippet = code.group(1)
+    printed = re.search(r"^print\(.*\)\s+# (?P<out>.+)$", snippet, re.M)
+    assert printed is not None, "the quick start ends with print(...)  # its output"
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        exec(compile(snippet, "README.md quick start", "exec"), {})
+    assert out.getvalue().strip() == printed.group("out").strip()
