@@ -43,7 +43,9 @@ a file's markers do not parse (an unclosed block, a block inside a block, an ``e
 ``begin``, an unknown clause), a block names an unknown command, a page in :data:`PAGES` does
 not name its command, or a block whose ``file`` exists here differs from that file's (selected)
 text. A block of standard output, or of a file not present here (a fresh clone has no
-``results/``), is reported as not compared: ``--diff`` compares those by running them.
+``results/``), is reported as not compared: ``--diff`` compares those by running them (it
+writes no block, but the commands write their own outputs, and the drivers that rewrite their
+own block — ``check_workspaces.py --tiers``, ``tune_ppc report``, the leaderboard — do so).
 
 Nothing here imports the package: this tool is stdlib only.
 """
