@@ -351,11 +351,12 @@ def test_training_adapters_normalise_the_13_values() -> None:
         np.testing.assert_array_equal(venv.step(act)[0], bvenv.step(act)[0])
 
 
-def test_rllib_engine_refuses_the_flag() -> None:
+def test_rllib_engine_takes_the_flag() -> None:
+    """The RLlib engine builds its actor on the scenario's observation length
+    (tests/test_rllib.py trains one)."""
     from training.train import TrainConfig, check_config
 
-    errors = check_config(TrainConfig(engine="rllib", task_aware_observations=True))
-    assert any("--task-aware-observations" in e and "--engine sb3" in e for e in errors)
+    assert check_config(TrainConfig(engine="rllib", task_aware_observations=True)) == []
 
 
 def test_tiny_ppo_run_with_the_flag(tmp_path: Path) -> None:

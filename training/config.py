@@ -41,10 +41,14 @@ from training.vec_env import ActionRange
 
 __all__ = [
     "BOUNDS",
+    "ENGINES",
     "ENV_FIELDS",
+    "FAST_ALGOS",
+    "FAST_ONLY",
     "PPO_ALGOS",
     "Bound",
     "TrainConfig",
+    "auto_device",
     "check_config",
     "check_scenario",
     "checked",
@@ -63,6 +67,11 @@ __all__ = [
 
 #: The algorithms trained by SB3's PPO (with their rollout-size rules).
 PPO_ALGOS = ("ppo", "ppo_lagrangian")
+#: The algorithms of ``--engine fast`` (:mod:`training.fast_ppo`; ``bc_*``: :mod:`training.bc`,
+#: behaviour cloning of the PPC law with DAgger, then that PPO fine-tuning).
+FAST_ALGOS = ("ppo", "ppo_lagrangian", "bc_ppo", "bc_ppo_lagrangian")
+#: The engines of ``--engine``.
+ENGINES = ("sb3", "rllib", "fast")
 
 
 def _opt(default: Any, help: str, **argparse_kwargs: Any) -> Any:
@@ -76,13 +85,18 @@ class TrainConfig:
 
     # --- run ---
     engine: str = _opt(
-        "sb3", "training engine: Stable-Baselines3, or Ray RLlib (PPO)", choices=("sb3", "rllib")
+        "sb3",
+        "training engine: Stable-Baselines3, Ray RLlib (PPO), or fast (training/fast_ppo.py: "
+        "PPO on the batched core at simulator speed; options it has and not given here take "
+        "its own defaults, e.g. --n-envs 512)",
+        choices=ENGINES,
     )
     algo: str = _opt(
         "ppo",
         "learning algorithm (ppo_lagrangian: PPO with a Lagrange multiplier on info['cost'], "
-        "see training/lagrangian.py)",
-        choices=("ppo", "sac", "ppo_lagrangian"),
+        "see training/lagrangian.py; bc_ppo, bc_ppo_lagrangian (--engine fast): clone the PPC "
+        "law with DAgger, then fine-tune, training/bc.py)",
+        choices=("ppo", "sac", "ppo_lagrangian", "bc_ppo", "bc_ppo_lagrangian"),
     )
     scenario: str = _opt("study_c", "shipped scenario name or YAML path to train on")
     timesteps: int = _opt(1_000_000, "total follower transitions (SB3 timesteps) to train for")
@@ -162,6 +176,43 @@ class TrainConfig:
         "violation, with every cause terminating)",
     )
     lagrangian_lr: float = _opt(0.05, "ppo_lagrangian: step size of the multiplier's update")
+    # --- the fast engine (--engine fast; None: training.fast_ppo.FastPPOConfig's default) ---
+    layout_repeats: int | None = _opt(
+        None, "fast: episodes an env copy keeps a procedural layout for (FastPPOConfig's default)"
+    )
+    log_std_init: float | None = _opt(
+        None,
+        "fast: initial log std of the policy's Gaussian (FastPPOConfig's; bc_*: "
+        "training.bc.FINETUNE)",
+    )
+    lagrangian_init: float | None = _opt(None, "fast, ppo_lagrangian: initial multiplier")
+    lagrangian_max: float | None = _opt(None, "fast, ppo_lagrangian: bound of the multiplier")
+    init_from: str | None = _opt(
+        None,
+        "fast: start the network from this SB3 PPO model.zip (same observation size and "
+        "--net-arch; all policy parameters but log_std)",
+    )
+    value_warmup: int | None = _opt(
+        None,
+        "fast: first rollouts in which only the critic learns (FastPPOConfig's; bc_*: "
+        "training.bc.FINETUNE)",
+    )
+    # --- behaviour cloning (--algo bc_*; None: training.bc.BCConfig's default) ---
+    bc_expert: str | None = _opt(
+        None, "bc: the analytic law cloned (ppc)", choices=("ppc", "filtered_ppc")
+    )
+    bc_iterations: int | None = _opt(None, "bc: DAgger iterations (iteration 0: the expert's)")
+    bc_steps_per_iteration: int | None = _opt(
+        None, "bc: control steps of every env copy per DAgger iteration"
+    )
+    bc_beta_decay: float | None = _opt(
+        None, "bc: the expert acts with probability beta_decay**i in iteration i"
+    )
+    bc_epochs: int | None = _opt(None, "bc: passes over the aggregated data per iteration")
+    bc_batch_size: int | None = _opt(None, "bc: regression minibatch size")
+    bc_learning_rate: float | None = _opt(None, "bc: Adam learning rate of the regression")
+    bc_max_samples: int | None = _opt(None, "bc: size cap of the aggregated data set")
+    bc_holdout: float | None = _opt(None, "bc: share of each iteration's samples held out")
     # --- SAC ---
     buffer_size: int = _opt(300_000, "SAC: replay buffer size (transitions)")
     learning_starts: int = _opt(10_000, "SAC: transitions collected before learning starts")
@@ -187,14 +238,18 @@ class TrainConfig:
     )
     progress_bar: bool = _opt(True, "show a progress bar (tqdm + rich)")
     torch_threads: int = _opt(1, "torch intra-op threads (1 is fastest for these small MLPs)")
-    device: str = _opt("cpu", "torch device (cpu, cuda, cuda:N, mps, auto); must be available")
+    device: str = _opt(
+        "cpu",
+        "torch device (cpu, cuda, cuda:N, mps; auto: cuda when torch sees one, else cpu); must "
+        "be available",
+    )
     verbose: int = _opt(0, "SB3 verbosity", choices=(0, 1, 2))
 
     @property
     def run_name(self) -> str:
         """``<algo>_<scenario>_s<seed>`` (scenario paths reduced to their stem), prefixed
         ``rllib_`` for the RLlib engine."""
-        prefix = "rllib_" if self.engine == "rllib" else ""
+        prefix = f"{self.engine}_" if self.engine != "sb3" else ""
         return f"{prefix}{self.algo}_{Path(self.scenario).stem}_s{self.seed}"
 
     @property
@@ -278,13 +333,37 @@ BOUNDS: dict[str, Bound] = {
     "checkpoint_every": Bound(0),
     "log_every": Bound(1),
     "torch_threads": Bound(1, 1024),
+    # --- the fast engine (training.fast_ppo) ---
+    "layout_repeats": Bound(1, 10**6),
+    "log_std_init": Bound(-20, 2),
+    "lagrangian_init": Bound(0),
+    "lagrangian_max": Bound(0, low_open=True),
+    "value_warmup": Bound(0, 10**6),
+    # --- behaviour cloning (training.bc.BCConfig: the same names without bc_) ---
+    "bc_iterations": Bound(1, 10_000),
+    "bc_steps_per_iteration": Bound(1, 10**7),
+    "bc_beta_decay": Bound(0, 1),
+    "bc_epochs": Bound(1, 10_000),
+    "bc_batch_size": Bound(1, 10**9),
+    "bc_learning_rate": Bound(0, 1, low_open=True),
+    "bc_max_samples": Bound(1, 10**10),
+    "bc_holdout": Bound(0, 0.5),
 }
+#: The options of the fast engine only (``--engine fast``).
+FAST_ONLY = (
+    "layout_repeats",
+    "log_std_init",
+    "lagrangian_init",
+    "lagrangian_max",
+    "init_from",
+    "value_warmup",
+)
 #: Largest layer of --net-arch.
 MAX_LAYER = 65536
 
 
 def device_error(name: str) -> str | None:
-    """Why torch device ``name`` cannot be used here, or None (``auto``: SB3's choice)."""
+    """Why torch device ``name`` cannot be used here, or None (``auto``: :func:`auto_device`)."""
     if name == "auto":
         return None
     try:
@@ -309,6 +388,12 @@ def device_error(name: str) -> str | None:
     return f"{name!r}: device type {device.type!r} is not supported (cpu, cuda, mps)"
 
 
+def auto_device() -> str:
+    """``--device auto``: ``cuda`` when torch sees a CUDA device, else ``cpu`` (SB3's rule
+    too)."""
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
 def check_config(cfg: TrainConfig) -> list[str]:
     """Every problem with ``cfg`` that needs no scenario, each as an ``argparse`` message
     naming its option (``argument --gamma: must be in [0, 1], got 5.0``); empty when fine.
@@ -316,7 +401,7 @@ def check_config(cfg: TrainConfig) -> list[str]:
     Numbers must lie in :data:`BOUNDS` (floats finite), ``--u-low < --u-high``,
     ``--gradient-steps`` is ``-1`` or ``>= 1``, PPO needs ``--batch-size >= 2`` and SAC
     ``--batch-size <= --buffer-size``; ``--device`` must be available; ``--engine rllib``
-    trains PPO without ``--batched``; ``--resume`` and ``--force`` exclude each other;
+    trains PPO or PPO-Lagrangian, not ``--batched``; ``--resume`` excludes ``--force``;
     ``--out`` must name a directory (not ``''``, not a file).
     """
     errors: list[str] = []
@@ -357,16 +442,26 @@ def check_config(cfg: TrainConfig) -> list[str]:
     reason = device_error(cfg.device)
     if reason is not None:
         bad("device", reason)
-    if cfg.engine == "rllib" and cfg.algo != "ppo":
-        bad("algo", f"--engine rllib trains PPO only, got {cfg.algo!r}")
+    if cfg.engine == "rllib" and cfg.algo not in PPO_ALGOS:
+        bad("algo", f"--engine rllib trains ppo and ppo_lagrangian, got {cfg.algo!r}")
     if cfg.engine == "rllib" and cfg.batched:
         bad("batched", "--engine rllib samples with its own env runners, not --batched")
-    if cfg.engine == "rllib" and cfg.task_aware_observations:
-        bad(
-            "task_aware_observations",
-            "--engine rllib builds its actor on the 7-vector (training/rllib.py reads OBS_SIZE "
-            "columns); train task-aware policies with --engine sb3",
-        )
+    if cfg.engine == "fast" and cfg.algo not in FAST_ALGOS:
+        bad("algo", f"--engine fast trains {', '.join(FAST_ALGOS)}, got {cfg.algo!r}")
+    if cfg.engine != "fast" and cfg.algo.startswith("bc_"):
+        bad("algo", f"{cfg.algo} trains with --engine fast, got --engine {cfg.engine}")
+    if cfg.engine == "fast" and cfg.batched:
+        bad("batched", "--engine fast always steps the batched core; --batched is sb3's adapter")
+    if cfg.engine != "fast":
+        for name in FAST_ONLY:
+            if getattr(cfg, name) is not None:
+                bad(name, f"is an option of --engine fast, got --engine {cfg.engine}")
+    if not cfg.algo.startswith("bc_"):
+        for name in (f for f in BOUNDS if f.startswith("bc_")):
+            if getattr(cfg, name) is not None:
+                bad(name, f"is an option of --algo bc_ppo / bc_ppo_lagrangian, got {cfg.algo}")
+    if cfg.init_from is not None and not str(cfg.init_from).endswith(".zip"):
+        bad("init_from", f"must be the path of a model .zip, got {cfg.init_from!r}")
     if cfg.resume and cfg.force:
         bad("force", "--resume continues the run in --out, --force discards it: pass one")
     if cfg.out is not None and not str(cfg.out).strip():
@@ -401,7 +496,7 @@ def check_scenario(cfg: TrainConfig, env: Any) -> list[str]:
             f"argument --omega-high: {cfg.omega_high:g} rad/s exceeds the scenario's "
             f"robot.omega_max = {omega_max:g}"
         )
-    if cfg.engine == "sb3" and cfg.algo in PPO_ALGOS:
+    if cfg.engine in ("sb3", "fast") and cfg.algo in (*PPO_ALGOS, *FAST_ALGOS):
         rollout = cfg.n_steps * cfg.n_envs * followers
         if cfg.batch_size > rollout:
             errors.append(
@@ -533,6 +628,7 @@ RUN_FIELDS_ALGO["ppo_lagrangian"] += ("cost_budget", "lagrangian_lr")
 RUN_FIELDS_ENGINE: dict[str, tuple[str, ...]] = {
     "sb3": (),
     "rllib": ("num_env_runners", "num_learners", "critic"),
+    "fast": (),  # its own resume rule: training.fast_ppo compares its whole config
 }
 #: The options that shape the training env: compared through the resolved scenario.
 ENV_FIELDS = (

@@ -29,6 +29,21 @@ found and checked on RLlib 2.60, see ``docs/rllib.md``):
   bound, actions in ``[-1, 1]^2`` mapped by :class:`~training.vec_env.ActionRange` (RLlib's
   own action normalisation would map ``[-1, 1]`` onto the ±10 m/s actuator box).
 
+What ``platoon-train --engine rllib`` adds on top, so its runs read like the SB3 engine's:
+
+* ``--algo ppo_lagrangian``: the driver keeps :class:`training.lagrangian.LagrangeMultiplier`
+  and sets it on every env before each iteration; the envs' rewards are ``r - λ c`` (``c`` =
+  ``info["cost"]``), and after the iteration ``λ`` takes its dual-ascent step on the costs of
+  the follower episodes that ended in it (SB3's ``LagrangianCallback`` rule).
+* ``progress.csv`` (:class:`training.curves.ProgressLog`, the SB3 runs' columns, a row once
+  ``--log-every`` timesteps have passed, checked after each iteration) and ``tb/`` with SB3's
+  scalar names, both from the episodes each env records (:class:`EpisodeOutcome`).
+* ``--task-aware-observations`` (and any scenario ``observation`` block): the actor's input is
+  the scenario's observation length, not always 7.
+* On a cluster (``--address``), :func:`project_runtime_env` ships ``platoon_env`` and
+  ``training`` to every node, and ``model.json``'s ``ray`` entry records which node each env
+  runner ran on and how many env steps it took (:func:`cluster_metadata`).
+
 The policy is :class:`PlatoonPPOModule`: an MLP actor on the follower's own (normalised)
 observation, shared by all followers, and a critic that reads either the same observation
 (``critic="local"``) or, MAPPO-style, the follower's observation plus the normalised global
@@ -41,10 +56,13 @@ loads without Ray, so ``platoon-evaluate --policy NAME=DIR`` evaluates it like a
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import shutil
 import sys
+import time
+from collections import deque
 from collections.abc import Mapping
 from contextlib import closing
 from pathlib import Path
@@ -73,7 +91,10 @@ import platoon_env
 from platoon_env.action_range import ActionRange, check_action_range, normalised_action_space
 from platoon_env.env import PlatoonParallelEnv
 from platoon_env.observation import ACT_SIZE, OBS_SIZE
+from platoon_env.scenarios.schema import VIOLATION_CAUSES
 from training.config import TrainConfig, checked, env_metadata, env_overrides, net_arch
+from training.curves import PROGRESS_FILE, ProgressLog
+from training.lagrangian import LagrangeMultiplier
 from training.policies import save_exported_policy
 from training.run import (
     RLLIB_CHECKPOINT,
@@ -91,14 +112,19 @@ from training.vec_env import normalised_box, observation_scale
 __all__ = [
     "CRITICS",
     "ENV_NAME",
+    "LAGRANGIAN_ALGOS",
     "MODULE_ID",
+    "PROJECT_PACKAGES",
+    "EpisodeOutcome",
     "PlatoonMultiAgentEnv",
     "PlatoonPPOModule",
+    "cluster_metadata",
     "derived_seed",
     "env_config",
     "export_actor",
     "init_ray",
     "ppo_config",
+    "project_runtime_env",
     "register",
     "seed_sub_envs",
     "train_rllib",
@@ -110,6 +136,11 @@ ENV_NAME = "platoon_env"
 MODULE_ID = "shared_follower"
 #: What the critic reads: the follower's observation, or MAPPO's observation + global state.
 CRITICS = ("local", "central")
+#: The ``--algo`` values the RLlib engine trains: PPO, and PPO on rewards penalised by a
+#: Lagrange multiplier on ``info["cost"]`` (:mod:`training.lagrangian`'s rule).
+LAGRANGIAN_ALGOS = ("ppo", "ppo_lagrangian")
+#: The project's own packages, shipped to every Ray node by :func:`project_runtime_env`.
+PROJECT_PACKAGES = ("platoon_env", "training")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -165,6 +196,24 @@ def _state_normaliser(space: spaces.Box) -> tuple[NDArray[np.float32], NDArray[n
     return ((low + high) / 2.0).astype(np.float32), half.astype(np.float32)
 
 
+@dataclasses.dataclass(frozen=True)
+class EpisodeOutcome:
+    """How one episode of a :class:`PlatoonMultiAgentEnv` ended, per follower (in
+    ``possible_agents`` order): the return of the env's reward (before any Lagrangian
+    penalty), the cost (the sum of ``info["cost"]``), and the last step's violation cause
+    (None: none); ``length`` in env steps."""
+
+    returns: tuple[float, ...]
+    costs: tuple[float, ...]
+    length: int
+    violations: tuple[str | None, ...]
+
+    @property
+    def team_success(self) -> bool:
+        """No follower had a violation (the ``success_rate`` rule of :mod:`training.curves`)."""
+        return all(c == 0 for c in self.costs)
+
+
 class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
     """A platoon ``ParallelEnv`` as an RLlib ``MultiAgentEnv`` (the fixes of the module doc).
 
@@ -179,8 +228,10 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
     ``seed_segment`` (default 0: the training segment whose streams :meth:`assign_seed`
     draws, see :func:`derived_seed`).
 
-    Per-agent observation: the follower's 7 normalised observations (then, with the central
-    critic, the state and the one-hot). Per-agent action: ``[-1, 1]^2``.
+    Per-agent observation: the follower's normalised observations (the 7-vector, or the
+    task-aware layout the scenario's ``observation`` block selects; then, with the central
+    critic, the state and the one-hot). Per-agent action: ``[-1, 1]^2``. Reward: the env's,
+    minus :attr:`cost_multiplier` times ``info["cost"]``.
     """
 
     def __init__(self, config: Mapping[str, Any] | None = None) -> None:
@@ -249,6 +300,19 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
         }
         self.observation_space = spaces.Dict(self.observation_spaces)
         self.action_space = spaces.Dict(self.action_spaces)
+        #: The length of one follower's own observation (7, or 13 task-aware, ...): the
+        #: actor's input, the first columns of the per-agent observation.
+        self.obs_size = int(obs_space.shape[0])
+        #: The Lagrange multiplier ``λ`` (``ppo_lagrangian``): rewards are ``r - λ c`` with
+        #: ``c`` = ``info["cost"]``; 0: the env's reward (set by the driver each iteration).
+        self.cost_multiplier = 0.0
+        #: Episodes that ended since :meth:`pop_outcomes` (unpenalised returns, costs).
+        self.finished: list[EpisodeOutcome] = []
+        #: Env steps taken by this env (over all its episodes).
+        self.env_steps = 0
+        self._episode_return = np.zeros(n)
+        self._episode_cost = np.zeros(n)
+        self._episode_length = 0
         self._assigned_seed: int | None = None
         self.seed_segment = int(cfg.get("seed_segment", 0))
         self.worker_index, self.vector_index = 0, 0
@@ -298,11 +362,16 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
             self.seeded_with = seed
         obs, infos = self.env.reset(seed=seed, options=options)
         self.agents = list(self.possible_agents)
+        self._episode_return[:] = 0.0
+        self._episode_cost[:] = 0.0
+        self._episode_length = 0
         return self._observations(obs), {a: infos.get(a, {}) for a in self.possible_agents}
 
     def step(self, action_dict: Mapping[str, Any]) -> tuple[dict[str, Any], ...]:
         """Step with normalised actions; a time limit is reported in ``truncateds["__all__"]``
-        only (see the module doc), a violation in every agent's ``terminateds``."""
+        only (see the module doc), a violation in every agent's ``terminateds``. The rewards
+        are the env's minus ``cost_multiplier`` times ``info["cost"]``; an ended episode is
+        appended to :attr:`finished` with its unpenalised returns."""
         actions = np.stack(
             [np.asarray(action_dict[a], dtype=np.float32).reshape(ACT_SIZE) for a in self.agents]
         )
@@ -318,10 +387,32 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
         terminateds["__all__"] = terminated
         truncateds: dict[str, bool] = dict.fromkeys(agents, False)
         truncateds["__all__"] = truncated
+        raw = np.array([float(rew[a]) for a in agents])
+        cost = np.array([float(infos[a].get("cost", 0.0)) for a in agents])
+        if not np.all(np.isfinite(cost)):
+            raise ValueError("info['cost'] must be finite")
+        self._episode_return += raw
+        self._episode_cost += cost
+        self._episode_length += 1
+        self.env_steps += 1
+        penalised = raw - self.cost_multiplier * cost if self.cost_multiplier else raw
         if terminated or truncated:
             self.agents = []
-        rewards = {a: float(rew[a]) for a in agents}
+            self.finished.append(
+                EpisodeOutcome(
+                    returns=tuple(self._episode_return.tolist()),
+                    costs=tuple(self._episode_cost.tolist()),
+                    length=self._episode_length,
+                    violations=tuple(infos[a].get("violation") for a in agents),
+                )
+            )
+        rewards = {a: float(penalised[i]) for i, a in enumerate(agents)}
         return self._observations(obs), rewards, terminateds, truncateds, dict(infos)
+
+    def pop_outcomes(self) -> list[EpisodeOutcome]:
+        """The episodes that ended since the last call (and forget them)."""
+        out, self.finished = self.finished, []
+        return out
 
     def render(self) -> NDArray[np.uint8] | None:
         """The platoon env's frame (``render_mode`` from ``env_config``)."""
@@ -462,17 +553,26 @@ def _policy_mapping(agent_id: Any, episode: Any = None, **kwargs: Any) -> str:
     return MODULE_ID
 
 
-def ppo_config(cfg: TrainConfig, segment: int = 0) -> PPOConfig:
+def ppo_config(cfg: TrainConfig, segment: int = 0, obs_size: int | None = None) -> PPOConfig:
     """RLlib PPO (new API stack) for ``cfg``: the registered env, ``cfg.num_env_runners``
     runners of ``cfg.n_envs`` sub-envs each, derived seeds (of training segment ``segment``),
-    one shared
-    :class:`PlatoonPPOModule`, and SB3's hyper-parameters (``n_steps`` env steps per sub-env
-    per rollout, ``batch_size`` follower transitions per minibatch, no KL penalty, no value
-    clipping)."""
-    if cfg.algo != "ppo":
-        raise ValueError(f"--engine rllib trains PPO only, got --algo {cfg.algo}")
+    one shared :class:`PlatoonPPOModule`, and SB3's hyper-parameters (``n_steps`` env steps
+    per sub-env per rollout, ``batch_size`` follower transitions per minibatch, no KL
+    penalty, no value clipping).
+
+    ``cfg.algo`` is ``ppo`` or ``ppo_lagrangian`` (the same PPO: the driver sets the envs'
+    :attr:`~PlatoonMultiAgentEnv.cost_multiplier`, :func:`train_rllib`). ``obs_size``: the
+    length of a follower's own observation, the actor's input (None: read from one env of
+    ``cfg``; 13 with ``--task-aware-observations``)."""
+    if cfg.algo not in LAGRANGIAN_ALGOS:
+        raise ValueError(
+            f"--engine rllib trains {' and '.join(LAGRANGIAN_ALGOS)}, got --algo {cfg.algo}"
+        )
     if cfg.num_env_runners < 0 or cfg.n_envs < 1:
         raise ValueError("need --num-env-runners >= 0 and --n-envs >= 1")
+    if obs_size is None:
+        with closing(PlatoonMultiAgentEnv(env_config(cfg, segment))) as probe:
+            obs_size = probe.obs_size
     register()
     runners = max(1, cfg.num_env_runners)
     rollout = cfg.n_steps * cfg.n_envs * runners
@@ -480,7 +580,7 @@ def ppo_config(cfg: TrainConfig, segment: int = 0) -> PPOConfig:
         module_class=PlatoonPPOModule,
         model_config={
             "hidden": net_arch(cfg),
-            "obs_dim": OBS_SIZE,
+            "obs_dim": int(obs_size),
             "critic": cfg.critic,
         },
     )
@@ -518,17 +618,46 @@ def ppo_config(cfg: TrainConfig, segment: int = 0) -> PPOConfig:
     )
 
 
-def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
+def _package_dir(package: Any) -> str:
+    """The directory a package was imported from."""
+    return str(Path(next(iter(package.__path__))).resolve())
+
+
+def project_runtime_env() -> dict[str, Any]:
+    """The Ray ``runtime_env`` that ships this project's code to every node of a cluster.
+
+    ``py_modules``: the driver's own :data:`PROJECT_PACKAGES` directories (``platoon_env``
+    with its scenario and profile data, ``training``). Ray zips them once per content hash,
+    uploads them to the cluster and puts them first on every worker's ``sys.path``, so the
+    env runners and learners run the driver's code (edits included) and a node needs no
+    ``pip install -e .`` of the project. The third-party packages (Ray with RLlib, torch,
+    numpy, shapely, numba, gymnasium, pettingzoo, stable-baselines3, PyYAML) must be on the
+    nodes, as for any RLlib cluster (``docs/rllib.md``).
+    """
+    import importlib
+
+    modules = [_package_dir(importlib.import_module(name)) for name in PROJECT_PACKAGES]
+    return {"py_modules": modules, "excludes": ["__pycache__", "*.pyc", "*.nbi", "*.nbc"]}
+
+
+def init_ray(
+    address: str | None = None,
+    num_cpus: int | None = None,
+    runtime_env: Mapping[str, Any] | None = None,
+) -> None:
     """Connect to a Ray cluster (``address``: ``auto``, ``HOST:6379`` or ``ray://HOST:10001``)
-    or start a local instance without the dashboard; no-op if Ray is already initialised."""
+    or start a local instance without the dashboard; no-op if Ray is already initialised.
+
+    ``runtime_env``: Ray's runtime environment of the job; :func:`train_rllib` passes
+    :func:`project_runtime_env` when it joins a cluster (a local instance's workers import the
+    driver's installation)."""
     if ray.is_initialized():
         return
-    # Every Ray worker imports training.rllib: the package must be installed where they run
-    # (pip install -e ".[train,rllib]" on every node of a cluster).
+    env = dict(runtime_env) if runtime_env else None
     if address:
-        ray.init(address=address, log_to_driver=False)
+        ray.init(address=address, log_to_driver=False, runtime_env=env)
     else:
-        ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+        ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, runtime_env=env)
 
 
 def _atomic_dir(save: Any, path: Path) -> None:
@@ -559,7 +688,9 @@ def train_rllib(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bo
     ``plan``: :func:`training.run.plan_run`'s decision for ``--out`` (computed here if None):
     the same ``--out``/``--resume``/``--force`` rules and folder lock as the SB3 engine
     (:mod:`training.run`); a resume restores ``rllib_checkpoint/`` and continues
-    ``checkpoint.json``'s counts and segments, with the env streams of its own segment.
+    ``checkpoint.json``'s counts, segments and Lagrange multiplier, with the env streams of
+    its own segment. With ``--address``, the job ships the project's code to the cluster
+    (:func:`project_runtime_env`).
     """
     checked(cfg)
     out = cfg.out_dir
@@ -568,12 +699,162 @@ def train_rllib(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bo
         if plan.mode == "finished":
             return finished_run(plan)
         torch.set_num_threads(cfg.torch_threads)
-        init_ray(cfg.address, num_cpus=max(2, cfg.num_env_runners + cfg.num_learners))
-        algo = ppo_config(cfg, segment=plan.segment_index).build_algo()
+        init_ray(
+            cfg.address,
+            num_cpus=max(2, cfg.num_env_runners + cfg.num_learners),
+            runtime_env=project_runtime_env() if cfg.address else None,
+        )
+        config = ppo_config(cfg, segment=plan.segment_index, obs_size=probe.obs_size)
+        algo = config.build_algo()
         try:
             return _train_algo(cfg, plan, algo, probe)
         finally:
             algo.stop()
+
+
+# ------------------------------------------------------------------------------------------------
+# What the driver reads from and sets on the env runners (each call: one round trip per runner)
+# ------------------------------------------------------------------------------------------------
+def _platoon_envs(runner: Any) -> list[PlatoonMultiAgentEnv]:
+    """The platoon sub-envs of an env runner (none on a driver-side runner that samples
+    nothing)."""
+    env = getattr(runner, "env", None)
+    subs = getattr(env, "envs", [] if env is None else [env])
+    found = [getattr(sub, "unwrapped", sub) for sub in subs]
+    return [e for e in found if isinstance(e, PlatoonMultiAgentEnv)]
+
+
+def _pop_outcomes(runner: Any) -> list[EpisodeOutcome]:
+    return [o for e in _platoon_envs(runner) for o in e.pop_outcomes()]
+
+
+def _set_multiplier(runner: Any, value: float) -> None:
+    for e in _platoon_envs(runner):
+        e.cost_multiplier = value
+
+
+def _runner_place(runner: Any) -> dict[str, Any]:
+    """Where an env runner runs and what it did: its index, Ray node, env steps so far and
+    the directory it imported ``platoon_env`` from (the runtime env's copy on a cluster)."""
+    return {
+        "worker_index": int(getattr(runner, "worker_index", 0) or 0),
+        "node_id": ray.get_runtime_context().get_node_id(),
+        "env_steps": int(sum(e.env_steps for e in _platoon_envs(runner))),
+        "platoon_env": _package_dir(platoon_env),
+    }
+
+
+def _on_runners(algo: Any, cfg: TrainConfig, fn: Any) -> list[Any]:
+    """``fn(runner)`` on every runner that samples (the driver's own when there are none)."""
+    return list(
+        algo.env_runner_group.foreach_env_runner(fn, local_env_runner=cfg.num_env_runners == 0)
+    )
+
+
+def cluster_metadata(algo: Any, cfg: TrainConfig) -> dict[str, Any]:
+    """``model.json``'s ``ray`` entry: the cluster's alive nodes, the driver's node, and
+    :func:`_runner_place` of every sampling env runner."""
+    nodes = [n for n in ray.nodes() if n.get("Alive")]
+    runners = [p for p in _on_runners(algo, cfg, _runner_place) if p is not None]
+    return {
+        "address": cfg.address,
+        "nodes_alive": sorted(str(n["NodeID"]) for n in nodes),
+        "driver_node_id": ray.get_runtime_context().get_node_id(),
+        "env_runners": sorted(runners, key=lambda p: int(p["worker_index"])),
+    }
+
+
+# ------------------------------------------------------------------------------------------------
+# Logs: progress.csv and TensorBoard, with the SB3 runs' names
+# ------------------------------------------------------------------------------------------------
+#: SB3's ``train/`` TensorBoard scalars and the RLlib learner results they are read from
+#: (``entropy_loss`` is minus the entropy, as SB3 logs it).
+TRAIN_SCALARS = {
+    "train/policy_gradient_loss": "policy_loss",
+    "train/value_loss": "vf_loss",
+    "train/entropy_loss": "entropy",
+    "train/explained_variance": "vf_explained_var",
+    "train/loss": "total_loss",
+    "train/learning_rate": "default_optimizer_learning_rate",
+}
+#: SB3's ``rollout/`` statistics are over the last this many follower episodes.
+EPISODE_WINDOW = 100
+
+
+class _RunLogs:
+    """``progress.csv`` (:class:`training.curves.ProgressLog`) and ``tb/`` for an RLlib run.
+
+    After every training iteration, :meth:`iteration` takes the episodes that ended in it
+    (:class:`EpisodeOutcome`, one per env copy: a follower episode per follower) and the
+    iteration's results. TensorBoard gets SB3's names at the same timesteps: ``rollout/``
+    (over the last :data:`EPISODE_WINDOW` follower episodes), ``platoon/violation`` and
+    ``platoon/<cause>`` (rates over the iteration's follower episodes), ``train/`` (from the
+    learner, :data:`TRAIN_SCALARS`), ``time/fps`` and, for ``ppo_lagrangian``,
+    ``lagrangian/lambda`` and ``lagrangian/episode_cost``.
+    """
+
+    def __init__(self, cfg: TrainConfig, resume_from: int | None, timesteps: int) -> None:
+        from torch.utils.tensorboard import SummaryWriter
+
+        out = cfg.out_dir
+        self.progress = ProgressLog(out / PROGRESS_FILE, cfg.log_every, resume_from=resume_from)
+        self.progress.start(timesteps)
+        # SB3 writes tb/<run name>_1 for a new run and continues its latest folder on resume.
+        self.tb = SummaryWriter(str(out / "tb" / f"{cfg.run_name}_1"))
+        self._returns: deque[float] = deque(maxlen=EPISODE_WINDOW)
+        self._lengths: deque[int] = deque(maxlen=EPISODE_WINDOW)
+        self._start = timesteps
+        self._clock = time.perf_counter()
+
+    def iteration(
+        self,
+        timesteps: int,
+        outcomes: list[EpisodeOutcome],
+        result: Mapping[str, Any],
+        multiplier: float | None,
+        multiplier_used: float | None,
+    ) -> None:
+        """Log one iteration that ended at ``timesteps``: ``multiplier_used`` is the ``λ`` its
+        rollout was penalised with (the ``lambda`` column, as in SB3), ``multiplier`` its
+        update from the iteration's costs (TensorBoard's ``lagrangian/lambda``)."""
+        returns = [r for o in outcomes for r in o.returns]
+        costs = [c for o in outcomes for c in o.costs]
+        self.progress.add(returns=returns, costs=costs, teams=[o.team_success for o in outcomes])
+        step = int(timesteps)
+        self._returns.extend(returns)
+        self._lengths.extend(o.length for o in outcomes for _ in o.returns)
+        if self._returns:
+            self.tb.add_scalar("rollout/ep_rew_mean", float(np.mean(self._returns)), step)
+            self.tb.add_scalar("rollout/ep_len_mean", float(np.mean(self._lengths)), step)
+        causes = [v for o in outcomes for v in o.violations]
+        if causes:
+            self.tb.add_scalar(
+                "platoon/violation", float(np.mean([v is not None for v in causes])), step
+            )
+            for name in VIOLATION_CAUSES:
+                self.tb.add_scalar(
+                    f"platoon/{name}", float(np.mean([v == name for v in causes])), step
+                )
+        learner = result.get("learners", {}).get(MODULE_ID, {})
+        for tag, key in TRAIN_SCALARS.items():
+            if key in learner:
+                value = float(learner[key])
+                self.tb.add_scalar(tag, -value if key == "entropy" else value, step)
+        elapsed = time.perf_counter() - self._clock
+        if elapsed > 0:
+            self.tb.add_scalar("time/fps", (step - self._start) / elapsed, step)
+        if multiplier is not None:
+            self.tb.add_scalar("lagrangian/lambda", multiplier, step)
+            if costs:
+                self.tb.add_scalar("lagrangian/episode_cost", float(np.mean(costs)), step)
+        if self.progress.due(step):
+            self.progress.write(step, multiplier_used)
+
+    def close(self, timesteps: int, multiplier_used: float | None) -> None:
+        """The last row (if any timesteps passed since the previous one), and flush."""
+        if timesteps > self.progress.last:
+            self.progress.write(timesteps, multiplier_used)
+        self.tb.close()
 
 
 def _train_algo(
@@ -583,21 +864,30 @@ def _train_algo(
     out = cfg.out_dir
     ckpt_dir = out / RLLIB_CHECKPOINT
     timesteps = env_steps = 0
+    lagrangian = cfg.algo == "ppo_lagrangian"
+    multiplier = (
+        LagrangeMultiplier(budget=cfg.cost_budget, lr=cfg.lagrangian_lr) if lagrangian else None
+    )
     if plan.mode == "resume":
         assert plan.source is not None
         algo.restore_from_path(str(plan.source.resolve()))
         timesteps = plan.timesteps
         env_steps = int(plan.stored.get("env_steps", 0) or 0)
+        stored = plan.stored.get("lagrange_multiplier")
+        if multiplier is not None and stored is not None:
+            multiplier.value = float(stored)
         print(plan.message, file=sys.stderr)
     segment = Segment(plan, timesteps)
+    logs = _RunLogs(cfg, segment.timesteps_start if plan.mode == "resume" else None, timesteps)
     last_result: dict[str, Any] = {}
 
     def metadata(**extra: Any) -> dict[str, Any]:
         timing = segment.metadata(timesteps)
         wall = timing["wall_time_s"]
+        lam = {} if multiplier is None else {"lagrange_multiplier": multiplier.value}
         return {
             "engine": "rllib",
-            "algo": "ppo",
+            "algo": cfg.algo,
             **env_metadata(cfg, probe.env),
             "sensor_profile": cfg.sensor_profile,
             "observation_normalization": None
@@ -617,10 +907,12 @@ def _train_algo(
             "num_envs_per_env_runner": cfg.n_envs,
             "num_learners": cfg.num_learners,
             "rllib_checkpoint": RLLIB_CHECKPOINT,
+            **lam,
             **timing,
             "env_steps_per_s": round(env_steps / wall, 1) if wall > 0 else None,
             "episode_return_mean": last_result.get("env_runners", {}).get("episode_return_mean"),
             "episode_len_mean": last_result.get("env_runners", {}).get("episode_len_mean"),
+            "ray": cluster_metadata(algo, cfg),
             **extra,
             "config": dataclasses.asdict(cfg),
             "versions": library_versions(ray, torch, gym),
@@ -638,12 +930,25 @@ def _train_algo(
         bar = tqdm(total=cfg.timesteps, initial=timesteps, unit="step")
     last_ckpt = timesteps
     interrupted = False
+    used: float | None = None if multiplier is None else multiplier.value
     try:
         while timesteps < cfg.timesteps:
+            if multiplier is not None:
+                # Every iteration (a restarted runner would start from 0 again).
+                used = multiplier.value
+                _on_runners(algo, cfg, functools.partial(_set_multiplier, value=used))
             result = algo.train()
             last_result = result
             timesteps += _sampled(result, "num_agent_steps_sampled")
             env_steps += _sampled(result, "num_env_steps_sampled")
+            outcomes = [o for batch in _on_runners(algo, cfg, _pop_outcomes) for o in batch or []]
+            if multiplier is not None:
+                # Dual ascent on the follower episodes' costs, as SB3's LagrangianCallback:
+                # the new λ shapes the next iteration's rewards.
+                multiplier.update([c for o in outcomes for c in o.costs])
+            logs.iteration(
+                timesteps, outcomes, result, None if multiplier is None else multiplier.value, used
+            )
             if bar is not None:
                 bar.n = min(timesteps, cfg.timesteps)
                 bar.refresh()
@@ -663,6 +968,7 @@ def _train_algo(
         report_interrupt(timesteps)
     if bar is not None:
         bar.close()
+    logs.close(timesteps, used)
     _atomic_dir(lambda p: algo.save_to_path(str(p.resolve())), ckpt_dir)
     save("checkpoint")
     return save("model", interrupted=interrupted), interrupted
