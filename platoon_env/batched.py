@@ -38,6 +38,7 @@ from gymnasium import spaces
 
 from platoon_env.core import PlatoonCore
 from platoon_env.observation import action_space, observation_space
+from platoon_env.realism import drawn_keys, realism_table
 from platoon_env.scenarios.scenario import Scenario
 from platoon_env.scenarios.source import SourceLike, scenario_source
 
@@ -169,6 +170,18 @@ class BatchedPlatoon:
         """Each env's leader speed factor ``f`` of this episode ``(B,)`` (1 without
         ``leader.speed_variation``)."""
         return self._core.episode["leader_speed_factor"].copy()
+
+    @property
+    def realism_keys(self) -> tuple[str, ...]:
+        """The realism fields each episode draws (the scenario's ``realism`` block, in draw
+        order; empty without one), the columns of :attr:`realism`."""
+        return drawn_keys(self._core.config)
+
+    @property
+    def realism(self) -> np.ndarray:
+        """Each env's realism of this episode ``(B, len(realism_keys))`` float64, in the
+        schema's units (:func:`platoon_env.realism.reported_values`; ``docs/realism.md``)."""
+        return realism_table(self._core.params, self._core.config)[1]
 
     # ----------------------------------------------------------------------------------------
     # API

@@ -358,6 +358,40 @@ class GeneratorConfig:
     formation: FormationRanges | None = None
 
 
+def _range_of(key: str) -> Any:
+    """A field of :class:`RealismRanges`: None (not drawn) by default, named in the file by
+    the dotted path ``key`` of the scenario field it draws."""
+    return field(default=None, metadata={"key": key})
+
+
+@dataclass(frozen=True)
+class RealismRanges:
+    """``realism``: each episode draws its sensing and actuation realism from these ranges
+    (``docs/realism.md``; the draw, its checks and the presets: :mod:`platoon_env.realism`).
+
+    Each range field is named by the scenario field it draws (``camera.latency``) and is a
+    closed range ``[lo, hi]`` (``lo == hi`` pins it); None (left out) keeps the scenario's
+    value. ``camera.frame_rate``, ``robot.accel_max`` and ``robot.alpha_max``, whose ideal is
+    null, take ``[lo, null]``: up to a frame every control step, or no bound. ``preset`` names
+    a shipped set of ranges (:data:`platoon_env.realism.REALISM_PRESETS`); a range given
+    beside it replaces the preset's for that field.
+    """
+
+    preset: str | None = None
+    camera_noise_position: tuple[float, float] | None = _range_of("camera.noise.position")
+    camera_noise_position_per_m: tuple[float, float] | None = _range_of(
+        "camera.noise.position_per_m"
+    )
+    camera_noise_bearing: tuple[float, float] | None = _range_of("camera.noise.bearing")
+    camera_detection: tuple[float, float] | None = _range_of("camera.detection")
+    camera_detection_edge: tuple[float, float] | None = _range_of("camera.detection_edge")
+    camera_frame_rate: tuple[float, float | None] | None = _range_of("camera.frame_rate")
+    camera_latency: tuple[float, float] | None = _range_of("camera.latency")
+    proximity_noise: tuple[float, float] | None = _range_of("proximity.noise")
+    robot_accel_max: tuple[float, float | None] | None = _range_of("robot.accel_max")
+    robot_alpha_max: tuple[float, float | None] | None = _range_of("robot.alpha_max")
+
+
 @dataclass(frozen=True)
 class ScenarioConfig:
     """A whole scenario as given in the file (``docs/scenarios.md``), before geometry is built."""
@@ -377,6 +411,9 @@ class ScenarioConfig:
     reward: RewardConfig = field(default=RewardConfig(), metadata=IDENTITY)
     initial: InitialConfig = field(default=InitialConfig(), metadata=IDENTITY)
     observation: ObservationConfig = ObservationConfig()
+    #: None (default): the realism fields keep their values; else the ranges each episode
+    #: draws them from (:class:`RealismRanges`).
+    realism: RealismRanges | None = None
     description: str = identity("")
 
     @property
@@ -414,4 +451,6 @@ def has_realism(cfg: ScenarioConfig) -> bool:
         or rob.accel_max is not None
         or rob.alpha_max is not None
         or rob.lag != 0.0
+        or cam.detection_edge != 0.0
+        or cfg.realism is not None
     )

@@ -44,6 +44,7 @@ from platoon_env.observation import (
     observation_size,
     task_features,
 )
+from platoon_env.realism import draw_realism, max_latency_steps
 from platoon_env.records import (
     FRAME_SIZE,
     MAP_INFO_DTYPE,
@@ -131,6 +132,7 @@ def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
         or cam.noise.position_per_m > 0
         or cam.noise.bearing > 0
         or cam.detection < 1
+        or cam.detection_edge > 0
         or cfg.proximity.noise > 0
     )
     p["perceive"] = p["random_perception"] or cam.frame_rate is not None or cam.latency > 0
@@ -274,7 +276,7 @@ class PlatoonCore:
         self.terms = np.zeros((b, n, len(REWARD_TERMS)))
         self.rewards = np.zeros((b, n))
         # The camera frames in flight: a ring of latency + 1 frames and the one last delivered.
-        self.frames = np.zeros((b, n, latency_steps(cfg) + 2, FRAME_SIZE))
+        self.frames = np.zeros((b, n, max_latency_steps(cfg) + 2, FRAME_SIZE))
         self.buffers = tuple(
             Buffers(
                 self.poses,
@@ -291,6 +293,8 @@ class PlatoonCore:
         self._slots = _MapSlots(b if source.procedural else 1)
         self.rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(b)]
         self.scenarios: list[Scenario] = [first] * b
+        #: Each env's realism drawn at its last reset (``realism`` block; empty without).
+        self.realism: list[dict[str, float]] = [{} for _ in range(b)]
         self._samplers: list[InitialSampler] = []
         sampler = self._install(0, first)
         self._samplers = [sampler] * b
@@ -452,6 +456,7 @@ class PlatoonCore:
         if scenario is not self.scenarios[b]:
             self._samplers[b] = self._install(b, scenario)
         ep = self.episode[b]
+        self.realism[b] = draw_realism(self.params[b], scenario.config, rng)  # none: no draw
         if self.params[b]["random_perception"]:
             # Drawn only with realism on, so that ideal episodes draw exactly as before.
             ep["noise_state"] = rng.integers(0, 2**63, dtype=np.uint64)

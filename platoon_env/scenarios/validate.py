@@ -27,6 +27,7 @@ from platoon_env.config import (
     require,
     shown,
 )
+from platoon_env.realism import check_realism_ranges
 from platoon_env.scenarios.trajectory import (
     check_trajectory_motion,
     check_trajectory_times,
@@ -108,6 +109,7 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
     _check_reward_and_initial(cfg, path)
     _check_ppc(cfg, path)
     _check_realism(cfg, path)
+    check_realism_ranges(cfg, path, MAX_LATENCY_STEPS)
     _check_observation(cfg, path)
 
 
