@@ -113,6 +113,7 @@ import torch
 from gymnasium import spaces
 from numpy.typing import NDArray
 from stable_baselines3 import PPO
+from stable_baselines3.common.save_util import load_from_zip_file
 from torch import nn
 from tqdm.auto import tqdm
 
@@ -123,6 +124,7 @@ from platoon_env.scenarios.source import ScenarioSource, scenario_source
 from platoon_env.violations import VIOLATION_INFO
 from training.config import (
     BOUNDS,
+    FAST_ONLY,
     MAX_LAYER,
     SB3_OPTIONS,
     Bound,
@@ -141,10 +143,12 @@ from training.vec_env import ActionRange, slot_spaces
 __all__ = [
     "ALGOS",
     "FILES",
+    "TRAINER",
     "ActorCritic",
     "FastPPOConfig",
     "FastRun",
     "RepeatedLayouts",
+    "initial_weights",
     "make_core",
     "sb3_model",
     "train_fast",
@@ -152,6 +156,8 @@ __all__ = [
 
 #: What :func:`train_fast` trains: PPO, or PPO with a cost critic and a Lagrange multiplier.
 ALGOS = ("ppo", "ppo_lagrangian")
+#: What ``model.json`` names as the trainer of this module's models.
+TRAINER = "training.fast_ppo"
 #: The two saved points of a run: the final model and the latest checkpoint.
 POINTS = ("model", "checkpoint")
 #: The files that mark ``out`` as holding a run.
@@ -195,6 +201,12 @@ class FastPPOConfig:
     ``max_grad_norm``, ``net_arch`` (hidden layers of both trunks), ``log_std_init`` (the
     policy's initial ``log σ``).
 
+    Start: ``init_from`` (None: SB3's initialisation; else an SB3 ``PPO`` zip of the same
+    observation size and ``net_arch``, e.g. the cloned model of :mod:`training.bc`, whose
+    policy parameters, all but ``log_std``, the network starts from; ``log_std`` starts at
+    ``log_std_init``), ``value_warmup`` (the first rollouts of a run in which only the critic
+    learns: a critic not trained with the actor it starts from gives noise for advantages).
+
     PPO-Lagrangian: ``cost_budget`` (``b``, expected cost per follower episode),
     ``lagrangian_lr`` (``η`` per rollout; a rollout here is tens of thousands of transitions,
     so larger than ``platoon-train``'s 0.05 per 4096), ``lagrangian_init`` (``λ`` at the
@@ -237,6 +249,9 @@ class FastPPOConfig:
     max_grad_norm: float = _TRAIN.max_grad_norm
     net_arch: tuple[int, ...] = (64, 64)
     log_std_init: float = 0.0
+    # --- start ---
+    init_from: str | None = None
+    value_warmup: int = 0
     # --- PPO-Lagrangian ---
     cost_budget: float = _TRAIN.cost_budget
     lagrangian_lr: float = 0.5
@@ -269,10 +284,7 @@ class FastPPOConfig:
 
 #: The bounds of this learner's own options (the shared ones are :data:`training.config.BOUNDS`).
 FAST_BOUNDS: dict[str, Bound] = {
-    "layout_repeats": Bound(1, 10**6),
-    "log_std_init": Bound(-20, 2),
-    "lagrangian_init": Bound(0),
-    "lagrangian_max": Bound(0, low_open=True),
+    **{name: BOUNDS[name] for name in FAST_ONLY if name != "init_from"},
     "batch_size": Bound(2, 10**9),  # advantage standardisation needs two samples
 }
 #: The options of :class:`FastPPOConfig` checked against :data:`training.config.BOUNDS`.
@@ -349,6 +361,10 @@ def config_problems(cfg: FastPPOConfig) -> list[str]:
         problems.append(f"net_arch must be layer sizes in [1, {MAX_LAYER}], got {cfg.net_arch}")
     if isinstance(cfg.scenario, str) and not cfg.scenario.strip():
         problems.append("scenario must name a scenario or a YAML file")
+    if cfg.init_from is not None and (
+        not isinstance(cfg.init_from, str) or not cfg.init_from.endswith(".zip")
+    ):
+        problems.append(f"init_from must be the path of a model .zip, got {cfg.init_from!r}")
     reason = device_error(cfg.device) if isinstance(cfg.device, str) else "not a string"
     if reason is not None or cfg.device == "auto":
         problems.append(f"device: {reason or 'name one (cpu, cuda, cuda:N)'}")
@@ -509,6 +525,10 @@ class ActorCritic(nn.Module):
                 if isinstance(layer, nn.Linear):
                     nn.init.orthogonal_(layer.weight, gain=gain)
                     nn.init.zeros_(layer.bias)
+
+    def actor_parameters(self) -> list[nn.Parameter]:
+        """The parameters of the action mean (the actor trunk and ``action_net``)."""
+        return [*self.mlp_extractor.policy_net.parameters(), *self.action_net.parameters()]
 
     def actor(self, obs: torch.Tensor) -> torch.Tensor:
         """The action mean ``(M, 2)`` of normalised observations ``(M, K)``."""
@@ -719,7 +739,11 @@ def _torch_threads(n: int) -> Iterator[None]:
 # The learner
 # ------------------------------------------------------------------------------------------------
 def train_fast(
-    config: FastPPOConfig, out: str | os.PathLike[str], *, resume: bool = False
+    config: FastPPOConfig,
+    out: str | os.PathLike[str],
+    *,
+    resume: bool = False,
+    trainer: str = TRAINER,
 ) -> FastRun:
     """Train ``config`` into the directory ``out``; returns the model's path and counts.
 
@@ -728,6 +752,8 @@ def train_fast(
     none, or if an option that defines the run differs: all but :data:`RESUMABLE_CHANGES`),
     as segment ``len(segments)`` with that segment's env streams; a run that already has
     ``timesteps`` is returned unchanged. See the module doc for the algorithm and the files.
+    ``trainer`` is what ``model.json`` names as the trainer (:mod:`training.bc` fine-tunes
+    through this function).
     """
     cfg = config
     out = Path(out)
@@ -747,7 +773,43 @@ def train_fast(
     previous: list[dict[str, Any]] = list(stored.meta.get("segments", [])) if stored else []
     segment = len(previous)
     with _torch_threads(cfg.torch_threads):
-        return _learn(cfg, out, stored, previous, segment)
+        return _learn(cfg, out, stored, previous, segment, trainer)
+
+
+def initial_weights(path: str | os.PathLike[str], net: ActorCritic) -> dict[str, Any]:
+    """Load the policy parameters of the SB3 ``PPO`` zip ``path`` into ``net``, all but
+    ``log_std`` (``init_from``); returns what ``model.json`` records of the file (its path
+    and SHA-256). ``ValueError`` naming ``init_from`` if it is missing or does not fit."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"init_from: no model at {path}")
+    _data, params, _variables = load_from_zip_file(path, device="cpu", print_system_info=False)
+    policy = (params or {}).get("policy")
+    if not isinstance(policy, Mapping):
+        raise ValueError(f"init_from: {path} holds no SB3 policy parameters")
+    mine = net.sb3_state_dict()
+    wanted = {k: v for k, v in policy.items() if k != "log_std"}
+    missing = sorted(set(mine) - set(wanted) - {"log_std"})
+    extra = sorted(set(wanted) - set(mine))
+    shapes = [
+        f"{k}: {tuple(v.shape)} in the file, {tuple(mine[k].shape)} here"
+        for k, v in wanted.items()
+        if k in mine and tuple(v.shape) != tuple(mine[k].shape)
+    ]
+    if missing or extra or shapes:
+        raise ValueError(
+            f"init_from: {path} does not fit this network (observation size "
+            f"{net.mlp_extractor.policy_net[0].in_features}, net_arch): "
+            + "; ".join(
+                ([f"missing {missing}"] if missing else [])
+                + ([f"unexpected {extra}"] if extra else [])
+                + shapes
+            )
+        )
+    with torch.no_grad():
+        for name, value in wanted.items():
+            net.get_parameter(name).copy_(value)
+    return {"path": str(path), "zip_sha256": file_sha256(path)}
 
 
 def _learn(
@@ -756,6 +818,7 @@ def _learn(
     stored: _Stored | None,
     previous: list[dict[str, Any]],
     segment: int,
+    trainer: str,
 ) -> FastRun:
     """The learner, top to bottom: set up, then collect / advantages / multiplier / update."""
     device = torch.device(cfg.device)
@@ -803,12 +866,19 @@ def _learn(
         else None
     )
     timesteps = 0
+    rollouts = 0  # rollouts trained on in the run (the value warm-up counts them)
+    initialised_from = None
+    if stored is None and cfg.init_from is not None:
+        initialised_from = initial_weights(cfg.init_from, net)
+    elif stored is not None:
+        initialised_from = stored.meta.get("initialised_from")
     if stored is not None:
         net.load_state_dict(stored.state["network"])
         optimizer.load_state_dict(stored.state["optimizer"])
         if multiplier is not None:
             multiplier.value = float(stored.state["lambda"])
         timesteps = int(stored.state["timesteps"])
+        rollouts = int(stored.state.get("rollouts", cfg.value_warmup))
     saver = sb3_model(cfg, spec, T * n_live)
     out.mkdir(parents=True, exist_ok=True)
     progress = _Progress(out / PROGRESS_FILE, cfg.log_every, timesteps, keep=stored is not None)
@@ -833,6 +903,7 @@ def _learn(
             "optimizer": optimizer.state_dict(),
             "lambda": None if multiplier is None else multiplier.value,
             "timesteps": timesteps,
+            "rollouts": rollouts,
         }
         state_file = out / f"{name}.state.pt"
         digest = _atomic_torch_save(state, state_file)
@@ -849,7 +920,8 @@ def _learn(
         this.update(first_episodes)
         meta: dict[str, Any] = {
             "algo": cfg.algo,
-            "trainer": "training.fast_ppo",
+            "trainer": trainer,
+            **({"initialised_from": initialised_from} if initialised_from else {}),
             **env_meta,
             **adapter_metadata(spec),
             "timesteps": timesteps,
@@ -977,6 +1049,9 @@ def _learn(
             if cost_adv is not None and cost_returns is not None:
                 b_cadv, b_cret = flat(cost_adv), flat(cost_returns)
             n = b_obs.shape[0]
+            # The first value_warmup rollouts of the run train the critic(s) alone.
+            warmup = rollouts < cfg.value_warmup
+            rollouts += 1
             net.train()
             for _epoch in range(cfg.n_epochs):
                 order = torch.randperm(n, generator=gen, device=device)
@@ -999,6 +1074,8 @@ def _learn(
                         value_loss = value_loss + ((cvalue - b_cret[idx]) ** 2).mean()
                     entropy = (0.5 + _LOG_SQRT_2PI + net.log_std).sum()
                     loss = policy_loss - cfg.ent_coef * entropy + cfg.vf_coef * value_loss
+                    if warmup:  # no gradient reaches the actor or log_std
+                        loss = cfg.vf_coef * value_loss
                     optimizer.zero_grad(set_to_none=True)
                     loss.backward()
                     nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)

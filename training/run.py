@@ -81,6 +81,10 @@ RUN_FILES = (
     RLLIB_CHECKPOINT,
     "tb",
     "progress.csv",
+    # the fast engine's learner states and behaviour cloning's clone (training.fast_ppo/bc)
+    "model.state.pt",
+    "checkpoint.state.pt",
+    "bc",
 )
 #: The lock file of a run folder (:func:`hold_run`); not a run file: ``--force`` keeps it.
 LOCK_FILE = "run.lock"

@@ -141,6 +141,7 @@ from stable_baselines3.common.vec_env import VecMonitor
 from platoon_env.env import PlatoonParallelEnv
 from platoon_env.scenarios.schema import VIOLATION_CAUSES, ScenarioError
 from training.batched_vec_env import BatchedPlatoonVecEnv
+from training.bc import BC_DIR, FINETUNE, BCConfig, train_bc_ppo
 from training.config import (
     BOUNDS,
     ENV_FIELDS,
@@ -154,6 +155,7 @@ from training.config import (
     RUN_FIELDS_ENGINE,
     Bound,
     TrainConfig,
+    auto_device,
     check_config,
     check_scenario,
     checked,
@@ -170,6 +172,7 @@ from training.config import (
     scenario_option,
 )
 from training.curves import PROGRESS_FILE, LearningCurveCallback
+from training.fast_ppo import FastPPOConfig, train_fast
 from training.lagrangian import LagrangeMultiplier, LagrangianCallback, LagrangianVecEnv
 from training.policies import ALGORITHMS, adapter_metadata, save_model
 from training.run import (
@@ -210,6 +213,7 @@ __all__ = [
     "RunError",
     "RunPlan",
     "TrainConfig",
+    "bc_config",
     "build_model",
     "build_parser",
     "build_vec_env",
@@ -221,8 +225,11 @@ __all__ = [
     "device_error",
     "env_metadata",
     "env_overrides",
+    "fast_config",
+    "fast_defaults",
     "finished_run",
     "git_commit",
+    "given_options",
     "integer",
     "main",
     "make_env",
@@ -235,6 +242,7 @@ __all__ = [
     "start_run",
     "timing_metadata",
     "train",
+    "train_fast_engine",
 ]
 
 
@@ -298,13 +306,111 @@ def _option_type(tp: Any) -> Any:
 
 def parse_args(argv: Sequence[str] | None = None) -> TrainConfig:
     """Parse the command line into a :class:`TrainConfig`; a value out of range (see
-    :func:`check_config`) is an ``argparse`` error (``SystemExit(2)``, the message on stderr)."""
+    :func:`check_config`) is an ``argparse`` error (``SystemExit(2)``, the message on stderr).
+
+    With ``--engine fast`` the options not given take the fast learner's defaults
+    (:func:`fast_defaults`)."""
     parser = build_parser()
     cfg = TrainConfig(**vars(parser.parse_args(argv)))
     errors = check_config(cfg)
     if errors:
         parser.error("; ".join(errors))
+    if cfg.engine == "fast":
+        cfg = fast_defaults(cfg, given_options(argv))
     return cfg
+
+
+#: A value no option can have: what :func:`given_options` parses the defaults as.
+_UNSET = object()
+
+
+def given_options(argv: Sequence[str] | None = None) -> set[str]:
+    """The :class:`TrainConfig` fields the command line ``argv`` sets explicitly."""
+    parser = build_parser()
+    parser.set_defaults(**{f.name: _UNSET for f in dataclasses.fields(TrainConfig)})
+    return {name for name, value in vars(parser.parse_args(argv)).items() if value is not _UNSET}
+
+
+def fast_defaults(cfg: TrainConfig, given: set[str]) -> TrainConfig:
+    """``cfg`` (``--engine fast``) with every option not in ``given`` that the fast learner has
+    at its default there: :class:`~training.fast_ppo.FastPPOConfig`'s (e.g. ``--n-envs 512``,
+    ``--n-steps 64``, ``--batch-size 8192``), for ``--algo bc_*`` :data:`training.bc.FINETUNE`'s
+    and :class:`~training.bc.BCConfig`'s (``--bc-*``). So ``model.json``'s ``config`` records
+    what was trained."""
+    fast = FastPPOConfig()
+    bc = BCConfig()
+    bc_algo = cfg.algo.startswith("bc_")
+    changes: dict[str, Any] = {}
+    for f in dataclasses.fields(TrainConfig):
+        if f.name in given:
+            continue
+        if bc_algo and f.name in FINETUNE:
+            changes[f.name] = FINETUNE[f.name]
+        elif f.name in FAST_FIELDS and f.name not in ("scenario", "algo", "seed", "device"):
+            value = getattr(fast, f.name)
+            changes[f.name] = list(value) if isinstance(value, tuple) else value
+        elif bc_algo and f.name.startswith("bc_"):
+            changes[f.name] = getattr(bc, f.name[3:])
+    return dataclasses.replace(cfg, **changes)
+
+
+#: What ``--engine fast --resume`` continues from (one of them must be in ``--out``).
+FAST_RESUMABLE = ("model.json", "checkpoint.json", f"{BC_DIR}/model.json")
+#: The fields of :class:`~training.fast_ppo.FastPPOConfig`.
+FAST_FIELDS = frozenset(f.name for f in dataclasses.fields(FastPPOConfig))
+
+
+def fast_config(cfg: TrainConfig) -> FastPPOConfig:
+    """The :class:`~training.fast_ppo.FastPPOConfig` of ``cfg`` (``--engine fast``): every
+    option of the same name (None: the fast learner's default), ``--algo bc_ppo`` fine-tunes
+    with ``ppo`` (``bc_ppo_lagrangian``: ``ppo_lagrangian``), ``--device auto`` is
+    :func:`~training.config.auto_device`."""
+    values: dict[str, Any] = {}
+    for name in FAST_FIELDS:
+        if not hasattr(cfg, name) or getattr(cfg, name) is None:
+            continue
+        values[name] = getattr(cfg, name)
+    values["algo"] = cfg.algo.removeprefix("bc_")
+    if cfg.device == "auto":
+        values["device"] = auto_device()
+    if "net_arch" in values:
+        values["net_arch"] = tuple(values["net_arch"])
+    return FastPPOConfig(**values)
+
+
+def bc_config(cfg: TrainConfig) -> BCConfig:
+    """The :class:`~training.bc.BCConfig` of ``cfg``'s ``--bc-*`` options (None: its default)."""
+    values = {
+        f.name: getattr(cfg, "bc_" + f.name)
+        for f in dataclasses.fields(BCConfig)
+        if getattr(cfg, "bc_" + f.name) is not None
+    }
+    return BCConfig(**values)
+
+
+def train_fast_engine(cfg: TrainConfig, plan: RunPlan) -> tuple[Path, bool]:
+    r"""``--engine fast``: :func:`training.fast_ppo.train_fast`, or for ``--algo bc_*``
+    :func:`training.bc.train_bc_ppo`, into ``--out`` as ``plan`` says (held by the caller:
+    :func:`training.run.hold_run`). ``--resume`` is the fast learner's own (it compares its
+    whole config with the stored one and leaves a finished run as it is); its refusals are
+    :class:`~training.run.RunError`\ s."""
+    out = cfg.out_dir
+    if plan.mode == "new":
+        start_run(cfg, plan)
+    elif not any((out / name).is_file() for name in FAST_RESUMABLE):
+        raise RunError(
+            f"argument --resume: nothing to resume in {out}: no model, checkpoint or clone "
+            f"({', '.join(FAST_RESUMABLE)})"
+        )
+    try:
+        fast = fast_config(cfg)
+        if cfg.algo.startswith("bc_"):
+            run = train_bc_ppo(bc_config(cfg), fast, out, resume=cfg.resume)
+        else:
+            run = train_fast(fast, out, resume=cfg.resume)
+    except ValueError as e:
+        raise RunError(str(e)) from None
+    return run.path, run.interrupted
 
 
 def cli_args(**options: Any) -> list[str]:
@@ -589,8 +695,10 @@ def _fail(parser: argparse.ArgumentParser, message: str) -> typing.NoReturn:
 def _engine(
     parser: argparse.ArgumentParser, cfg: TrainConfig
 ) -> Callable[[TrainConfig, RunPlan], tuple[Path, bool]]:
-    """The training function of ``--engine``: :func:`train`, or RLlib's (a refusal if Ray
-    RLlib is not installed)."""
+    """The training function of ``--engine``: :func:`train`, :func:`train_fast_engine`, or
+    RLlib's (a refusal if Ray RLlib is not installed)."""
+    if cfg.engine == "fast":
+        return train_fast_engine
     if cfg.engine != "rllib":
         return train
     try:
@@ -638,7 +746,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 errors = check_scenario(cfg, probe)
                 if errors:
                     _fail(parser, "; ".join(errors))
-                plan = plan_run(cfg, probe)
+                # The fast learner resumes by its own rule (train_fast_engine); the folder's
+                # new-run rules (a used --out, --force) are plan_run's for every engine.
+                if cfg.engine == "fast" and cfg.resume:
+                    plan = RunPlan("resume", cfg.out_dir)
+                else:
+                    plan = plan_run(cfg, probe)
             if plan.mode == "finished":
                 print(plan.message)
                 return 0
