@@ -15,6 +15,11 @@ What is timed (every number is the median of three timed runs after a warm-up):
   (:mod:`maps`: the same lane and nearby pillars, more rows of pillars farther away) with
   N = 1, 7 and 50 followers: the ParallelEnv and the batched API at B = 1, 32 and 1,024, and the
   batched API at B = 32 with edge culling switched off (``grid_cell_size=0``) for comparison;
+* **formations** — the batched API on ``procedural_formations_train`` (each env its own
+  layout and formation: 1-7 followers, r, d_des, d_col, d_con, beta_con, leader speed) at
+  1,024 envs and ``--threads`` threads, physical and scale-free observations; agent-steps count
+  the live followers only (``BatchedPlatoon.live``); the followers drive straight at 0.3 m/s;
+  and the median time of one env's reset onto a new layout (draw, build, install, sensing);
 * **PPC** — ``baselines.PPCPolicy.act`` per follower.
 
 The followers replay actions recorded from the PPC policy on the same scenario and seed (so the
@@ -177,6 +182,37 @@ def time_batched(
     return rate(step, batch, seconds)
 
 
+#: The scenario of the formations rows: every env draws its layout and formation.
+FORMATIONS = "procedural_formations_train"
+
+
+def time_formations(
+    batch: int, threads: int, seconds: float, **overrides: Any
+) -> tuple[float, float, float]:
+    """``(env-steps/s, mean live followers, median reset [ms])`` of :class:`BatchedPlatoon` on
+    :data:`FORMATIONS` with ``batch`` envs (auto-reset, ``terminate_on=()``), the followers
+    driving straight at 0.3 m/s. The reset time is one env's reset onto a new layout (the
+    first ``batch`` resets, each timed alone)."""
+    core = BatchedPlatoon(
+        FORMATIONS, batch, n_threads=threads, auto_reset=True, terminate_on=(), **overrides
+    )
+    resets = []
+    for b in range(batch):
+        start = time.perf_counter()
+        core.reset([b], envs=[b])
+        resets.append(time.perf_counter() - start)
+    action = np.zeros((batch, core.n_followers, 2))
+    action[..., 0] = 0.3
+    live: list[float] = []
+
+    def step() -> None:
+        core.step(action)
+        live.append(float(core.n_active.mean()))
+
+    rate_ = rate(step, batch, seconds)
+    return rate_, statistics.fmean(live), 1e3 * statistics.median(resets)
+
+
 def isolated(fn: Callable[..., Any], *args: Any) -> Any:
     """``fn(*args)`` in a fresh process, so that another library's thread pools (numba's, torch's
     OpenMP) neither slow it down nor are slowed down by it."""
@@ -267,10 +303,12 @@ class Row:
     culling: bool = True
     note: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    #: the mean live followers per env (a drawn formation; None: all ``n``)
+    live: float | None = None
 
     @property
     def agent_steps(self) -> float:
-        return self.env_steps * self.n
+        return self.env_steps * (self.n if self.live is None else self.live)
 
 
 def _fmt(x: float | None) -> str:
@@ -299,6 +337,21 @@ def headline_table(rows: list[Row], mpe: float | None, vmas: float | None) -> st
         lines.append(
             f"| {r.what} | {r.n} | {r.batch or 1:,} | {r.threads or 1} | {_fmt(r.env_steps)} "
             f"| {_fmt(r.agent_steps)} | {vs_mpe} | {vs_vmas} |"
+        )
+    return "\n".join(lines)
+
+
+def formations_table(rows: list[Row]) -> str:
+    """The formations rows: envs, threads, mean live followers, agent-steps/s, reset time."""
+    lines = [
+        "| what | envs | threads | mean live followers | agent-steps/s | reset per layout "
+        "(median) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r.what} | {r.batch} | {r.threads} | {r.live:.2f} | {_fmt(r.agent_steps)} | "
+            f"{r.extra['reset_ms_median']:.1f} ms |"
         )
     return "\n".join(lines)
 
@@ -466,6 +519,31 @@ def main(argv: list[str] | None = None) -> int:
     headline.extend(vmas_rows)
     best_vmas = max((r.agent_steps for r in vmas_rows), default=None)
 
+    # --- formations -------------------------------------------------------------------------
+    formations: list[Row] = []
+    scale_free = {"observation": {"task_aware": True, "scale_free": True}}
+    for obs_opts, suffix in (({}, ""), (scale_free, ", scale-free observations")):
+        env_rate, live, reset_ms = time_formations(big, threads, seconds, **obs_opts)
+        formations.append(
+            Row(
+                f"platoon {FORMATIONS}, batched arrays{suffix}",
+                FORMATIONS,
+                0,
+                7,
+                big,
+                threads,
+                env_rate,
+                live=live,
+                extra={"reset_ms_median": reset_ms},
+            )
+        )
+        print(
+            f"formations B={big} threads={threads}{suffix}: "
+            f"{_fmt(formations[-1].agent_steps)} agent-steps/s (mean {live:.2f} live "
+            f"followers), reset {reset_ms:.1f} ms median",
+            flush=True,
+        )
+
     # --- scaling ------------------------------------------------------------------------
     scaling: list[Row] = []
     for n_edges in edge_counts:
@@ -541,6 +619,11 @@ def main(argv: list[str] | None = None) -> int:
         "",
         scaling_table(scaling),
         "",
+        "Every formation (`procedural_formations_train`, each env its own layout and "
+        "formation; agent-steps count live followers only):",
+        "",
+        formations_table(formations),
+        "",
         "PPC policy (`baselines.PPCPolicy.act`): "
         + "; ".join(f"{us:.2f} µs per follower (N = {n})" for us, n in ppc),
         "",
@@ -556,6 +639,7 @@ def main(argv: list[str] | None = None) -> int:
                 "notes": notes,
                 "headline": [asdict(r) | {"agent_steps": r.agent_steps} for r in headline],
                 "scaling": [asdict(r) | {"agent_steps": r.agent_steps} for r in scaling],
+                "formations": [asdict(r) | {"agent_steps": r.agent_steps} for r in formations],
                 "ppc_us_per_follower": [{"n": n, "us": us} for us, n in ppc],
             },
             indent=1,

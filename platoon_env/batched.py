@@ -14,12 +14,18 @@ Arrays, with ``B`` envs of ``N`` followers (follower ``i`` is ``possible_agents[
 name                    shape, dtype    meaning
 ======================  ==============  =======================================================
 actions                 (B, N, 2)       ``[u, omega]`` [m/s, rad/s]; clipped to the action Box
-observations            (B, N, K) f32   as :mod:`platoon_env.observation` (K = 7; 13 task-aware)
+observations            (B, N, K) f32   as :mod:`platoon_env.observation` (K = 7; 13 task-aware;
+                                        15 scale-free)
 rewards                 (B, N) f64      summed reward terms (:mod:`platoon_env.reward`)
 terminated, truncated   (B,) bool       as the env's (the same for all followers of an env)
 info["violations"]      (B, N) int64    violation bit masks (bit k: ``VIOLATION_CAUSES[k]``)
 info["substeps"]        (B,) int64      physics sub-steps simulated (fewer after a violation)
 ======================  ==============  =======================================================
+
+**Variable formations** (``generator.formation.followers`` a range, ``docs/api.md``): ``N`` is
+the range's upper end, a maximum with masks; env ``b``'s episode has :attr:`BatchedPlatoon.n_active`
+``[b]`` followers in slots ``0 .. n - 1`` (:attr:`BatchedPlatoon.live`), the other slots are inert
+(zero observation, reward and violation mask; their actions are ignored, never checked).
 
 With ``auto_reset=True`` an env whose episode ended is reset within the same :meth:`step`: its
 row of the returned observations is the first observation of the next episode, and
@@ -80,8 +86,9 @@ class BatchedPlatoon:
         self._core = core = PlatoonCore(self.source, batch_size, grid_cell_size=grid_cell_size)
         cfg = core.config
         self.batch_size = core.batch_size
-        self.n_followers = cfg.followers
-        self.possible_agents: list[str] = [f"follower_{i}" for i in range(1, cfg.followers + 1)]
+        #: ``N``: the follower slots of every env (a drawn formation's most followers).
+        self.n_followers = core.n_followers
+        self.possible_agents: list[str] = [f"follower_{i}" for i in range(1, core.n_followers + 1)]
         #: Per-follower spaces (the env's, built from the same config).
         self.single_observation_space: spaces.Box = observation_space(cfg)
         self.single_action_space: spaces.Box = action_space(cfg)
@@ -170,6 +177,24 @@ class BatchedPlatoon:
         """Each env's leader speed factor ``f`` of this episode ``(B,)`` (1 without
         ``leader.speed_variation``)."""
         return self._core.episode["leader_speed_factor"].copy()
+
+    @property
+    def live(self) -> np.ndarray:
+        """``(B, N)`` bool: which follower slots of each env are live in its current episode
+        (all, unless the scenario draws its formation with fewer followers than ``N``; the
+        rest are inert: zero observation, reward and violation, never moved). A copy."""
+        return self._core.live.copy()
+
+    @property
+    def n_active(self) -> np.ndarray:
+        """``(B,)`` int64: each env's followers in its current episode (``live.sum(1)``)."""
+        return self._core.params["n_followers"].copy()
+
+    @property
+    def variable_followers(self) -> bool:
+        """Whether envs may have fewer followers than ``N`` (``generator.formation.followers``
+        is a range): then read :attr:`live`."""
+        return self._core.variable
 
     @property
     def realism_keys(self) -> tuple[str, ...]:

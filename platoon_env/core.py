@@ -140,10 +140,10 @@ def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
     p["accel_max"] = math.inf if rob.accel_max is None else rob.accel_max
     p["alpha_max"] = math.inf if rob.alpha_max is None else rob.alpha_max
     p["actuate"] = rob.lag > 0 or rob.accel_max is not None or rob.alpha_max is not None
-    return p
-
     p["scale_free"] = cfg.observation.scale_free
     p["n_followers"] = cfg.followers
+    return p
+
 
 class _MapSlots:
     """The padded arrays of a :class:`~platoon_env.records.MapBank` and the writes into them."""
@@ -235,7 +235,9 @@ class PlatoonCore:
         terms, rewards: the per-follower arrays of :class:`~platoon_env.records.Buffers`
         (``obs`` has :func:`~platoon_env.observation.observation_size` columns);
         rngs: each env's ``numpy.random.Generator``; scenarios: each env's current scenario;
-        task_aware: ``observation.task_aware``; unseen: ``(B, N)`` int64, the control steps
+        task_aware: ``observation.task_aware``; live: ``(B, N)`` bool, each env's live
+        follower slots (all, unless a drawn formation has fewer than ``N``); variable: whether
+        they may differ; unseen: ``(B, N)`` int64, the control steps
         since each follower last perceived its predecessor (kept only when task-aware).
     """
 
@@ -254,7 +256,12 @@ class PlatoonCore:
         first = source.initial()
         cfg = first.config
         self.config: ScenarioConfig = cfg
-        self.n_followers = n = cfg.followers
+        # The buffers hold the most followers any episode can have (a drawn formation:
+        # generator.formation.followers' upper end); env b's own are params[b].n_followers.
+        lo, hi = getattr(source, "followers_range", (cfg.followers, cfg.followers))
+        self.n_followers = n = int(hi)
+        #: Whether the envs' follower counts may differ from ``N`` (a drawn formation).
+        self.variable = int(lo) != n
         self.physics_substeps = cfg.simulation.physics_substeps
 
         self.params = np.zeros(b, dtype=PARAMS_DTYPE)
@@ -269,6 +276,9 @@ class PlatoonCore:
         self.obs = np.zeros((b, n, observation_size(cfg)), dtype=np.float32)
         self.task_aware = bool(cfg.observation.task_aware)
         self.unseen = np.zeros((b, n), dtype=np.int64)
+        #: ``(B, N)`` bool: follower slot ``i`` of env ``b`` is live in its current episode.
+        self.live = np.ones((b, n), dtype=bool)
+        self._slot_index = np.arange(n)
         # Each env's control period over the horizon, a column: what t_unseen grows by per step.
         self._unseen_rate = np.zeros((b, 1))
         self._lost = np.zeros((b, n), dtype=bool)
@@ -304,7 +314,7 @@ class PlatoonCore:
             else:
                 self.params[k] = self.params[0]
                 self._task_install(k, cfg)
-        self.poses[:] = first.initial_poses
+        self.poses[:, : first.config.followers + 1] = first.initial_poses
         self._all = np.ones(b, dtype=bool)
         self.n_threads = 1
 
@@ -344,14 +354,36 @@ class PlatoonCore:
         self.episode[b]["map_slot"] = slot
         self.params[b] = params_of(cfg, scenario.max_episode_steps)
         self.scenarios[b] = scenario
+        self._live_install(b, cfg.followers)
         self._task_install(b, cfg)
         return InitialSampler(scenario, grid.walls, self.params[b : b + 1])
+
+    def _live_install(self, b: int, n_live: int) -> None:
+        """Env ``b``'s live followers: rows ``0 .. n_live - 1`` (:attr:`live`); the rows beyond
+        (a drawn formation smaller than the buffers) are zeroed, and the compiled step never
+        touches them (it reads ``params[b].n_followers``): no motion, no sensing, no
+        violation, zero observation and reward."""
+        self.live[b] = self._slot_index < n_live
+        if n_live < self.n_followers:
+            self.poses[b, n_live + 1 :] = 0.0
+            for rows in (
+                self.actions,
+                self.applied,
+                self.violations,
+                self.sensed,
+                self.obs,
+                self.terms,
+                self.rewards,
+                self.frames,
+                self.unseen,
+            ):
+                rows[b, n_live:] = 0
 
     def _task_install(self, b: int, cfg: ScenarioConfig) -> None:
         """Env ``b``'s task features (columns ``OBS_D_DES .. OBS_RADIUS`` of every follower's
         row, which the compiled kernels never write) and control period, when task-aware."""
         if self.task_aware:
-            self.obs[b, :, OBS_D_DES : OBS_RADIUS + 1] = task_features(cfg)
+            self.obs[b, : cfg.followers, OBS_D_DES : OBS_RADIUS + 1] = task_features(cfg)
             self._unseen_rate[b, 0] = cfg.simulation.control_period / UNSEEN_HORIZON
 
     def _task_views(self) -> None:
@@ -376,6 +408,8 @@ class PlatoonCore:
             if stepped:
                 unseen += 1
                 np.less_equal(self._visible, 0.0, out=self._lost)
+                if self.variable:  # an inert follower never counts as unseen
+                    np.logical_and(self._lost, self.live, out=self._lost)
                 unseen *= self._lost
             else:
                 unseen.fill(0)
@@ -383,7 +417,8 @@ class PlatoonCore:
             np.minimum(t, 1.0, out=t)
             return
         if stepped:
-            unseen[active] = (unseen[active] + 1) * (self._visible[active] <= 0.0)
+            lost = self._visible[active] <= 0.0
+            unseen[active] = (unseen[active] + 1) * (lost & self.live[active])
         else:
             unseen[active] = 0
         t[active] = np.minimum(unseen[active] * self._unseen_rate[active], 1.0)
@@ -432,10 +467,9 @@ class PlatoonCore:
                 )
             if poses is not None:
                 start = np.array(poses, dtype=np.float64)
-                if start.shape != self.poses[b].shape or not np.all(np.isfinite(start)):
-                    raise ValueError(
-                        f"options['poses'] must be finite with shape {self.poses[b].shape}"
-                    )
+                shape = (scenario.config.followers + 1, 3)
+                if start.shape != shape or not np.all(np.isfinite(start)):
+                    raise ValueError(f"options['poses'] must be finite with shape {shape}")
                 if scenario.leader_times is not None:
                     _check_replay_start(start, scenario)
                     start[0] = scenario.initial_poses[0]  # the sample, bit for bit
@@ -460,7 +494,7 @@ class PlatoonCore:
         if self.params[b]["random_perception"]:
             # Drawn only with realism on, so that ideal episodes draw exactly as before.
             ep["noise_state"] = rng.integers(0, 2**63, dtype=np.uint64)
-        self.poses[b] = start
+        self.poses[b, : start.shape[0]] = start
         ep["leader_progress"] = scenario.initial_progress
         ep["leader_arrived"] = False
         ep["leader_speed_factor"] = factor

@@ -78,7 +78,10 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
 
     **Agents**: ``follower_1 .. follower_N``; follower ``i`` tracks robot ``i - 1`` (robot 0 is
     the scripted leader, which follows ``leader.path`` by pure pursuit or replays
-    ``leader.trajectory`` exactly; see :mod:`platoon_env.dynamics.leader`).
+    ``leader.trajectory`` exactly; see :mod:`platoon_env.dynamics.leader`). A scenario that
+    draws its formation (``generator.formation.followers`` a range) has ``N`` = the range's
+    upper end in :attr:`possible_agents` and each episode's ``n`` in :attr:`agents` (the first
+    ``n``; :attr:`variable_followers`, ``docs/api.md``).
 
     **Action space** (per agent): ``Box([-u_max, -omega_max], [u_max, omega_max], float32)``:
     linear speed ``u`` [m/s] and turn rate ``omega`` [rad/s] of eq. 1. Values outside the box are
@@ -157,8 +160,8 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         cfg = core.config
         self._renderer: Any = None
         self.render_mode = render_mode
-        self.n_followers = cfg.followers
-        self.possible_agents = [f"follower_{i}" for i in range(1, cfg.followers + 1)]
+        self.n_followers = core.n_followers
+        self.possible_agents = [f"follower_{i}" for i in range(1, core.n_followers + 1)]
         self.agents: list[str] = []
         self.control_period = cfg.simulation.control_period
         self.physics_substeps = cfg.simulation.physics_substeps
@@ -167,8 +170,8 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self.observation_spaces = {a: observation_space(cfg) for a in self.possible_agents}
         self.action_spaces = {a: action_space(cfg) for a in self.possible_agents}
         xmin, ymin, xmax, ymax = self.source.bounds
-        n1 = cfg.followers + 1
-        n = cfg.followers
+        n1 = core.n_followers + 1
+        n = core.n_followers
         act = self.action_spaces[self.possible_agents[0]]
         #: Bounds of :meth:`state` (its layout is documented there).
         self.state_space = spaces.Box(
@@ -185,15 +188,18 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self._views()
 
     def _views(self) -> None:
-        """Env 0's rows of the core's arrays (views, so reading them costs no copy)."""
+        """Env 0's rows of the core's arrays (views, so reading them costs no copy): the
+        episode's own followers (all ``N``, unless a drawn formation has fewer; then
+        :attr:`agents` is the first ``n`` of :attr:`possible_agents`)."""
         core = self._core
-        self._poses = core.poses[0]
-        self._actions = core.actions[0]
-        self._violations = core.violations[0]
-        self._sensed = core.sensed[0]
-        self._obs = core.obs[0]
-        self._terms = core.terms[0]
-        self._rewards = core.rewards[0]
+        n = self._n_live = int(core.params[0]["n_followers"])
+        self._poses = core.poses[0, : n + 1]
+        self._actions = core.actions[0, :n]
+        self._violations = core.violations[0, :n]
+        self._sensed = core.sensed[0, :n]
+        self._obs = core.obs[0, :n]
+        self._terms = core.terms[0, :n]
+        self._rewards = core.rewards[0, :n]
         self._episode = core.episode
         self._run_args = (np.ones(1, dtype=bool), self.physics_substeps, *core.step_args)
         self._step = compiled_entry(step_serial, self._run_args)
@@ -214,6 +220,13 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     def scenario(self) -> Scenario:
         """The current episode's scenario (for a procedural source: the layout drawn on reset)."""
         return self._core.scenarios[0]
+
+    @property
+    def variable_followers(self) -> bool:
+        """Whether episodes may have fewer followers than :attr:`possible_agents` (the
+        scenario draws its formation, ``generator.formation.followers`` a range): then
+        :attr:`agents` is the episode's first ``n`` after each reset."""
+        return bool(self._core.variable)
 
     @property
     def layout_index(self) -> int | None:
@@ -277,7 +290,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     def applied_velocities(self) -> np.ndarray:
         """The ``[u, omega]`` (N, 2) the followers' actuators applied in the last step (the
         clipped commands, unless ``robot.lag``/``accel_max``/``alpha_max`` are set; a copy)."""
-        return self._core.applied[0].copy()
+        return self._core.applied[0, : self._n_live].copy()
 
     @property
     def sensed(self) -> np.ndarray:
@@ -295,7 +308,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         (``sim_time / (max_episode_steps * control_period)``, in ``[0, 1]``). Ground truth:
         for critics and analysis, never for a policy's input.
         """
-        poses = self._poses.copy()
+        poses = self._core.poses[0].copy()  # every slot: the state's layout is fixed
         poses[:, 2] = np.mod(poses[:, 2] + math.pi, 2 * math.pi) - math.pi
         poses = np.clip(poses, self._state_low, self._state_high)
         ep = self._episode[0]
@@ -339,11 +352,11 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
             self._views()  # a bigger layout reallocated the bank, or d_des may differ
         if self.scenario is not had_map and self._renderer is not None:
             self.close()  # the map changed: redraw from scratch
-        self.agents = list(self.possible_agents)
+        self.agents = self.possible_agents[: self._n_live]
         # Zero-duration step: sensing of the initial configuration.
         self._core.run(None, 0)
         obs = self._obs.copy()
-        infos = self._infos([0] * self.n_followers, None)
+        infos = self._infos([0] * self._n_live, None)
         add_realism_info(infos, self._core.realism[0])
         return {a: obs[i] for i, a in enumerate(self.agents)}, infos
 

@@ -6,8 +6,10 @@ Registered on ``import platoon_env`` (see :data:`GYM_IDS`) as
 scenario's name in CamelCase: the paper's studies (``StudyA``, ``StudyB``, ``StudyC``) and the
 procedural difficulty tiers, each split (``ProceduralEasyTrain``, ``ProceduralEasyTest``, ...,
 ``ProceduralHardTest``: a new layout of that tier and split on every reset, built for the one
-follower). Observation and action are those of the one follower of the parallel env; the
-reward is its reward; ``terminated`` and ``truncated`` follow the parallel env.
+follower), and ``ProceduralFormationsTrain``/``ProceduralFormationsTest`` (each layout also draws
+its formation, ``docs/scenarios.md``; here always with one follower). Observation and action
+are those of the one follower of the parallel env; the reward is its reward; ``terminated``
+and ``truncated`` follow the parallel env.
 
 Every id also has a vector entry point: ``gymnasium.make_vec(id, num_envs)`` builds a
 :class:`~platoon_env.gym_vector.SingleFollowerVectorEnv` (the batched core: all envs stepped by
@@ -18,6 +20,7 @@ one compiled call). ``normalize_actions=True`` (both forms) makes the action spa
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -31,8 +34,9 @@ from platoon_env.action_range import (
 )
 from platoon_env.env import PlatoonParallelEnv
 from platoon_env.observation import ACT_SIZE
-from platoon_env.scenarios.schema import GENERATOR_SPLITS, GENERATOR_TIERS
-from platoon_env.scenarios.source import SourceLike
+from platoon_env.scenarios.loader import load_config
+from platoon_env.scenarios.schema import GENERATOR_SPLITS, GENERATOR_TIERS, ScenarioConfig
+from platoon_env.scenarios.source import FixedSource, ProceduralSource, SourceLike
 
 #: The shipped scenarios with a Gymnasium id: the paper's studies, then every split of every
 #: procedural difficulty tier (``procedural_<tier>_<split>``).
@@ -41,6 +45,7 @@ GYM_SCENARIOS: tuple[str, ...] = (
     "study_b",
     "study_c",
     *(f"procedural_{tier}_{split}" for tier in GENERATOR_TIERS for split in GENERATOR_SPLITS),
+    *(f"procedural_formations_{split}" for split in GENERATOR_SPLITS),
 )
 
 
@@ -62,9 +67,36 @@ GYM_IDS: dict[str, dict[str, Any]] = {
 }
 
 
-def single_follower(overrides: dict[str, Any]) -> dict[str, Any]:
-    """``overrides`` with one follower: the Gymnasium views drive ``follower_1`` only."""
-    return {**overrides, "followers": 1}
+def single_follower(
+    overrides: dict[str, Any], scenario: SourceLike | None = None
+) -> dict[str, Any]:
+    """``overrides`` with one follower: the Gymnasium views drive ``follower_1`` only. A
+    ``scenario`` that draws its formation (``generator.formation.followers``, e.g.
+    ``procedural_formations_train``) draws it with one follower (the other ranges stay)."""
+    out = {**overrides, "followers": 1}
+    if _draws_followers(scenario, overrides):
+        generator = dict(out.get("generator") or {})
+        formation = dict(generator.get("formation") or {})
+        generator["formation"] = {**formation, "followers": [1, 1]}
+        out["generator"] = generator
+    return out
+
+
+def _draws_followers(scenario: SourceLike | None, overrides: Mapping[str, Any]) -> bool:
+    """Whether ``scenario`` (with ``overrides``' generator block) draws its number of
+    followers per episode."""
+    if isinstance(scenario, ProceduralSource | FixedSource):
+        cfg = scenario.config
+    elif isinstance(scenario, str | Path | Mapping | ScenarioConfig):
+        cfg = load_config(scenario)
+    else:
+        return False
+    gen = cfg.generator
+    given = overrides.get("generator")
+    if isinstance(given, Mapping) and isinstance(given.get("formation"), Mapping):
+        if "followers" in given["formation"]:
+            return True
+    return gen is not None and gen.formation is not None and gen.formation.followers is not None
 
 
 class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -100,7 +132,7 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
         action_range: ActionRange | Mapping[str, float] | None = None,
         **overrides: Any,
     ) -> None:
-        self.parallel = PlatoonParallelEnv(scenario, **single_follower(overrides))
+        self.parallel = PlatoonParallelEnv(scenario, **single_follower(overrides, scenario))
         self.agent = self.parallel.possible_agents[0]
         self.observation_space = self.parallel.observation_space(self.agent)
         physical = self.parallel.action_space(self.agent)

@@ -140,7 +140,7 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         self.diagnostics = check_bool("diagnostics", diagnostics, "make_vec()")
         #: The batched core holding the sub-envs (its ground-truth arrays: poses, sensing, ...).
         self.batch = BatchedPlatoon(
-            scenario, num_envs, n_threads=n_threads, **single_follower(overrides)
+            scenario, num_envs, n_threads=n_threads, **single_follower(overrides, scenario)
         )
         self.num_envs = self.batch.batch_size
         self.render_mode = render_mode

@@ -33,6 +33,12 @@ SCENARIO_FINGERPRINTS = {
     ),
     "procedural_easy_test": "ada3ddcdc41c6af80bf1581a05a93baed313b1d36ef8c035cd93ccc47d04115e",
     "procedural_easy_train": "7f4468f5a3760aa77bb290e9efea5e658f50329232b6aca37e51f5c7d44ea693",
+    "procedural_formations_test": (
+        "29b092f774456b6a90ef053672a7726718885dc61db3ae00ab4a1e70cbfb0d22"
+    ),
+    "procedural_formations_train": (
+        "7339b91dab1a7bb0fa0632a1e541f3da731484a420df265b8bff8a4949d84b56"
+    ),
     "procedural_hard_test": "c160fad89472b718ad5f0cddd69420ac2935a8498518691aabadc053c8bbee5e",
     "procedural_hard_train": "b6d09085dcc97d1f7e5216c3b9c1ac05478ef9da3c46ad2f5f28a60118d5f140",
     "procedural_medium_test": "d2dd7406c26f74edf3df24ed0a067ad46a7a94886ce58f6adc5e7a583f525905",

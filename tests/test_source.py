@@ -61,6 +61,10 @@ def test_shipped_names_split_both_ways() -> None:
 # ------------------------------------------------------------------------------------------
 
 
+#: The shipped scenarios that draw their formation per layout (generator.formation).
+DRAWN = ("procedural_formations_train", "procedural_formations_test")
+
+
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_every_shipped_name(name: str) -> None:
     source = scenario_source(name)
@@ -70,7 +74,10 @@ def test_every_shipped_name(name: str) -> None:
     assert isinstance(source, ProceduralSource if source.procedural else FixedSource)
     first = source.initial()
     assert first is source.initial()  # cached / the one scenario
-    assert first.config.followers == source.config.followers
+    # every episode's followers lie in the source's range (a drawn formation: its range)
+    lo, hi = source.followers_range
+    assert lo <= first.config.followers <= hi
+    assert (lo, hi) == ((source.config.followers,) * 2 if name not in DRAWN else (1, 7))
     assert box(*source.bounds).covers(first.free_space)
     sc = source.sample(np.random.default_rng(0))
     assert sc.name == name and box(*source.bounds).covers(sc.free_space)

@@ -34,7 +34,7 @@ from platoon_env.batched import BatchedPlatoon
 from platoon_env.observation import ACT_SIZE
 from platoon_env.scenarios.loader import ScenarioLike
 from platoon_env.violations import VIOLATION_INFO
-from training.vec_env import ActionRange, SlotVecEnv, slot_spaces
+from training.vec_env import ActionRange, SlotVecEnv, refuse_variable_followers, slot_spaces
 
 __all__ = ["BatchedPlatoonVecEnv"]
 
@@ -69,6 +69,9 @@ class BatchedPlatoonVecEnv(SlotVecEnv):
     ) -> None:
         self.core = BatchedPlatoon(
             scenario, n_envs, n_threads=n_threads, auto_reset=False, **env_kwargs
+        )
+        refuse_variable_followers(
+            self.core.variable_followers, self.core.scenario.name, "BatchedPlatoonVecEnv"
         )
         self.n_followers = self.core.n_followers
         self.action_range = action_range

@@ -422,6 +422,12 @@ class RepeatedLayouts:
         """The wrapped source's (True for a procedural family)."""
         return self.inner.procedural
 
+    @property
+    def followers_range(self) -> tuple[int, int]:
+        """The wrapped source's (a drawn formation's least and most followers)."""
+        n = self.inner.config.followers
+        return tuple(getattr(self.inner, "followers_range", (n, n)))  # type: ignore[return-value]
+
     def initial(self) -> Scenario:
         """The wrapped source's representative scenario."""
         return self.inner.initial()
@@ -832,9 +838,11 @@ def _learn(
     spec = SlotSpec.of(cfg, core)
     B, N = core.batch_size, core.n_followers
     S, T = B * N, cfg.n_steps
-    # The live follower slots of each copy: all of them while every copy has the template's N
-    # followers; samples, counts and team outcomes read only live slots.
-    live = np.ones((B, N), dtype=bool)
+    # The live follower slots of each copy (BatchedPlatoon.live): all of them unless the
+    # scenario draws formations with fewer followers than N; then they change at every reset,
+    # and samples, counts and team outcomes read the slots live when each sample was observed.
+    live = core.live
+    variable = core.variable_followers
     live_flat = torch.as_tensor(live.reshape(-1), device=device)
     n_live = int(live.sum())
     if cfg.batch_size > T * n_live:
@@ -945,6 +953,7 @@ def _learn(
     obs_buf, act_buf, rew_buf, done_buf = zeros(S, K), zeros(S, 2), zeros(S), zeros(S)
     cost_buf = zeros(S) if lagrangian else None
     live_slots = live.reshape(-1)
+    live_buf = torch.ones((T, S), dtype=torch.bool, device=device)  # the live samples
     episode_return = np.zeros(S)
     episode_cost = np.zeros(S)
     next_obs = torch.as_tensor(first_obs, device=device).reshape(S, K) / scale
@@ -972,6 +981,8 @@ def _learn(
                     action = mean + std * torch.randn(mean.shape, generator=gen, device=device)
                     obs_buf[t] = next_obs
                     act_buf[t] = action
+                    if variable:
+                        live_buf[t] = torch.as_tensor(live_slots, device=device)
                     # SB3 clips the sample to the action Box before the adapter maps it.
                     physical = action_range.to_physical(action.clamp(-1.0, 1.0).cpu().numpy())
                     obs, reward, terminated, truncated, info = core.step(physical.reshape(B, N, 2))
@@ -999,10 +1010,13 @@ def _learn(
                     if cost_buf is not None:
                         cost_buf[t] = torch.as_tensor(cost, device=device)
                     next_obs = torch.as_tensor(obs, device=device).reshape(S, K) / scale
-                    timesteps += n_live
+                    timesteps += int(live_slots.sum()) if variable else n_live
+                    if variable:  # the envs that reset drew new formations
+                        live = core.live
+                        live_slots = live.reshape(-1)
                     progress.maybe_write(timesteps, lam_now())
                     if bar is not None:
-                        bar.update(n_live)
+                        bar.update(int(live_buf[t].sum()) if variable else n_live)
 
                 # ===== the behaviour policy's log π and values, the time-limit bootstraps =====
                 mean = net.actor(obs_buf.reshape(T * S, K))
@@ -1040,6 +1054,8 @@ def _learn(
 
             # ===== PPO update: n_epochs over minibatches of the live samples ==================
             def flat(x: torch.Tensor) -> torch.Tensor:
+                if variable:
+                    return x[live_buf]  # (samples, ...): the slots live when observed
                 x = x if n_live == S else x[:, live_flat]
                 return x.reshape(-1, *x.shape[2:])
 

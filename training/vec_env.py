@@ -44,8 +44,26 @@ __all__ = [
     "PlatoonVecEnv",
     "normalised_box",
     "observation_scale",
+    "refuse_variable_followers",
     "slot_spaces",
 ]
+
+
+def refuse_variable_followers(variable: bool, scenario: str, where: str) -> None:
+    """``ValueError`` when an SB3 adapter is asked to wrap a scenario whose episodes draw their
+    number of followers (``generator.formation.followers`` a range).
+
+    Why: an SB3 ``VecEnv`` has a fixed number of sub-envs (here: follower slots), and every
+    sub-env's step is a sample of the rollout: an inert slot (an episode with fewer followers
+    than the slots) would be trained on as a follower that sees nothing and earns nothing.
+    :mod:`training.fast_ppo` masks those slots out (``BatchedPlatoon.live``)."""
+    if variable:
+        raise ValueError(
+            f"{where}: scenario {scenario!r} draws its number of followers per episode "
+            "(generator.formation.followers is a range): an SB3 VecEnv has a fixed number of "
+            "follower slots and would train on the inert ones. Train it with training.fast_ppo "
+            "(which masks them), or pin the count: generator={'formation': {'followers': [n, n]}}"
+        )
 
 
 def observation_scale(space: spaces.Box) -> NDArray[np.float32]:
@@ -185,6 +203,9 @@ class PlatoonVecEnv(SlotVecEnv):
         if not self.envs:
             raise ValueError("PlatoonVecEnv needs at least one env")
         first = self.envs[0]
+        for env in self.envs:
+            variable = bool(getattr(env, "variable_followers", False))
+            refuse_variable_followers(variable, env.scenario.name, "PlatoonVecEnv")
         obs_space = first.observation_space(first.possible_agents[0])
         for j, env in enumerate(self.envs):
             for agent in env.possible_agents:

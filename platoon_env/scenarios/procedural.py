@@ -100,6 +100,7 @@ from platoon_env.scenarios.schema import (
     trajectory_mean_speed,
 )
 from platoon_env.scenarios.sharp_layouts import SharpParams
+from platoon_env.scenarios.validate import formation_gap, formation_limits
 
 # LAYOUT_BOUNDS, PATH_CLEARANCE, Difficulty, DEFAULT_DIFFICULTY and TIERS are defined (and
 # documented) in _layout, where the kinds can reach them without importing this module; this is
@@ -116,6 +117,7 @@ __all__ = [
     "TIER_OFFSETS",
     "Difficulty",
     "SharpDifficulty",
+    "draw_formation",
     "generate_scenario",
     "layout_kind",
     "layout_seed",
@@ -212,12 +214,8 @@ def generate_scenario(template: ScenarioConfig, index: int) -> Scenario:
             f"generator.kind must be one of {', '.join(GENERATOR_KINDS)}, got {gen.kind!r}"
         )
     level = difficulty(gen.tier)
-    params: Params | SharpParams
-    if isinstance(level, SharpDifficulty):
-        params = SharpParams.from_template(template, level)
-    else:
-        params = Params.from_template(template)
     rng = np.random.default_rng(seed)
+    template, params = _formation_and_params(rng, template, level)
     kind = _draw_kind(rng, gen.kind)
     for _ in range(MAX_ATTEMPTS):
         layout = _sample(rng, kind, params)
@@ -237,6 +235,75 @@ def generate_scenario(template: ScenarioConfig, index: int) -> Scenario:
 
 def _generator(template: ScenarioConfig) -> GeneratorConfig:
     return template.generator if template.generator is not None else GeneratorConfig()
+
+
+def draw_formation(rng: np.random.Generator, template: ScenarioConfig) -> ScenarioConfig:
+    """``template`` with a formation drawn from its ``generator.formation`` ranges
+    (:class:`~platoon_env.config.FormationRanges`; ``template`` itself without them, nothing
+    drawn).
+
+    Seven draws from ``rng``, always in this order, each uniform: the number of followers
+    ``N`` (an integer), ``r``, ``d_col``, ``d_des``, ``d_con``, ``beta_con`` and the leader's
+    speed. The distances come from the ranges of
+    :func:`~platoon_env.scenarios.validate.formation_limits`, each lower end raised to what the
+    previous distance imposes (``d_col >= 2 r``, ``d_des >= d_col + g``, ``d_con >= d_des +
+    g``, ``g`` = :func:`~platoon_env.scenarios.validate.formation_gap`), so the draw is
+    consistent by construction: ``2 r <= d_col < d_des < d_con`` with gaps of at least ``g``.
+    The proximity range follows ``d_con`` unless ``proximity.range`` is set. The ``generator``
+    block is kept (the layout still names its family).
+    """
+    gen = _generator(template)
+    if gen.formation is None:
+        return template
+    lim = formation_limits(template)
+    gap = formation_gap(template)
+    n_lo, n_hi = lim["followers"]
+    n = int(rng.integers(int(n_lo), int(n_hi) + 1))
+    r = float(rng.uniform(*lim["radius"]))
+    d_col = float(rng.uniform(max(lim["d_col"][0], 2.0 * r), lim["d_col"][1]))
+    d_des = float(rng.uniform(max(lim["d_des"][0], d_col + gap), lim["d_des"][1]))
+    d_con = float(rng.uniform(max(lim["d_con"][0], d_des + gap), lim["d_con"][1]))
+    beta_con = float(rng.uniform(*lim["beta_con"]))
+    speed = float(rng.uniform(*lim["leader_speed"]))
+    return dataclasses.replace(
+        template,
+        followers=n,
+        robot=dataclasses.replace(template.robot, radius=r),
+        safety=dataclasses.replace(template.safety, d_col=d_col),
+        formation=dataclasses.replace(template.formation, d_des=d_des),
+        camera=dataclasses.replace(template.camera, range=d_con, half_angle=beta_con),
+        leader=dataclasses.replace(template.leader, speed=speed),
+    )
+
+
+def _formation_and_params(
+    rng: np.random.Generator, template: ScenarioConfig, level: Difficulty | SharpDifficulty
+) -> tuple[ScenarioConfig, Params | SharpParams]:
+    """The layout's template (its formation drawn by :func:`draw_formation`, when the
+    template has ``generator.formation``) and the layout sampler's parameters for it.
+
+    A sharp tier refuses some robots and leaders (doors too narrow for the radius, corners too
+    tight for the leader's speed: :meth:`SharpParams.from_template`); a drawn formation it
+    refuses is drawn again from the same stream, up to :data:`MAX_ATTEMPTS` times (then that
+    ``ScenarioError``). Without ``generator.formation`` nothing is drawn, so every existing
+    family's layouts stay as they were."""
+    drawn = _generator(template).formation is not None
+    error: ScenarioError | None = None
+    for _ in range(MAX_ATTEMPTS if drawn else 1):
+        cfg = draw_formation(rng, template)
+        try:
+            if isinstance(level, SharpDifficulty):
+                return cfg, SharpParams.from_template(cfg, level)
+            return cfg, Params.from_template(cfg)
+        except ScenarioError as err:
+            if not drawn:
+                raise
+            error = err
+    assert error is not None
+    raise ScenarioError(
+        f"generator.formation: {MAX_ATTEMPTS} drawn formations were all refused by "
+        f"generator.tier {_generator(template).tier!r}; the last: {error}"
+    )
 
 
 def _sample(rng: np.random.Generator, kind: str, params: Params | SharpParams) -> Layout | None:

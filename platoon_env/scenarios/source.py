@@ -70,7 +70,9 @@ class ScenarioSource(Protocol):
         """The template config: robots, sensors, safety, formation, PPC, simulation, reward.
 
         Every scenario the source yields has these parameters; only the workspace and the
-        leader's path may differ (a fixed source: the config of its one scenario).
+        leader's path may differ, and with ``generator.formation`` the drawn formation
+        (followers, radius, distances, camera, leader speed) (a fixed source: the config of
+        its one scenario).
         """
         ...
 
@@ -83,6 +85,9 @@ class ScenarioSource(Protocol):
     def procedural(self) -> bool:
         """Whether episodes may run on different workspaces (a new layout per episode)."""
         ...
+
+    # Optional: ``followers_range`` ``(least, most)``, the followers an episode may have (a
+    # source without it: the config's ``followers`` in every episode).
 
     def initial(self) -> Scenario:
         """A representative scenario, without a random stream (not an episode draw).
@@ -129,6 +134,12 @@ class FixedSource:
     def procedural(self) -> bool:
         """False: one workspace."""
         return False
+
+    @property
+    def followers_range(self) -> tuple[int, int]:
+        """``(N, N)``: every episode has the scenario's followers."""
+        n = self._scenario.config.followers
+        return n, n
 
     def initial(self) -> Scenario:
         """The scenario (not an episode draw; :meth:`sample` returns the same)."""
@@ -181,6 +192,19 @@ class ProceduralSource:
     def procedural(self) -> bool:
         """True: a new workspace per episode."""
         return True
+
+    @property
+    def followers_range(self) -> tuple[int, int]:
+        """``(least, most)`` followers of an episode: ``generator.formation.followers``, else
+        the template's ``followers`` twice. The batched core sizes its buffers for the most
+        (a maximum N with masks, ``docs/api.md``)."""
+        gen = self._template.generator
+        assert gen is not None
+        if gen.formation is not None and gen.formation.followers is not None:
+            lo, hi = gen.formation.followers
+            return int(lo), int(hi)
+        n = self._template.followers
+        return n, n
 
     def layout(self, index: int) -> Scenario:
         """Layout number ``index`` (``0 <= index < LAYOUTS_PER_SPLIT``) of the template's split."""

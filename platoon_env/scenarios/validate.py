@@ -189,6 +189,11 @@ def _check_coordinates(cfg: ScenarioConfig, path: str) -> None:
             f"theta must lie in [-{MAX_COORDINATE:g}, {MAX_COORDINATE:g}] rad, got {sample[3]!r}",
         )
     for where, points in groups:
+        # One array test per group (a layout has hundreds of points); the loop names the first.
+        if not points or float(np.max(np.abs(np.asarray(points, dtype=np.float64)))) <= (
+            MAX_COORDINATE
+        ):
+            continue
         for k, (x, y) in enumerate(points):
             require(
                 abs(x) <= MAX_COORDINATE and abs(y) <= MAX_COORDINATE,
@@ -271,9 +276,6 @@ def _check_generator(cfg: ScenarioConfig, path: str) -> None:
         f"{path}.generator.tier",
         f"expected one of {', '.join(GENERATOR_TIERS)} (or no tier), got {gen.tier!r}",
     )
-
-
-def _check_sensing_and_formation(cfg: ScenarioConfig, path: str) -> None:
     if gen.formation is not None:
         formation_limits(cfg, path)
 
@@ -383,6 +385,9 @@ def _check_observation(cfg: ScenarioConfig, path: str) -> None:
         "observation in the task's units; pass observation={'task_aware': True, "
         "'scale_free': True})",
     )
+
+
+def _check_sensing_and_formation(cfg: ScenarioConfig, path: str) -> None:
     """The camera's field of view (eq. 5) and ``2r <= d_col < d_des < d_con`` (eq. 4,
     Problem 1)."""
     r = cfg.robot.radius
