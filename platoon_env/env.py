@@ -357,7 +357,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self._core.run(None, 0)
         obs = self._obs.copy()
         infos = self._infos([0] * self._n_live, None)
-        add_realism_info(infos, self._core.realism[0])
+        add_realism_info(infos, self._core.realism[0], self.info_view == "numeric")
         return {a: obs[i] for i, a in enumerate(self.agents)}, infos
 
     def step(
@@ -405,7 +405,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         terminations = dict.fromkeys(agents, terminated)
         truncations = dict.fromkeys(agents, truncated)
         infos = self._infos(self._violations.tolist(), self._terms.tolist())
-        add_realism_info(infos, self._core.realism[0])
+        add_realism_info(infos, self._core.realism[0], self.info_view == "numeric")
         if ended:
             self.agents = []
         if self.render_mode == "human":

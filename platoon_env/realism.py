@@ -294,7 +294,7 @@ def draw_realism(p: np.void, cfg: ScenarioConfig, rng: np.random.Generator) -> d
     dt = cfg.simulation.control_period
     plan = _plan(block, dt, cfg.robot.lag)
     values = {name: float(p[name]) for name in plan.kept}
-    drawn: dict[str, float] = {}
+    drawn = DrawnRealism()
     for (key, param, mode, a, b), u in zip(
         plan.draws, rng.random(len(plan.draws)).tolist(), strict=True
     ):
@@ -351,11 +351,34 @@ def realism_table(params: np.ndarray, cfg: ScenarioConfig) -> tuple[tuple[str, .
     return keys, reported_values(params, keys, cfg.simulation.control_period)
 
 
-def add_realism_info(infos: dict[str, dict[str, Any]], drawn: dict[str, float]) -> None:
+class DrawnRealism(dict[str, float]):
+    """An episode's drawn realism, ``{field key: value}`` (:func:`draw_realism`), which also
+    builds its numeric view once (:meth:`numeric`)."""
+
+    _numeric: dict[str, np.float64] | None = None
+
+    def numeric(self) -> dict[str, np.float64]:
+        """The flat form of the numeric info view: ``{"realism." + key: numpy float64}`` (the
+        view's values are numpy scalars and never nested, for TorchRL); built once."""
+        if self._numeric is None:
+            self._numeric = {f"realism.{k}": np.float64(v) for k, v in self.items()}
+        return self._numeric
+
+
+def add_realism_info(
+    infos: dict[str, dict[str, Any]], drawn: dict[str, float], numeric: bool = False
+) -> None:
     """Put ``drawn`` (an env's :attr:`~platoon_env.core.PlatoonCore.realism`) into every
-    agent's info as ``info[agent]["realism"]`` (one dict, shared: read it, do not change it);
-    nothing when it is empty (no ``realism`` block)."""
-    if drawn:
+    agent's info: as ``info[agent]["realism"]`` (one dict, shared: read it, do not change it),
+    or with ``numeric`` (the numeric info view) flat, one ``"realism.<key>"`` float64 per
+    field; nothing when it is empty (no ``realism`` block)."""
+    if not drawn:
+        return
+    if numeric:
+        flat = drawn.numeric() if isinstance(drawn, DrawnRealism) else DrawnRealism(drawn).numeric()
+        for info in infos.values():
+            info.update(flat)
+    else:
         for info in infos.values():
             info["realism"] = drawn
 
@@ -363,6 +386,7 @@ def add_realism_info(infos: dict[str, dict[str, Any]], drawn: dict[str, float]) 
 __all__ = [
     "FIELDS",
     "REALISM_PRESETS",
+    "DrawnRealism",
     "RealismField",
     "add_realism_info",
     "check_realism_ranges",

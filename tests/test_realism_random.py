@@ -324,3 +324,17 @@ def test_draw_realism_without_a_block_draws_nothing() -> None:
     assert draw_realism(p, env.scenario.config, rng) == {}
     assert rng.bit_generator.state == state
     assert p.tobytes() == env._core.params[0].tobytes()
+
+
+def test_numeric_info_view_holds_the_values_flat() -> None:
+    """The numeric view (TorchRL) never nests: one ``realism.<key>`` float64 per field, the same
+    keys at reset and at every step."""
+    env = _env(info_view="numeric")
+    _, info = env.reset(seed=1)
+    rich = _env().reset(seed=1)[1]["follower_1"]["realism"]
+    flat = {k: v for k, v in info["follower_1"].items() if k.startswith("realism.")}
+    assert "realism" not in info["follower_1"]
+    assert flat == {f"realism.{k}": v for k, v in rich.items()}
+    assert all(type(v) is np.float64 for v in flat.values())
+    _, _, _, _, info = env.step({a: np.zeros(2) for a in env.agents})
+    assert {k: v for k, v in info["follower_2"].items() if k.startswith("realism.")} == flat
