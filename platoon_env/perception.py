@@ -117,7 +117,9 @@ def perceive(
     """Turn the true observations ``obs`` (N, OBS_SIZE) of step ``step`` into perceived ones.
 
     ``sensed`` is the ground truth (for ``d`` and ``beta``), ``frames`` the env's frame ring
-    ``(N, K + 1, FRAME_SIZE)``; step 0 (a reset) fills the ring with its frame.
+    ``(N, K + 1, FRAME_SIZE)``, ``K > p.latency_steps`` (a randomised latency, ``realism``,
+    sizes it for its range's longest; a frame is read ``latency_steps`` steps after it was
+    written, before its slot comes round again); step 0 (a reset) fills the ring with its frame.
     """
     k_ring = frames.shape[1] - 1
     due = frame_due(step, p)
