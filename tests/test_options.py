@@ -66,6 +66,7 @@ def test_option_name_tuples() -> None:
         "workspace",
         "generator",
         "observation",
+        "realism",
     }
     assert OVERRIDE_OPTIONS == (*SCENARIO_OPTIONS, *BLOCK_OPTIONS, PROFILE_OPTION)
 
