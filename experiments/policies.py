@@ -20,7 +20,9 @@ import hashlib
 import importlib
 import io
 import json
+import re
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,6 +39,7 @@ __all__ = [
     "PolicySpec",
     "analytic_policies",
     "build_policy",
+    "configurations",
     "default_models_dir",
     "load_model",
     "register_policy",
@@ -374,3 +377,26 @@ def shipped_models(models_dir: Path) -> list[PolicySpec]:
     if not models_dir.is_dir():
         raise ValueError(f"models folder {models_dir} does not exist or is not a folder")
     return [PolicySpec.model(p) for p in sorted(models_dir.glob("*/model.zip"))]
+
+
+#: A model named ``<configuration>_s<seed>`` (a ``platoon-sweep`` folder) is training seed
+#: ``seed`` of ``configuration``.
+_SEED_SUFFIX = re.compile(r"^(.+)_s(\d+)$")
+
+
+def configurations(specs: Sequence[PolicySpec]) -> dict[str, tuple[str, int | None]]:
+    """Each policy's configuration and training seed, by policy name: the models named
+    ``<configuration>_s<seed>`` are the training seeds of ``configuration``; an analytic law,
+    or a model without that suffix, is a configuration of its own (seed None). A prefix that
+    is also the name of another policy given (``ppc_s0`` beside ``ppc``) is not a
+    configuration: those models stay on their own, so that rows are never merged with another
+    policy's."""
+    names = {s.name for s in specs}
+    out: dict[str, tuple[str, int | None]] = {}
+    for spec in specs:
+        match = _SEED_SUFFIX.match(spec.name) if spec.kind == MODEL else None
+        if match is None or match.group(1) in names:
+            out[spec.name] = (spec.name, None)
+        else:
+            out[spec.name] = (match.group(1), int(match.group(2)))
+    return out

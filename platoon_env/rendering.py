@@ -61,6 +61,7 @@ __all__ = [
     "fov_wedges",
     "frame_size",
     "free_space_path",
+    "legend_handles",
     "obstacle_path",
 ]
 
@@ -442,6 +443,29 @@ def draw_scene(
     )
     artists.update(poses, visible, sim_time, violations, trail)
     return artists
+
+
+def legend_handles() -> list[Any]:
+    """Labelled legend entries for what :func:`draw_scene` draws (its colours and line
+    styles): one legend for a figure of many scenes, ``fig.legend(handles=legend_handles())``."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    def disk(colour: str, label: str) -> Line2D:
+        return Line2D([], [], marker="o", linestyle="none", markersize=8, label=label,
+                      markerfacecolor=colour, markeredgecolor="black")  # fmt: skip
+
+    return [
+        disk(_LEADER, "leader"),
+        disk(_FOLLOWER, "follower"),
+        disk(_VIOLATION, "follower in violation"),
+        Patch(facecolor=_FOV_FACE, edgecolor=_FOV_EDGE, label="camera field of view"),
+        Line2D([], [], color=_SIGHT_OK, linewidth=1.3, label="predecessor in sight"),
+        Line2D([], [], color=_SIGHT_LOST, linewidth=1.3, linestyle="--", label="predecessor lost"),
+        Line2D([], [], color=_LEADER, alpha=0.6, linestyle="--", marker="x", label="leader's path"),
+        Line2D([], [], color=_TRAIL_FOLLOWER, linewidth=0.8, label="traces"),
+        Patch(facecolor=_OBSTACLE, edgecolor=_BOUNDARY, label="obstacle"),
+    ]
 
 
 def _draw_background(ax: Axes, free_space: Any, config: SceneConfig, bounds: Any = None) -> None:

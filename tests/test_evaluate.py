@@ -70,8 +70,11 @@ def test_evaluate_ppc_and_model(tiny_model: Path, tmp_path: Path) -> None:
     ppc = next(r for r in rows if r["policy"] == "ppc")
     assert ppc["success"] == "True" and ppc["violation"] == ""
     summary = (out / "summary.md").read_text()
-    assert "| study_c | ppc | 1 | 0 | 1/1" in summary and "| study_c | tiny | 1 | 0 |" in summary
+    assert "| study_c | ppc | – | 1 | 0 | 1/1" in summary
+    assert "| study_c | tiny | – | 1 | 0 |" in summary
+    assert (ppc["configuration"], ppc["training_seed"]) == ("ppc", "")
     for name in (
+        "trajectories.png",
         "study_c_trajectories.png",
         "study_c_errors.png",
         "study_c_commands.png",
@@ -107,7 +110,8 @@ def test_wilson_interval() -> None:
 
 
 def test_summary_counts_causes() -> None:
-    base = {c: "0" for c in CSV_COLUMNS} | {"status": "done"}
+    base = {c: "0" for c in CSV_COLUMNS} | {"status": "done", "configuration": "p"}
+    base["training_seed"] = ""
     rows = [
         {
             **base,
@@ -127,9 +131,130 @@ def test_summary_counts_causes() -> None:
         },
     ]
     text = summarise(rows)
-    assert (
-        "| s | p | 2 | 0 | 1/2" in text and "occluded 1" in text and text.rstrip().endswith("2 |")
+    assert "| s | p | – | 2 | 0 | 1/2" in text and "occluded 1" in text
+    assert text.rstrip().endswith("2 |")
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    """(width, height) in pixels, from the PNG's IHDR chunk."""
+    import struct
+
+    head = path.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR"
+    width, height = struct.unpack(">II", head[16:24])
+    return width, height
+
+
+def test_configurations_group_training_seeds() -> None:
+    from experiments.policies import MODEL, configurations
+
+    def model(name: str) -> PolicySpec:
+        return PolicySpec(name, MODEL, Path(f"/nowhere/{name}/model.zip"))
+
+    specs = [PolicySpec.of("ppc"), model("a_s1"), model("a_s0"), model("b"), model("ppc_s0")]
+    assert configurations(specs) == {
+        "ppc": ("ppc", None),
+        "a_s1": ("a", 1),
+        "a_s0": ("a", 0),
+        "b": ("b", None),
+        "ppc_s0": ("ppc_s0", None),  # never merged with the analytic law of that name
+    }
+    # an analytic law named like a seed is not a training seed
+    assert configurations([PolicySpec.of("ppc", "x_s3")]) == {"x_s3": ("x_s3", None)}
+
+
+def test_summary_one_line_per_configuration() -> None:
+    from experiments.significance import mean_success
+    from experiments.studies.evaluate import _representatives
+
+    base = {c: "0" for c in CSV_COLUMNS} | {"status": "done", "scenario": "s", "violation": ""}
+    wins = {0: [True, True], 1: [True, False], 2: [False, False]}
+    rows = [
+        {**base, "policy": f"c_s{k}", "configuration": "c", "training_seed": str(k),
+         "seed": str(e), "success": str(ok)}
+        for k, oks in wins.items() for e, ok in enumerate(oks)
+    ]  # fmt: skip
+    rows += [
+        {**base, "policy": "ppc", "configuration": "ppc", "training_seed": "", "seed": str(e),
+         "success": "True"}
+        for e in range(2)
+    ]  # fmt: skip
+    table = summarise(rows).splitlines()
+    assert len(table) == 4  # header, rule, c, ppc
+    expected = mean_success([[(2, 2)], [(1, 2)], [(0, 2)]])
+    assert table[2].startswith(
+        f"| s | c | 0..2 | 6 | 0..1 | 3/6 [{expected.low:.2f}, {expected.high:.2f}] | "
+        "2, 1, 0 of 2 |"
     )
+    lo, hi = wilson(2, 2)
+    assert table[3].startswith(f"| s | ppc | – | 2 | 0..1 | 2/2 [{lo:.2f}, {hi:.2f}] | – |")
+    assert _representatives({"ppc": ("ppc", None), "c_s1": ("c", 1), "c_s0": ("c", 0)}) == [
+        "ppc",
+        "c_s0",
+    ]
+
+
+def test_trajectory_grid_columns() -> None:
+    from experiments.studies.evaluate import _grid_columns
+
+    # eleven panels of a square-ish workspace: a landscape grid, not one column of eleven
+    cols = _grid_columns(11, 0.93)
+    assert 3 <= cols <= 5 and -(-11 // cols) * 0.93 < cols
+    assert _grid_columns(1, 0.5) == 1
+    assert _grid_columns(4, 1.6) == 4  # tall workspaces side by side
+
+
+def test_default_benchmark_groups_seeds_and_notes(
+    tiny_model: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Models ``<configuration>_s<seed>`` found by --models: one summary line and one console
+    note line per configuration and scenario, per-seed rows in results.csv, the notes in full
+    in summary.md, the wall time in its header, and a landscape overview figure."""
+    import shutil
+
+    models = tmp_path / "models"
+    for seed in (0, 1):
+        # the same weights with another model.json: another policy (fingerprint) to the store
+        run = shutil.copytree(tiny_model, models / f"tiny_s{seed}")
+        meta = json.loads((run / "model.json").read_text())
+        (run / "model.json").write_text(json.dumps({**meta, "seed": seed}))
+    out = tmp_path / "eval"
+    args = ["--models", str(models), "--scenario", "study_c", "--scenario", "study_a"]
+    args += ["--episodes", "1", "--set", "max_episode_steps=60", "--workers", "1"]
+    capsys.readouterr()
+    assert main([*args, "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    notes = [line for line in printed.splitlines() if line.startswith("note: ")]
+    assert sorted(line.split(":")[1] for line in notes) == [" tiny on study_a", " tiny on study_c"]
+    (on_a,) = (line for line in notes if "on study_a" in line)
+    assert "2 seeds trained on study_c; 2 followers in training, 7 here (allowed)" in on_a
+    assert "wall time: " in printed.splitlines()[-1]
+
+    rows = _rows(out / "results.csv")
+    assert list(rows[0]) == list(CSV_COLUMNS)
+    assert sorted((r["scenario"], r["policy"], r["configuration"], r["training_seed"])
+                  for r in rows) == [
+        (s, p, c, k)
+        for s in ("study_a", "study_c")
+        for p, c, k in (("ppc", "ppc", ""), ("tiny_s0", "tiny", "0"), ("tiny_s1", "tiny", "1"))
+    ]  # fmt: skip
+    summary = (out / "summary.md").read_text()
+    table = [line for line in summary.splitlines() if line.startswith("| study_")]
+    assert [line.split(" | ")[:3] for line in table] == [
+        ["| study_a", "ppc", "–"],
+        ["| study_a", "tiny", "0..1"],
+        ["| study_c", "ppc", "–"],
+        ["| study_c", "tiny", "0..1"],
+    ]
+    assert summary.splitlines()[3].startswith("- wall time of this run: ")
+    assert "## Notes on the learned models" in summary
+    assert "  - seeds 0..1: followers: trained with 2, the env has 7" in summary
+    assert "tiny_s0" not in "\n".join(notes)  # the console names configurations, not runs
+
+    width, height = _png_size(out / "plots" / "trajectories.png")  # 2 rows × 2 scenarios
+    assert 1.0 < width / height < 2.5
+    width, height = _png_size(out / "plots" / "study_c_trajectories.png")  # 3 panels
+    assert height < 1.5 * width
 
 
 def test_realism_flag_parsing() -> None:
@@ -229,14 +354,14 @@ def test_rows_carry_the_realism(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert row["scenario_fingerprint"] != first_fp
     summary = (out / "summary.md").read_text()
     assert "realism flags: camera.latency=0.05; camera.frame_rate=15" in summary
-    assert summary.count("| study_c | ppc | 1 |") == 1
+    assert summary.count("| study_c | ppc | – | 1 |") == 1
     # The same realism again resumes: nothing to run.
     assert main([*base, "--camera", "latency=0.1"]) == 0
     assert "0 episode(s) run, 1 already in the store" in capsys.readouterr().out
     # Mixed rows are summarised per realism, never together.
     rows = [{**row, "realism_label": label, "scenario": "s"} for label in ("a", "b")]
     text = summarise(rows)
-    assert text.count("### realism:") == 2 and text.count("| s | ppc | 1 |") == 2
+    assert text.count("### realism:") == 2 and text.count("| s | ppc | – | 1 |") == 2
 
 
 def test_old_csv_folder_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -315,7 +440,7 @@ def test_duplicate_scenarios_run_once_and_headers_count_rows(
     meta = json.loads((out / "results.csv.meta.json").read_text())
     assert {r["run_id"] for r in rows} == {str(k) for k in meta["runs"]}
     assert meta["runs"][rows[0]["run_id"]]["stamp"]["tool"] == "platoon-evaluate"
-    assert "| " + str(copy) + " | ppc | 2 | 0..1 |" in summary
+    assert "| " + str(copy) + " | ppc | – | 2 | 0..1 |" in summary
     assert sorted(p.name for p in yaml_dir.iterdir()) == ["my_c.yaml"]
     assert (out / "plots" / "my_c_trajectories.png").is_file()
 

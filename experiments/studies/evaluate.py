@@ -10,10 +10,17 @@ again, ``./x.yaml`` and ``x.yaml`` are one scenario, and two evaluators into one
 share the work (each episode once). A killed run loses only the episodes in flight.
 
 At the end, from the store's rows of this run's grid: ``OUT/results.csv`` (one row per episode,
-with the fingerprints), ``OUT/summary.md`` (per scenario × policy, 95 % confidence intervals;
-its header counts the rows it summarises and says which code made them) and ``OUT/plots/``
-(trajectories, errors against the constraints, velocity commands, a GIF per policy, from the
-first seed's episodes).
+with its policy's ``configuration`` and ``training_seed`` and the fingerprints),
+``OUT/summary.md`` (one line per scenario × configuration: the models ``<configuration>_s<seed>``
+are the training seeds of one configuration, an analytic law is one on its own
+(:func:`experiments.policies.configurations`); 95 % confidence intervals, for several training
+seeds a hierarchical bootstrap over them; its header counts the rows it summarises, gives the
+run's wall time and says which code made them; every ``check_env`` note of the learned models
+in full at the end) and ``OUT/plots/`` (from the first seed's episodes: ``trajectories.png``,
+a grid of a column per scenario and a row per analytic law and configuration (its first
+training seed); per scenario, every policy's trajectories in a grid, the errors against the
+constraints, the velocity commands and a GIF per policy). The console gets one note line per
+configuration and scenario and, at the end, the wall time.
 
 With no arguments it runs the default benchmark: PPC against every shipped model
 (``models/*/model.zip``) on the paper's three studies and the held-out procedural test set.
@@ -46,9 +53,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import sys
+import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -75,6 +84,7 @@ from experiments.policies import (
     PolicySpec,
     analytic_policies,
     build_policy,
+    configurations,
     default_models_dir,
     shipped_models,
 )
@@ -88,6 +98,7 @@ from experiments.report import (
     write_csv,
     write_csv_stamp,
 )
+from experiments.significance import mean_success
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store, StoreError
 from experiments.suites import SUITES, Condition, suite
@@ -100,15 +111,19 @@ from platoon_env.scenarios.schema import ScenarioError, config_to_mapping
 __all__ = [
     "CSV_COLUMNS",
     "DEFAULT_SCENARIOS",
+    "SUMMARY_LEGEND",
+    "ModelNotes",
     "PolicySpec",
     "Realism",
     "build",
     "default_policies",
+    "export_rows",
     "main",
     "mean_ci",
     "nest_assignments",
     "parse_args",
     "parse_assignment",
+    "plot_overview",
     "plot_scenario",
     "resolved_realism",
     "summarise",
@@ -124,6 +139,8 @@ REALISM_BLOCKS: tuple[str, ...] = ("camera", "proximity", "robot")
 #: Columns of the ``results.csv`` export.
 CSV_COLUMNS: tuple[str, ...] = (
     "policy",
+    "configuration",
+    "training_seed",
     "scenario",
     "seed",
     "status",
@@ -260,8 +277,10 @@ def default_policies(models: Path | None = None) -> list[PolicySpec]:
 
 
 def summarise(rows: Iterable[dict[str, str]]) -> str:
-    """The markdown tables of ``summary.md``: one line per scenario × policy; rows of several
-    realism settings (the ``realism_label`` column) get a table each, never mixed."""
+    """The markdown tables of ``summary.md``: one line per scenario × configuration (the
+    training seeds of a learned configuration together, :func:`experiments.policies.configurations`;
+    an analytic law on its own); rows of several realism settings (the ``realism_label``
+    column) get a table each, never mixed."""
     by_realism: dict[str, list[dict[str, str]]] = defaultdict(list)
     for r in rows:
         by_realism[r.get("realism_label", "") or "none"].append(r)
@@ -272,22 +291,45 @@ def summarise(rows: Iterable[dict[str, str]]) -> str:
     )
 
 
+#: What the columns of :func:`summarise` hold (written under the tables of ``summary.md``).
+SUMMARY_LEGEND = (
+    "One line per scenario × configuration: a learned configuration's training seeds (models "
+    "`<configuration>_s<seed>`, one row each in results.csv) are one line, their episodes "
+    "pooled. **success [95% CI]**: k/n with, for several training seeds, the interval of a "
+    "hierarchical bootstrap (the seeds resampled, then each seed's rate drawn from its Jeffreys "
+    "posterior: `experiments.significance.mean_success`), otherwise the Wilson score interval; "
+    "**by training seed**: each seed's successes. The other columns are over the pooled "
+    "episodes (docs/metrics.md)."
+)
+
+
 def _summary_table(rows: Iterable[dict[str, str]]) -> str:
-    """One line per scenario × policy over the rows with a result."""
+    """One line per scenario × configuration over the rows with a result."""
     groups: dict[tuple[str, str], list[dict[str, str]]] = defaultdict(list)
     for r in rows:
         if r.get("status", "done") == "done":
-            groups[(r["scenario"], r["policy"])].append(r)
+            groups[(r["scenario"], r.get("configuration") or r["policy"])].append(r)
     lines = [
-        "| scenario | policy | episodes | seeds | success [95% CI] | violations by cause | "
-        "rms e_d [m] | rms e_beta [rad] | min clearance [m] | min robot distance [m] | "
-        "peak u [m/s] | peak omega [rad/s] | funnel exits |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| scenario | policy | training seeds | episodes | seeds | success [95% CI] | "
+        "by training seed | violations by cause | rms e_d [m] | rms e_beta [rad] | "
+        "min clearance [m] | min robot distance [m] | peak u [m/s] | peak omega [rad/s] | "
+        "funnel exits |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for (scenario, policy), rs in sorted(groups.items()):
         n = len(rs)
         ok = sum(r["success"] == "True" for r in rs)
-        lo, hi = wilson(ok, n)
+        runs: dict[str, list[int]] = defaultdict(lambda: [0, 0])
+        for r in rs:
+            run = runs[r.get("training_seed") or r["policy"]]
+            run[0] += r["success"] == "True"
+            run[1] += 1
+        trained = sorted(int(k) for k in runs if k.isdigit())
+        if len(runs) > 1:
+            interval = mean_success([[tuple(c)] for c in runs.values()])
+            lo, hi = interval.low, interval.high
+        else:
+            lo, hi = wilson(ok, n)
         causes: dict[str, int] = defaultdict(int)
         for r in rs:
             if r["violation"]:
@@ -299,7 +341,8 @@ def _summary_table(rows: Iterable[dict[str, str]]) -> str:
 
         seeds = seed_ranges(int(r["seed"]) for r in rs)
         lines.append(
-            f"| {scenario} | {policy} | {n} | {seeds} | {ok}/{n} [{lo:.2f}, {hi:.2f}] | {viol} | "
+            f"| {scenario} | {policy} | {seed_ranges(trained) if trained else '–'} | {n} | "
+            f"{seeds} | {ok}/{n} [{lo:.2f}, {hi:.2f}] | {_by_seed(runs, trained)} | {viol} | "
             f"{mean_ci(f('rms_e_d'))} | {mean_ci(f('rms_e_beta'))} | "
             f"{min(f('min_obstacle_clearance')):.3f} | {min(f('min_inter_robot_distance')):.3f} | "
             f"{max(f('peak_u')):.2f} | {max(f('peak_omega')):.2f} | "
@@ -308,17 +351,40 @@ def _summary_table(rows: Iterable[dict[str, str]]) -> str:
     return "\n".join(lines)
 
 
-def export_rows(result: GridResult, conditions: Mapping[str, Condition]) -> list[dict[str, Any]]:
+def _by_seed(runs: Mapping[str, list[int]], trained: Sequence[int]) -> str:
+    """Each training seed's successes (``15, 17, 16 of 20``; ``–`` for one run)."""
+    if len(runs) < 2:
+        return "–"
+    order = [str(t) for t in trained] + sorted(k for k in runs if not k.isdigit())
+    counts = [runs[k] for k in order]
+    if len({n for _, n in counts}) == 1:
+        return ", ".join(str(k) for k, _ in counts) + f" of {counts[0][1]}"
+    return ", ".join(f"{k}/{n}" for k, n in counts)
+
+
+def export_rows(
+    result: GridResult,
+    conditions: Mapping[str, Condition],
+    configs: Mapping[str, tuple[str, int | None]] | None = None,
+) -> list[dict[str, Any]]:
     """The ``results.csv`` rows of a grid: every cell with a row in the store; ``conditions``
-    names each cell's condition by its overrides (JSON)."""
+    names each cell's condition by its overrides (JSON), ``configs`` each policy's
+    configuration and training seed (default: :func:`experiments.policies.configurations` of
+    the grid's policies)."""
+    if configs is None:
+        specs = {rc.cell.policy.name: rc.cell.policy for rc in result.cells}
+        configs = configurations(list(specs.values()))
     rows = []
     for rc in result.cells:
         rec = result.records.get(rc.key)
         if rec is None or rec.status == "running":
             continue
+        configuration, training_seed = configs[rc.cell.policy.name]
         rows.append(
             {
                 "policy": rc.cell.policy.name,
+                "configuration": configuration,
+                "training_seed": training_seed,
                 "scenario": rc.cell.scenario,
                 "seed": rc.cell.seed,
                 "status": rec.status,
@@ -346,6 +412,84 @@ def _slug(scenario: str) -> str:
     return file_stem(Path(scenario).stem if scenario.endswith((".yaml", ".yml")) else scenario)
 
 
+#: [in²] the area of one workspace panel of a scenario's trajectory grid (a wide workspace
+#: gets a wide panel, a tall one a narrow panel).
+_PANEL_AREA = 12.0
+#: The height / width a trajectory grid aims at (a landscape page).
+_GRID_SHAPE = 0.7
+
+
+def _workspace(scenario: str, seed: int | None) -> Any:
+    """The workspace an episode of ``seed`` ran on: reset with its seed draws it as the episode
+    did (a procedural source's layout of that seed; a fixed source's one scenario, no draw)."""
+    env = platoon_env.make(scenario)
+    env.reset(seed=seed)
+    return env.scenario
+
+
+def _aspect(sc: Any) -> float:
+    """Height / width of a scenario's workspace (its drawn extent)."""
+    xmin, ymin, xmax, ymax = sc.workspace.bounds
+    return float(min(max((ymax - ymin) / max(xmax - xmin, 1e-9), 0.2), 3.0))
+
+
+def _grid_columns(n: int, aspect: float) -> int:
+    """The number of columns of a grid of ``n`` panels of height / width ``aspect`` whose
+    shape is nearest :data:`_GRID_SHAPE` (an empty cell counts against it)."""
+
+    def cost(cols: int) -> float:
+        rows = -(-n // cols)
+        return abs(math.log(rows * aspect / cols / _GRID_SHAPE)) + 0.1 * (rows * cols - n)
+
+    return min(range(1, n + 1), key=cost)
+
+
+def _outcome(ep: Episode) -> str:
+    """How an episode ended, for a panel's title."""
+    if ep.first_violation is not None:
+        step, cause, follower = ep.first_violation
+        return f"R{follower} {cause} at {ep.times[min(step + 1, ep.times.size - 1)]:.1f} s"
+    if ep.leader_arrived:
+        return f"completed in {ep.times[-1]:.1f} s"
+    return f"stopped at {ep.times[-1]:.1f} s"
+
+
+def plot_overview(
+    scenarios: Sequence[tuple[str, Mapping[str, Episode]]],
+    path: Path,
+    title: str = "",
+    metadata: dict[str, str] | None = None,
+) -> Path:
+    """The benchmark at a glance: a grid of trajectory panels, a column per scenario (the
+    workspace of its episodes' seed; the columns' widths follow the workspaces' shapes) and a
+    row per policy (``scenarios``: the episodes of each scenario by policy label, in the rows'
+    order), each panel titled with its scenario, policy and outcome, under one legend."""
+    from platoon_env.plots import new_figure, plot_snapshots, save_figure
+    from platoon_env.rendering import legend_handles
+
+    labels = list(dict.fromkeys(name for _, eps in scenarios for name in eps))
+    shown = [(s, eps, _workspace(s, next(iter(eps.values())).seed)) for s, eps in scenarios if eps]
+    widths = [1 / _aspect(sc) for _, _, sc in shown]
+    height = 2.4  # [in] a row's panels
+    fig = new_figure(height * sum(widths) + 0.4, len(labels) * (height + 0.6) + 1.2)
+    grid = fig.add_gridspec(len(labels), len(shown), width_ratios=widths)
+    for col, (scenario, eps, sc) in enumerate(shown):
+        for row, name in enumerate(labels):
+            ax = fig.add_subplot(grid[row, col])
+            ep = eps.get(name)
+            if ep is None:
+                ax.set_axis_off()
+                ax.set_title(f"{scenario}\n{name}: not run", fontsize=9)
+                continue
+            plot_snapshots(ax, sc, ep, n_snapshots=5)
+            ax.set_title(f"{scenario}, seed {ep.seed}\n{name}: {_outcome(ep)}", fontsize=9)
+            ax.tick_params(labelsize=7)
+    if title:
+        fig.suptitle(title)
+    fig.legend(handles=legend_handles(), loc="outside lower center", ncols=5, fontsize=8)
+    return save_figure(fig, path, metadata)
+
+
 def plot_scenario(
     scenario: str,
     episodes: dict[str, Episode],
@@ -355,7 +499,9 @@ def plot_scenario(
 ) -> list[Path]:
     """Comparison plots of one scenario (one episode per policy) and a GIF per policy, into
     ``out`` under the file-name stem ``slug`` (default: the scenario's name); ``metadata``
-    are the PNG text fields (the run's stamp)."""
+    are the PNG text fields (the run's stamp). The trajectories are a grid of panels, one per
+    policy, in as many columns as give the figure a landscape shape (:func:`_grid_columns`),
+    each titled with the policy and the episode's outcome, under one legend."""
     from platoon_env.plots import (
         new_figure,
         plot_commands,
@@ -364,27 +510,24 @@ def plot_scenario(
         save_figure,
         save_gif,
     )
+    from platoon_env.rendering import legend_handles
 
     slug = file_stem(slug) if slug else _slug(scenario)
     names = sorted(episodes)
     eps = [episodes[k] for k in names]
-    # The workspace the plotted episodes ran on: reset with their seed draws it as they did
-    # (a procedural source's layout of that seed; a fixed source's one scenario, no draw).
-    env = platoon_env.make(scenario)
-    env.reset(seed=eps[0].seed)
-    sc = env.scenario
-    xmin, ymin, xmax, ymax = sc.workspace.bounds
-    aspect = (ymax - ymin) / max(xmax - xmin, 1e-9)
-    width = 7.0
-    fig = new_figure(width, len(names) * max(2.5, width * aspect) + 0.5)
+    sc = _workspace(scenario, eps[0].seed)
+    aspect = _aspect(sc)
+    cols = _grid_columns(len(names), aspect)
+    rows = -(-len(names) // cols)
+    width = min(max(math.sqrt(_PANEL_AREA / aspect), 2.8), 6.0)  # [in] a panel's
+    fig = new_figure(cols * width, rows * (width * aspect + 0.45) + 1.1)
+    grid = fig.add_gridspec(rows, cols)
     for k, (name, ep) in enumerate(zip(names, eps, strict=True)):
-        plot_snapshots(
-            fig.add_subplot(len(names), 1, k + 1),
-            sc,
-            ep,
-            n_snapshots=5,
-            title=f"{scenario}, seed {ep.seed}: {name}",
-        )
+        ax = fig.add_subplot(grid[k // cols, k % cols])
+        plot_snapshots(ax, sc, ep, n_snapshots=5, title=f"{name}: {_outcome(ep)}")
+        ax.title.set_fontsize(10)
+    fig.suptitle(f"{scenario}, seed {eps[0].seed}: the platoon at five instants, with its traces")
+    fig.legend(handles=legend_handles(), loc="outside lower center", ncols=5, fontsize=8)
     paths = [save_figure(fig, out / f"{slug}_trajectories.png", metadata)]
     n = sc.config.followers
     followers = [1, n] if n > 2 else None
@@ -576,6 +719,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error(f"{detail}")
     args.scenario = _distinct_scenarios(args.cells, scenarios)
     args.policy = _distinct_policies(args.cells, args.policy)
+    args.configurations = configurations(args.policy)
     args.resolved = {
         (rc.cell.scenario, args.condition_of[rc.cell.overrides].label): resolved_realism(rc.config)
         for rc in args.cells
@@ -624,29 +768,115 @@ def _unwritable(out: Path) -> str | None:
     return None
 
 
-def _model_notes(args: argparse.Namespace) -> list[str]:
-    """What each learned model's ``check_env`` says of each scenario it is evaluated on: the
-    legitimate differences from its training (another scenario family, more followers, ...).
-    A refusal is not raised here: the episodes record it (status ``refused``)."""
+#: Short forms of :meth:`training.policies.LearnedPolicy.check_env`'s notes, by how a note
+#: begins, for the one console line per configuration and scenario (None: said otherwise
+#: there, by the training scenario and followers); a note not listed here is shown by its
+#: first words.
+_NOTE_TAGS: tuple[tuple[str, str | None], ...] = (
+    ("followers:", None),
+    ("scenario: trained on", None),
+    ("scenario: the env draws from the training layouts", "its training layouts (not held out)"),
+    ("observations can exceed", "observations beyond its training normalisation (extrapolates)"),
+    ("the action range", "commands beyond the actuator limits (clipped)"),
+    ("control period", "another control period"),
+    ("model.json records no training scenario", "training scenario not recorded"),
+    ("refused", "refused"),
+    ("cannot be loaded", "cannot be loaded"),
+)
+
+
+@dataclass
+class ModelNotes:
+    """What ``check_env`` says of one learned configuration on one scenario, over its training
+    seeds: each note with the policies (seeds) it holds for."""
+
+    configuration: str
+    scenario: str
+    policies: list[str]
+    trained_on: list[str]
+    trained_followers: list[int]
+    followers: int | None
+    notes: dict[str, list[str]]  # note text -> the policies it holds for
+
+    def line(self) -> str:
+        """The one console line: the training scenario, the followers, the notes in short."""
+        n = len(self.policies)
+        parts = [f"{n} seed{'s' if n > 1 else ''} trained on {', '.join(self.trained_on) or '?'}"]
+        if self.followers is not None and set(self.trained_followers) - {self.followers}:
+            trained = ", ".join(str(k) for k in self.trained_followers)
+            parts.append(f"{trained} followers in training, {self.followers} here (allowed)")
+        tags: dict[str, set[str]] = defaultdict(set)
+        for text, policies in self.notes.items():
+            tag = _note_tag(text)
+            if tag is None and text.startswith("scenario:") and self.scenario in self.trained_on:
+                tag = "its content differs from the training scenario's"
+            if tag is not None:
+                tags[tag].update(policies)
+        for tag, holders in tags.items():
+            parts.append(tag + ("" if len(holders) == n else f" ({len(holders)} of {n} seeds)"))
+        return f"{self.configuration} on {self.scenario}: {'; '.join(parts)}"
+
+    def markdown(self, seeds: Mapping[str, int | None]) -> str:
+        """A bullet with every note in full, each with the seeds it holds for."""
+
+        def which(policies: list[str]) -> str:
+            numbers = [seeds.get(p) for p in policies]
+            if len(policies) > 1 and all(k is not None for k in numbers):
+                return f"seeds {seed_ranges(k for k in numbers if k is not None)}"
+            return ", ".join(policies)
+
+        lines = [f"- **{self.line()}**"]
+        lines += [f"  - {which(ps)}: {text}" for text, ps in self.notes.items()]
+        return "\n".join(lines)
+
+
+def _note_tag(text: str) -> str | None:
+    for prefix, tag in _NOTE_TAGS:
+        if text.startswith(prefix):
+            return tag
+    head = text.split(":")[0].split(";")[0]
+    return head if len(head) <= 60 else head[:57] + "..."
+
+
+def _model_notes(args: argparse.Namespace) -> list[ModelNotes]:
+    """What each learned model's ``check_env`` says of each scenario it is evaluated on (the
+    legitimate differences from its training: another scenario family, more followers, ...),
+    a :class:`ModelNotes` per configuration and scenario that has any. A refusal is not raised
+    here: the episodes record it (status ``refused``)."""
     from training.policies import LearnedPolicy
 
-    notes = []
+    by_pair: dict[tuple[str, str], ModelNotes] = {}
     for spec in args.policy:
-        if spec.kind != "model":
+        if spec.kind != MODEL:
             continue
+        configuration = args.configurations[spec.name][0]
         try:
             policy = LearnedPolicy.load(spec.path)
+            loaded: list[str] | None = None
         except (OSError, ValueError) as exc:
-            notes.append(f"{spec.name}: cannot be loaded ({exc})")
-            continue
+            loaded = [f"cannot be loaded ({exc})"]
+        meta = spec.model_metadata()
         for s in args.scenario:
-            env = platoon_env.make(s, **merge_overrides(spec, args.overrides))
-            try:
-                for note in policy.check_env(env):
-                    notes.append(f"{spec.name} on {s}: {note}")
-            except ValueError as exc:
-                notes.append(f"{spec.name} on {s}: refused ({exc})")
-    return notes
+            entry = by_pair.setdefault(
+                (configuration, s), ModelNotes(configuration, s, [], [], [], None, {})
+            )
+            entry.policies.append(spec.name)
+            if meta.get("scenario") and meta["scenario"] not in entry.trained_on:
+                entry.trained_on.append(str(meta["scenario"]))
+            trained_n = meta.get("n_followers")
+            if trained_n is not None and int(trained_n) not in entry.trained_followers:
+                entry.trained_followers.append(int(trained_n))
+            texts = loaded
+            if texts is None:
+                env = platoon_env.make(s, **merge_overrides(spec, args.overrides))
+                entry.followers = len(env.possible_agents)
+                try:
+                    texts = policy.check_env(env)
+                except ValueError as exc:
+                    texts = [f"refused ({exc})"]
+            for text in texts:
+                entry.notes.setdefault(text, []).append(spec.name)
+    return [e for e in by_pair.values() if e.notes]
 
 
 def _legacy_csv(out: Path) -> str | None:
@@ -663,6 +893,7 @@ def _legacy_csv(out: Path) -> str | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the evaluation; returns the process exit code (see the module docstring)."""
+    started = time.perf_counter()
     args = parse_args(argv)
     out: Path = args.out
     legacy = _legacy_csv(out)
@@ -681,8 +912,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv,
     )
     args.model_notes = _model_notes(args)
-    for note in args.model_notes:
-        print(f"note: {note}")
+    for notes in args.model_notes:
+        print(f"note: {notes.line()}")
+    if args.model_notes:
+        print(f"  (every note in full: {out / 'summary.md'})")
     first_seed = args.seed
 
     def keep(cell: Cell) -> bool:
@@ -694,7 +927,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{_TOOL}: error: {exc}", file=sys.stderr)
         return 2
     try:
-        return _run(args, store, stamp, keep)
+        return _run(args, store, stamp, keep, started)
     except StoreError as exc:  # held cells that never finished, a store damaged mid-run
         print(f"{_TOOL}: error: {exc}", file=sys.stderr)
         return 1
@@ -710,10 +943,13 @@ def _run(
     store: Store,
     stamp: dict[str, Any],
     keep: Callable[[Cell], bool],
+    started: float,
 ) -> int:
-    """The grid and the exports of :func:`main` (``store`` is closed at the end)."""
+    """The grid and the exports of :func:`main` (``store`` is closed at the end); ``started``:
+    :func:`time.perf_counter` when the command began (its wall time is in summary.md)."""
     out: Path = args.out
     with store:
+        args.setup_time = time.perf_counter() - started
         result = run_grid(
             store,
             args.cells,
@@ -730,20 +966,35 @@ def _run(
         if result.interrupted:
             print(f"\ninterrupted: finished episodes are in {store.path}; re-run to resume")
             return 130
-        rows = export_rows(result, args.condition_of)
+        rows = export_rows(result, args.condition_of, args.configurations)
         write_csv(out / "results.csv", CSV_COLUMNS, rows)
         records = [result.records[rc.key] for rc in result.cells if rc.key in result.records]
         write_csv_stamp(out / "results.csv", store, records, result.run_id)
         summary = summarise(_csv_strings(rows))
-        header = _summary_header(args, result, store, rows)
-    (out / "summary.md").write_text(header + summary + "\n" + _failures(result))
+        provenance = provenance_markdown(store, records, result.run_id)
+
+    def write_summary(plots: float | None) -> float:
+        """summary.md with the wall time so far (``plots``: their share, None: not drawn)."""
+        wall = time.perf_counter() - started
+        header = _summary_header(args, result, rows, wall, plots, provenance)
+        body = f"{header}{summary}\n\n{SUMMARY_LEGEND}\n{_notes_markdown(args)}{_failures(result)}"
+        _write_text(out / "summary.md", body)
+        return wall
+
+    write_summary(None)  # the results are there even if a plot fails
     print(summary)
     if not args.no_plots:
+        before = time.perf_counter()
         _plots(args, result, out / "plots", png_metadata(stamp))
+        plots: float | None = time.perf_counter() - before
+    else:
+        plots = None
+    wall = write_summary(plots)
     print(
         f"wrote {out / 'results.csv'}, {out / 'summary.md'}"
         + ("" if args.no_plots else f", {out / 'plots'}/")
     )
+    print(f"wall time: {_wall_time(args, result, wall, plots)}")
     if result.failed:
         print(f"{len(result.failed)} episode(s) failed (see summary.md); re-run to retry them")
         return 1
@@ -751,15 +1002,21 @@ def _run(
 
 
 def _summary_header(
-    args: argparse.Namespace, result: GridResult, store: Store, rows: list[dict[str, Any]]
+    args: argparse.Namespace,
+    result: GridResult,
+    rows: list[dict[str, Any]],
+    wall: float,
+    plots: float | None,
+    provenance: str,
 ) -> str:
+    """summary.md's header: a first list with what the run ran and its wall time (the
+    README's benchmark block quotes it), then the policies, realism and provenance."""
     done = [r for r in rows if r["status"] == "done"]
     policies = ", ".join(f"{p.name} (`{p.fingerprint()[:12]}`)" for p in args.policy)
     scenario_lines = "".join(
         f"- {s} ({label}): resolved camera, proximity and robot blocks `{blocks}`\n"
         for (s, label), blocks in args.resolved.items()
     )
-    records = [result.records[rc.key] for rc in result.cells if rc.key in result.records]
     realism_keys = {*REALISM_BLOCKS, "sensor_profile"}
     other = {k: v for k, v in args.overrides.items() if k not in realism_keys}
     if args.suite:
@@ -767,24 +1024,67 @@ def _summary_header(
         realism = f"suite {args.suite}: conditions {conditions}"
     else:
         realism = f"realism flags: {args.realism.label}"
+    groups: dict[str, list[int]] = defaultdict(list)
+    for configuration, seed in args.configurations.values():
+        if seed is not None:
+            groups[configuration].append(seed)
+    analytic = sum(1 for _, seed in args.configurations.values() if seed is None)
+    policy_count = f"{len(args.policy)} policies" + (
+        f" ({analytic} on their own and {len(groups)} configuration(s) of "
+        f"{', '.join(str(len(v)) for v in groups.values())} training seeds)"
+        if groups
+        else ""
+    )
     return (
         f"# {_TOOL}\n\n"
-        f"{len(done)} episodes summarised (seeds {seed_ranges(int(r['seed']) for r in done)}); "
-        f"grid: {len(args.policy)} policies × {len(args.scenario)} scenarios × "
+        f"- {len(done)} episodes summarised (seeds {seed_ranges(int(r['seed']) for r in done)}); "
+        f"grid: {policy_count} × {len(args.scenario)} scenarios × "
         f"{len(args.conditions)} condition(s) × seeds "
         f"{seed_ranges(range(args.seed, args.seed + args.episodes))} = {len(result.cells)} "
         f"episodes, {result.ran} run now and {result.reused} resumed from the store; "
-        f"{len(result.failed)} failed; wall time of this run {result.wall_time:.0f} s.\n\n"
+        f"{len(result.failed)} failed\n"
+        f"- wall time of this run: {_wall_time(args, result, wall, plots)}\n\n"
         f"policies (fingerprint): {policies}\n\n"
         f"{realism}; other overrides: {json.dumps(other)}\n\n"
         f"{scenario_lines}\n"
-        + "".join(f"- note: {_short(n)}\n" for n in args.model_notes)
-        + f"\n{provenance_markdown(store, records, result.run_id)}\n"
+        f"{provenance}\n"
     )
 
 
-def _short(text: str, limit: int = 300) -> str:
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+def _wall_time(
+    args: argparse.Namespace, result: GridResult, wall: float, plots: float | None
+) -> str:
+    """The run's wall time and its parts."""
+    drawn = (
+        "no plots (--no-plots)"
+        if args.no_plots
+        else "plots not drawn yet"
+        if plots is None
+        else f"{plots:.0f} s of plots and GIFs"
+    )
+    return (
+        f"{wall:.0f} s: {args.setup_time:.0f} s before the episodes (loading and checking the "
+        f"policies and scenarios, compiling the kernels), {result.wall_time:.0f} s of episodes "
+        f"in {args.workers} worker process(es) on {os.cpu_count()} CPUs, {drawn}"
+    )
+
+
+def _notes_markdown(args: argparse.Namespace) -> str:
+    """summary.md's section of every note of the learned models, in full."""
+    if not args.model_notes:
+        return ""
+    seeds = {name: seed for name, (_, seed) in args.configurations.items()}
+    return (
+        "\n## Notes on the learned models (`check_env`: how each run differs from its "
+        "training)\n\n" + "\n".join(n.markdown(seeds) for n in args.model_notes) + "\n"
+    )
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Write ``path`` atomically (a reader never sees half a file)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
 
 
 def _failures(result: GridResult) -> str:
@@ -800,8 +1100,9 @@ def _failures(result: GridResult) -> str:
 def _plots(
     args: argparse.Namespace, result: GridResult, out: Path, metadata: dict[str, str]
 ) -> None:
-    """A set of plots per scenario and condition (the condition in the file name when there
-    are several)."""
+    """A set of plots per scenario and condition, and the overview ``trajectories.png`` per
+    condition (:func:`plot_overview`; the condition in the file names when there are
+    several)."""
     groups: dict[tuple[str, str], dict[str, Episode]] = defaultdict(dict)
     for rc in result.cells:
         ep = result.episodes.get(rc.key)
@@ -818,6 +1119,37 @@ def _plots(
     for key in tqdm(list(slugs), desc="plots", unit="plot set"):
         if groups[key]:
             plot_scenario(key[0], groups[key], out, slugs[key], metadata)
+    shown = _representatives(args.configurations)
+    for c in args.conditions:
+        several = len(args.conditions) > 1
+        panels = [
+            (
+                s,
+                {
+                    name: groups[(s, c.label)][name]
+                    for name in shown
+                    if name in groups[(s, c.label)]
+                },
+            )
+            for s in args.scenario
+        ]
+        title = "The platoon at five instants, with its traces: " + ", ".join(shown)
+        if several:
+            title += f" ({c.label})"
+        stem = "trajectories" + (f"_{file_stem(c.label)}" if several else "")
+        if any(eps for _, eps in panels):
+            plot_overview(panels, out / f"{stem}.png", title, metadata)
+
+
+def _representatives(configs: Mapping[str, tuple[str, int | None]]) -> list[str]:
+    """The policies of the overview figure: each analytic law, and a configuration's first
+    training seed (its lowest)."""
+    first: dict[str, tuple[int, str]] = {}
+    for name, (configuration, seed) in configs.items():
+        rank = -1 if seed is None else seed
+        if configuration not in first or rank < first[configuration][0]:
+            first[configuration] = (rank, name)
+    return [name for _, name in first.values()]
 
 
 if __name__ == "__main__":
