@@ -1,4 +1,6 @@
-"""The Ray RLlib engine (training/rllib.py): episode flags, seeds, MAPPO critic, training.
+"""The Ray RLlib engine (training/rllib.py): episode flags, seeds, MAPPO critic, training,
+the cost penalty and episode records, progress.csv/TensorBoard, PPO-Lagrangian, task-aware
+observations. The two-node cluster run is in scripts/test_rllib.sh.
 
 Skipped unless Ray RLlib is installed: ``bash scripts/test_rllib.sh`` makes ``.venv-rllib``
 (the ``rllib`` extra) and runs this file in it.
@@ -6,14 +8,17 @@ Skipped unless Ray RLlib is installed: ``bash scripts/test_rllib.sh`` makes ``.v
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import json
+import math
 import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -26,17 +31,26 @@ from ray.rllib.core.columns import Columns
 from ray.rllib.env.multi_agent_env_runner import MultiAgentEnvRunner
 
 import platoon_env
+from platoon_env.observation import OBS_SIZE_TASK
 from training.config import TrainConfig
+from training.curves import PROGRESS_COLUMNS, PROGRESS_FILE
+from training.lagrangian import LagrangeMultiplier
 from training.policies import LearnedPolicy, MLPActor
 from training.rllib import (
     MODULE_ID,
+    TRAIN_SCALARS,
     PlatoonMultiAgentEnv,
     PlatoonPPOModule,
+    _on_runners,
+    _pop_outcomes,
+    cluster_metadata,
     derived_seed,
     export_actor,
     init_ray,
     ppo_config,
+    project_runtime_env,
     seed_sub_envs,
+    train_rllib,
 )
 from training.run import LOCK_FILE
 from training.train import cli_args
@@ -89,8 +103,10 @@ def test_env_order_spaces_scaling_and_render() -> None:
     for a in e.possible_agents:
         np.testing.assert_allclose(obs[a], raw_obs[a] / scale, rtol=1e-6)
         assert e.observation_spaces[a].contains(obs[a])
-        np.testing.assert_array_equal(e.action_spaces[a].low, [-1, -1])
-        np.testing.assert_array_equal(e.action_spaces[a].high, [1, 1])
+        box = e.action_spaces[a]
+        assert isinstance(box, gym.spaces.Box)
+        np.testing.assert_array_equal(box.low, [-1, -1])
+        np.testing.assert_array_equal(box.high, [1, 1])
     # The SB3 adapter's action mapping: [-1, 1]^2 -> [u_low, u_high] x [-omega_high, omega_high].
     action = np.array([1.0, -1.0], dtype=np.float32)
     e.step(dict.fromkeys(e.agents, action))
@@ -108,6 +124,57 @@ def test_sensor_profile_reaches_the_env() -> None:
     e = env(sensor_profile="aruco", overrides=overrides)
     ideal = env(overrides=overrides)
     assert e.env.scenario.config.camera != ideal.env.scenario.config.camera
+
+
+def test_cost_penalty_and_episode_records() -> None:
+    """With a multiplier, each reward is the env's minus lambda * info["cost"]; the episode
+    record keeps the unpenalised returns, the costs and the causes."""
+    lam = 2.5
+    penalised, plain = env(), env()
+    penalised.cost_multiplier = lam
+    penalised.reset(seed=4)
+    plain.reset(seed=4)
+    rng = np.random.default_rng(0)
+    returns = np.zeros(2)
+    costs = np.zeros(2)
+    steps = 0
+    while penalised.agents:
+        action = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in penalised.agents}
+        _, rew, term, _, infos = penalised.step(action)
+        _, raw, *_ = plain.step(action)
+        cost = np.array([infos[a]["cost"] for a in plain.possible_agents], dtype=float)
+        for i, a in enumerate(plain.possible_agents):
+            assert rew[a] == pytest.approx(raw[a] - lam * cost[i])
+            returns[i] += raw[a]
+        costs += cost
+        steps += 1
+        assert steps < 10_000
+    assert term["__all__"] and costs.sum() >= 1  # random actions end in a violation
+    (outcome,) = penalised.pop_outcomes()
+    assert penalised.pop_outcomes() == []
+    np.testing.assert_allclose(outcome.returns, returns)
+    np.testing.assert_array_equal(outcome.costs, costs)
+    assert outcome.length == steps == penalised.env_steps
+    assert outcome.violations == tuple(infos[a]["violation"] for a in plain.possible_agents)
+    assert not outcome.team_success
+    assert plain.pop_outcomes()[0].returns == outcome.returns
+
+
+def test_project_runtime_env_ships_the_packages() -> None:
+    runtime_env = project_runtime_env()
+    dirs = [Path(d) for d in runtime_env["py_modules"]]
+    assert [d.name for d in dirs] == ["platoon_env", "training"]
+    assert all((d / "__init__.py").is_file() for d in dirs)
+    assert (dirs[1] / "rllib.py").is_file()
+    # the runtime env is what Ray validates and ships
+    from ray.runtime_env import RuntimeEnv
+
+    assert RuntimeEnv(**runtime_env)["py_modules"] == runtime_env["py_modules"]
+
+
+def test_ppo_config_refuses_other_algorithms() -> None:
+    with pytest.raises(ValueError, match="ppo and ppo_lagrangian"):
+        ppo_config(rllib_config(algo="sac"))
 
 
 def _episodes(cfg: TrainConfig, n: int, **sample: Any) -> list[Any]:
@@ -290,6 +357,17 @@ def test_two_runners_train_with_distinct_seeds_and_the_central_critic(local_ray:
         assert all(s == derived_seed(cfg.seed, w, j) for w, j, s in subs)
         module = algo.get_module(MODULE_ID)
         assert isinstance(module, PlatoonPPOModule) and module.critic_kind == "central"
+        # The episodes each runner recorded reach the driver; the "ray" entry of model.json
+        # places both runners (on this one-node instance: the driver's node).
+        outcomes = [o for batch in _on_runners(algo, cfg, _pop_outcomes) for o in batch]
+        assert result["env_runners"]["num_episodes"] == len(outcomes) > 0
+        assert all(len(o.returns) == 2 and o.length > 0 for o in outcomes)
+        assert _on_runners(algo, cfg, _pop_outcomes) == [[], []]
+        placed = cluster_metadata(algo, cfg)
+        assert [r["worker_index"] for r in placed["env_runners"]] == [1, 2]
+        assert all(r["env_steps"] >= 2 * 64 for r in placed["env_runners"])
+        assert {r["node_id"] for r in placed["env_runners"]} == {placed["driver_node_id"]}
+        assert placed["nodes_alive"] == [placed["driver_node_id"]]
     finally:
         algo.stop()
 
@@ -374,3 +452,102 @@ def test_cli_run_checkpoint_evaluates_and_resumes(tmp_path: Path) -> None:
     resumed = json.loads((out / "model.json").read_text())
     assert resumed["timesteps"] >= 5000 and resumed["started_at"] >= meta["started_at"]
     assert len(resumed["segments"]) == 2 and not (out / LOCK_FILE).exists()
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        assert tuple(reader.fieldnames or ()) == PROGRESS_COLUMNS
+        return list(reader)
+
+
+def _float(text: str) -> float:
+    return math.nan if text == "" else float(text)
+
+
+def test_lagrangian_task_aware_run_logs_like_sb3(tmp_path: Path, local_ray: None) -> None:
+    """``--algo ppo_lagrangian --task-aware-observations`` sampled in the driver: the actor
+    reads the 13 task-aware values, progress.csv has the SB3 columns with a row per
+    ``--log-every``, its ``lambda`` column follows the dual-ascent rule on its ``cost_mean``,
+    TensorBoard has SB3's tags at the same timesteps, and a resume continues the multiplier."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    out = tmp_path / "lag"
+    budget, lr = 0.05, 0.5
+    cfg = rllib_config(
+        algo="ppo_lagrangian",
+        task_aware_observations=True,
+        n_steps=32,
+        batch_size=64,
+        n_epochs=1,
+        timesteps=500,  # 4 iterations of 32 * 2 envs * 2 followers = 128 transitions
+        log_every=100,
+        cost_budget=budget,
+        lagrangian_lr=lr,
+        checkpoint_every=0,
+        control_period=PERIOD,
+        out=str(out),
+    )
+    path, interrupted = train_rllib(cfg)
+    assert not interrupted
+    meta = json.loads(path.with_suffix(".json").read_text())
+    assert meta["algo"] == "ppo_lagrangian" and len(meta["observation_layout"]) == OBS_SIZE_TASK
+    assert len(meta["observation_normalization"]["scale"]) == OBS_SIZE_TASK
+    assert meta["ray"]["env_runners"][0]["worker_index"] == 0
+    # the env steps RLlib counted, plus the one step its env checker takes in each sub-env
+    assert meta["ray"]["env_runners"][0]["env_steps"] == meta["env_steps"] + 2
+
+    rows = _rows(out / PROGRESS_FILE)
+    steps = [int(r["timesteps"]) for r in rows]
+    # log_every 100 < one iteration (about 32 * 2 envs * 2 followers): a row after each
+    assert len(steps) == 4 and steps[-1] == meta["timesteps"]
+    assert all(b - a >= cfg.log_every for a, b in zip([0, *steps], steps, strict=False))
+    # lambda of row k is the multiplier iteration k trained with: 0, then dual ascent on
+    # the costs of the follower episodes of the row before (every row has episodes here).
+    rule = LagrangeMultiplier(budget=budget, lr=lr)
+    for row in rows:
+        assert int(row["episodes"]) > 0
+        assert _float(row["lambda"]) == pytest.approx(rule.value, rel=1e-4, abs=1e-6)
+        assert 0 <= _float(row["success_rate"]) <= 1 and _float(row["cost_mean"]) >= 0
+        # the rule's update from the row's mean cost (n equal weights: the mean)
+        rule.update([_float(row["cost_mean"])])
+    assert meta["lagrange_multiplier"] == pytest.approx(rule.value, rel=1e-4, abs=1e-6)
+    assert rule.value > 0  # random-ish early policies violate far above the budget
+
+    (tb,) = (out / "tb").iterdir()
+    assert tb.name == f"{cfg.run_name}_1"
+    events = EventAccumulator(str(tb))
+    events.Reload()
+    tags = set(events.Tags()["scalars"])
+    want = {
+        "rollout/ep_rew_mean",
+        "rollout/ep_len_mean",
+        "platoon/violation",
+        "lagrangian/lambda",
+        "lagrangian/episode_cost",
+        "time/fps",
+        *TRAIN_SCALARS,
+    }
+    assert want <= tags, want - tags
+    assert [e.step for e in events.Scalars("train/value_loss")] == steps
+    lam_tb = [e.value for e in events.Scalars("lagrangian/lambda")]
+    assert lam_tb[-1] == pytest.approx(meta["lagrange_multiplier"], rel=1e-5)
+
+    policy = LearnedPolicy.load(out)
+    raw = platoon_env.make("study_c", control_period=PERIOD, observation={"task_aware": True})
+    obs, _ = raw.reset(seed=0)
+    assert obs["follower_1"].shape == (OBS_SIZE_TASK,)
+    actions = policy.act(obs)
+    assert all(raw.action_space(a).contains(actions[a]) for a in obs)
+
+    # --resume: the rows up to the checkpoint are kept and the multiplier continues from it
+    resumed, _ = train_rllib(dataclasses.replace(cfg, timesteps=700, resume=True))
+    after = json.loads(resumed.with_suffix(".json").read_text())
+    rows = _rows(out / PROGRESS_FILE)
+    again = [int(r["timesteps"]) for r in rows]
+    assert again[: len(steps)] == steps and again[-1] == after["timesteps"] >= 700
+    assert len(again) > len(steps) and again[len(steps)] > steps[-1]
+    assert _float(rows[len(steps)]["lambda"]) == pytest.approx(
+        meta["lagrange_multiplier"], rel=1e-4, abs=1e-6
+    )
+    assert len(after["segments"]) == 2

@@ -113,8 +113,10 @@ __all__ = [
     "CRITICS",
     "ENV_NAME",
     "LAGRANGIAN_ALGOS",
+    "MAX_RECORDED_EPISODES",
     "MODULE_ID",
     "PROJECT_PACKAGES",
+    "TRAIN_SCALARS",
     "EpisodeOutcome",
     "PlatoonMultiAgentEnv",
     "PlatoonPPOModule",
@@ -139,6 +141,9 @@ CRITICS = ("local", "central")
 #: The ``--algo`` values the RLlib engine trains: PPO, and PPO on rewards penalised by a
 #: Lagrange multiplier on ``info["cost"]`` (:mod:`training.lagrangian`'s rule).
 LAGRANGIAN_ALGOS = ("ppo", "ppo_lagrangian")
+#: Episode records an env keeps for the driver (:meth:`PlatoonMultiAgentEnv.pop_outcomes`);
+#: ``platoon-train`` collects them every iteration, far below this.
+MAX_RECORDED_EPISODES = 100_000
 #: The project's own packages, shipped to every Ray node by :func:`project_runtime_env`.
 PROJECT_PACKAGES = ("platoon_env", "training")
 
@@ -306,8 +311,9 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
         #: The Lagrange multiplier ``λ`` (``ppo_lagrangian``): rewards are ``r - λ c`` with
         #: ``c`` = ``info["cost"]``; 0: the env's reward (set by the driver each iteration).
         self.cost_multiplier = 0.0
-        #: Episodes that ended since :meth:`pop_outcomes` (unpenalised returns, costs).
-        self.finished: list[EpisodeOutcome] = []
+        #: Episodes that ended since :meth:`pop_outcomes` (unpenalised returns, costs); the
+        #: oldest are dropped beyond :data:`MAX_RECORDED_EPISODES` when nobody collects them.
+        self.finished: deque[EpisodeOutcome] = deque(maxlen=MAX_RECORDED_EPISODES)
         #: Env steps taken by this env (over all its episodes).
         self.env_steps = 0
         self._episode_return = np.zeros(n)
@@ -411,7 +417,8 @@ class PlatoonMultiAgentEnv(MultiAgentEnv):  # type: ignore[misc]
 
     def pop_outcomes(self) -> list[EpisodeOutcome]:
         """The episodes that ended since the last call (and forget them)."""
-        out, self.finished = self.finished, []
+        out = list(self.finished)
+        self.finished.clear()
         return out
 
     def render(self) -> NDArray[np.uint8] | None:
@@ -764,6 +771,15 @@ def cluster_metadata(algo: Any, cfg: TrainConfig) -> dict[str, Any]:
     }
 
 
+def _cluster_record(algo: Any, cfg: TrainConfig) -> dict[str, Any]:
+    """:func:`cluster_metadata`, or why it could not be read (a model is saved regardless,
+    e.g. after Ctrl-C reached the env runners too)."""
+    try:
+        return cluster_metadata(algo, cfg)
+    except Exception as e:  # any Ray failure: the record is provenance, not the model
+        return {"address": cfg.address, "error": f"{type(e).__name__}: {e}"}
+
+
 # ------------------------------------------------------------------------------------------------
 # Logs: progress.csv and TensorBoard, with the SB3 runs' names
 # ------------------------------------------------------------------------------------------------
@@ -912,7 +928,7 @@ def _train_algo(
             "env_steps_per_s": round(env_steps / wall, 1) if wall > 0 else None,
             "episode_return_mean": last_result.get("env_runners", {}).get("episode_return_mean"),
             "episode_len_mean": last_result.get("env_runners", {}).get("episode_len_mean"),
-            "ray": cluster_metadata(algo, cfg),
+            "ray": _cluster_record(algo, cfg),
             **extra,
             "config": dataclasses.asdict(cfg),
             "versions": library_versions(ray, torch, gym),
