@@ -18,7 +18,8 @@ What is timed (every number is the median of three timed runs after a warm-up):
 * **formations** — the batched API on ``procedural_formations_train`` (each env its own
   layout and formation: 1-7 followers, r, d_des, d_col, d_con, beta_con, leader speed) at
   1,024 envs and ``--threads`` threads, physical and scale-free observations; agent-steps count
-  the live followers only (``BatchedPlatoon.live``); the followers drive straight at 0.3 m/s;
+  the live followers only (``BatchedPlatoon.live``); the followers pursue their reported
+  predecessors (a vectorised proportional law);
   and the median time of one env's reset onto a new layout (draw, build, install, sensing);
 * **PPC** — ``baselines.PPCPolicy.act`` per follower.
 
@@ -191,7 +192,8 @@ def time_formations(
 ) -> tuple[float, float, float, float]:
     """``(env-steps/s, mean live followers, median reset [ms], its CPU time [ms])`` of
     :class:`BatchedPlatoon` on :data:`FORMATIONS` with ``batch`` envs (auto-reset,
-    ``terminate_on=()``), the followers driving straight at 0.3 m/s. The reset time is one
+    ``terminate_on=()``), the followers pursuing their reported predecessors (a vectorised
+    proportional law, its cost included). The reset time is one
     env's reset onto a new layout (the first ``batch`` resets, each timed alone, wall clock
     and this process's CPU time: on a loaded machine the first exceeds the second)."""
     core = BatchedPlatoon(
@@ -200,15 +202,25 @@ def time_formations(
     resets, cpu = [], []
     for b in range(batch):
         start, start_cpu = time.perf_counter(), time.process_time()
-        core.reset([b], envs=[b])
+        obs = core.reset([b], envs=[b])  # every env's observations (the last: all reset)
         resets.append(time.perf_counter() - start)
         cpu.append(time.process_time() - start_cpu)
-    action = np.zeros((batch, core.n_followers, 2))
-    action[..., 0] = 0.3
+    params = core._core.params  # each env's own d_des and d_con (the benchmark's pursuit law)
+    scale_free = bool(params["scale_free"][0])
     live: list[float] = []
+    state = {"obs": obs}
 
     def step() -> None:
-        core.step(action)
+        # Pursuit of the reported predecessor, vectorised over every slot (a stand-in for a
+        # policy, so that the platoon drives as in an episode and not into the walls).
+        o = state["obs"]
+        unit = params["d_con"][:, None] if scale_free else 1.0
+        x, y = o[..., 1] * unit, o[..., 2] * unit
+        seen = o[..., 0] > 0
+        gap = np.hypot(x, y) - params["d_des"][:, None]
+        u = np.where(seen, np.clip(0.8 * gap + 0.2, -0.3, 0.8), 0.0)
+        omega = np.where(seen, np.clip(2.0 * np.arctan2(y, x), -2.0, 2.0), 0.0)
+        state["obs"] = core.step(np.stack([u, omega], axis=-1))[0]
         live.append(float(core.n_active.mean()))
 
     rate_ = rate(step, batch, seconds)

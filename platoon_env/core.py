@@ -343,12 +343,21 @@ class PlatoonCore:
             )
         self.n_threads = int(n_threads)
 
-    def _install(self, b: int, scenario: Scenario) -> InitialSampler:
-        """Make ``scenario`` env ``b``'s: its map in the env's slot, its parameters."""
+    def _install(
+        self,
+        b: int,
+        scenario: Scenario,
+        grid: EdgeGrid | None = None,
+        sampler: InitialSampler | None = None,
+    ) -> InitialSampler:
+        """Make ``scenario`` env ``b``'s: its map in the env's slot, its parameters. ``grid``
+        and ``sampler``: the scenario's, when the caller built them already (a reset's
+        candidate), else built here."""
         cfg = scenario.config
-        grid = EdgeGrid.build(
-            scenario.workspace.edges, self.grid_cell_size, reach=cfg.proximity_range
-        )
+        if grid is None:
+            grid = EdgeGrid.build(
+                scenario.workspace.edges, self.grid_cell_size, reach=cfg.proximity_range
+            )
         slot = b if self.source.procedural else 0
         self._slots.write(slot, scenario, grid)
         self.episode[b]["map_slot"] = slot
@@ -356,6 +365,8 @@ class PlatoonCore:
         self.scenarios[b] = scenario
         self._live_install(b, cfg.followers)
         self._task_install(b, cfg)
+        if sampler is not None:
+            return sampler
         return InitialSampler(scenario, grid.walls, self.params[b : b + 1])
 
     def _live_install(self, b: int, n_live: int) -> None:
@@ -453,6 +464,7 @@ class PlatoonCore:
             else:
                 scenario = self.scenarios[b]
             sampler = self._samplers[b]
+            grid = None
             if scenario is not self.scenarios[b]:
                 # Build the candidate's sampler without touching env b's map slot yet.
                 grid = EdgeGrid.build(
@@ -488,7 +500,7 @@ class PlatoonCore:
             raise
         self.rngs[b] = rng
         if scenario is not self.scenarios[b]:
-            self._samplers[b] = self._install(b, scenario)
+            self._samplers[b] = self._install(b, scenario, grid, sampler)
         ep = self.episode[b]
         self.realism[b] = draw_realism(self.params[b], scenario.config, rng)  # none: no draw
         if self.params[b]["random_perception"]:

@@ -360,7 +360,8 @@ def test_heldout_suite_runs_every_tier() -> None:
     assert "heldout" in SUITES
     generators = {name: load_config(name).generator for name in list_scenarios()}
     train = [seed_range(g.split, g.tier) for g in generators.values() if g and g.split == "train"]
-    assert len(train) == 2 + len(GENERATOR_TIERS)  # untiered, corridors (untiered), the tiers
+    # untiered, corridors and formations (both untiered), the tiers
+    assert len(train) == 3 + len(GENERATOR_TIERS)
     for name in heldout.scenarios:
         gen = generators[name]
         assert gen is not None and gen.split == "test"

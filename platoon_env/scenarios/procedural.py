@@ -3,7 +3,9 @@
 A procedural scenario (one with a ``generator`` block, see
 :class:`~platoon_env.scenarios.schema.GeneratorConfig`) keeps the robots, sensors, safety limits,
 formation and PPC parameters of its file, and draws the workspace and the leader's path from a
-numbered family of layouts. :func:`generate_scenario` builds layout number ``index`` of the
+numbered family of layouts; with ``generator.formation`` each layout first draws its formation
+(N, r, d_col, d_des, d_con, beta_con, leader speed) from ranges (:func:`draw_formation`) and is
+sized for it. :func:`generate_scenario` builds layout number ``index`` of the
 template's ``split`` (and ``tier``):
 
 * the layout's random stream is ``np.random.default_rng(layout_seed(split, index, tier))``
@@ -196,7 +198,8 @@ def generate_scenario(template: ScenarioConfig, index: int) -> Scenario:
     """Build procedural layout number ``index`` of ``template.generator.split``.
 
     Deterministic: the layout depends only on the split, the tier, the kind and ``index`` (and
-    on the template's robot, formation, camera, PPC and leader parameters, which size it); any
+    on the template's robot, formation, camera, PPC and leader parameters, which size it; with
+    ``generator.formation`` on the formation drawn first from the layout's stream); any
     workspace or leader path already in ``template`` is ignored. The returned scenario keeps
     every other field of ``template`` (name, robots, sensors, safety, PPC, simulation,
     generator block), and its
