@@ -2,11 +2,17 @@
 ``GymEnv`` on the Gymnasium ids, each passing ``check_env_specs`` (docs/ecosystem.md).
 
 Skipped unless TorchRL is installed: ``bash scripts/test_torchrl.sh`` makes ``.venv-torchrl``
-(the ``torchrl`` extra) and runs this file in it.
+(the ``torchrl`` extra) and runs this file in it. The BenchMARL recipe's test also needs
+BenchMARL, which pins an older TorchRL (``torchrl<0.12``): it runs in a BenchMARL venv
+(docs/ecosystem.md says how to make one), and is skipped in ``.venv-torchrl``.
 """
 
 from __future__ import annotations
 
+import importlib
+import json
+import re
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -134,3 +140,23 @@ def test_gymenv_frame_skip_is_done_by_the_wrapper() -> None:
     env = GymEnv(STUDY_C_ID, frame_skip=2)
     assert env.wrapper_frame_skip == 2
     check_env_specs(env, seed=0)
+
+
+def test_the_benchmarl_recipe_in_the_docs_runs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("benchmarl")
+    text = (Path(__file__).parents[1] / "docs" / "ecosystem.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
+    recipe = next(block for block in blocks if "class PlatoonClass" in block)
+    # A module file, as a user saves it: BenchMARL pickles the task class by its module.
+    (tmp_path / "benchmarl_recipe.py").write_text(recipe, encoding="utf-8")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    module = importlib.import_module("benchmarl_recipe")
+    out = tmp_path / "runs"
+    out.mkdir()
+    module.run("mappo", str(out), frames=1_000)  # one collection, one update
+    (written,) = out.glob("*/*.json")  # the marl-eval file
+    results = json.loads(written.read_text())
+    assert list(results) == ["platoon"] and list(results["platoon"]) == ["study_c"]
+    assert "seed_0" in results["platoon"]["study_c"]["mappo"]
