@@ -10,7 +10,6 @@ this module, and it imports neither.
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells
-from experiments.policies import PolicySpec, analytic_policies, shipped_models
+from experiments.policies import PolicySpec, analytic_policies, configurations, shipped_models
 from experiments.suites import LEADERBOARD_SUITES, Condition, suite
 from platoon_env.scenarios.schema import ScenarioError
 
@@ -40,8 +39,6 @@ __all__ = [
 ANALYTIC: tuple[str, ...] = tuple(analytic_policies("leaderboard"))
 #: The suites on the board.
 SUITES = LEADERBOARD_SUITES
-#: A model folder ``<config>_s<seed>`` is training seed ``seed`` of configuration ``config``.
-_SEED_SUFFIX = re.compile(r"_s(\d+)$")
 
 
 @dataclass(frozen=True)
@@ -76,8 +73,10 @@ def entries(models_dir: Path) -> list[Entry]:
     one run)."""
     out = [Entry(name, (PolicySpec.of(name),), False) for name in ANALYTIC]
     groups: dict[str, list[PolicySpec]] = {}
-    for spec in shipped_models(Path(models_dir)):
-        groups.setdefault(_SEED_SUFFIX.sub("", spec.name), []).append(spec)
+    models = shipped_models(Path(models_dir))
+    configs = configurations(models)
+    for spec in models:
+        groups.setdefault(configs[spec.name][0], []).append(spec)
     out += [Entry(name, tuple(specs), True) for name, specs in sorted(groups.items())]
     return out
 

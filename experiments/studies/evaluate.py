@@ -139,11 +139,12 @@ REALISM_BLOCKS: tuple[str, ...] = ("camera", "proximity", "robot")
 #: Columns of the ``results.csv`` export.
 CSV_COLUMNS: tuple[str, ...] = (
     "policy",
-    "configuration",
-    "training_seed",
     "scenario",
     "seed",
     "status",
+    # the policy's configuration and training seed (experiments.policies.configurations)
+    "configuration",
+    "training_seed",
     "sensor_profile",
     "realism_label",
     *METRIC_NAMES,
@@ -469,9 +470,10 @@ def plot_overview(
 
     labels = list(dict.fromkeys(name for _, eps in scenarios for name in eps))
     shown = [(s, eps, _workspace(s, next(iter(eps.values())).seed)) for s, eps in scenarios if eps]
-    widths = [1 / _aspect(sc) for _, _, sc in shown]
+    # a column's width follows its workspace's, but leaves room for the panels' titles
+    widths = [max(1 / _aspect(sc), 0.95) for _, _, sc in shown]
     height = 2.4  # [in] a row's panels
-    fig = new_figure(height * sum(widths) + 0.4, len(labels) * (height + 0.6) + 1.2)
+    fig = new_figure(height * sum(widths) + 0.4, len(labels) * (height + 0.75) + 1.2)
     grid = fig.add_gridspec(len(labels), len(shown), width_ratios=widths)
     for col, (scenario, eps, sc) in enumerate(shown):
         for row, name in enumerate(labels):
@@ -479,10 +481,10 @@ def plot_overview(
             ep = eps.get(name)
             if ep is None:
                 ax.set_axis_off()
-                ax.set_title(f"{scenario}\n{name}: not run", fontsize=9)
+                ax.set_title(f"{scenario}\n{name}\nnot run", fontsize=8.5)
                 continue
             plot_snapshots(ax, sc, ep, n_snapshots=5)
-            ax.set_title(f"{scenario}, seed {ep.seed}\n{name}: {_outcome(ep)}", fontsize=9)
+            ax.set_title(f"{scenario}, seed {ep.seed}\n{name}\n{_outcome(ep)}", fontsize=8.5)
             ax.tick_params(labelsize=7)
     if title:
         fig.suptitle(title)
@@ -513,7 +515,7 @@ def plot_scenario(
     from platoon_env.rendering import legend_handles
 
     slug = file_stem(slug) if slug else _slug(scenario)
-    names = sorted(episodes)
+    names = list(episodes)  # the policies' order (the analytic laws first, by default)
     eps = [episodes[k] for k in names]
     sc = _workspace(scenario, eps[0].seed)
     aspect = _aspect(sc)
@@ -846,6 +848,7 @@ def _model_notes(args: argparse.Namespace) -> list[ModelNotes]:
     from training.policies import LearnedPolicy
 
     by_pair: dict[tuple[str, str], ModelNotes] = {}
+    envs: dict[tuple[str, str], Any] = {}  # the seeds of a configuration share their envs
     for spec in args.policy:
         if spec.kind != MODEL:
             continue
@@ -868,7 +871,11 @@ def _model_notes(args: argparse.Namespace) -> list[ModelNotes]:
                 entry.trained_followers.append(int(trained_n))
             texts = loaded
             if texts is None:
-                env = platoon_env.make(s, **merge_overrides(spec, args.overrides))
+                overrides = merge_overrides(spec, args.overrides)
+                key = (s, canonical_json(overrides))
+                if key not in envs:
+                    envs[key] = platoon_env.make(s, **overrides)
+                env = envs[key]
                 entry.followers = len(env.possible_agents)
                 try:
                     texts = policy.check_env(env)
