@@ -110,13 +110,14 @@ def _with(**ranges: Any) -> dict[str, Any]:
         ({"beta_con": [0.4, 1.6]}, "generator.formation.beta_con"),
         ({"beta_con": [0.1, 0.5]}, "generator.formation.beta_con"),  # under 2 rho_beta_inf
         ({"leader_speed": [0.0, 0.5]}, "generator.formation.leader_speed"),
-        # inconsistent: every d_col above every d_des
-        ({"d_col": [1.5, 2.0], "d_des": [1.0, 1.4]}, "generator.formation.d_col"),
-        # inconsistent: no d_des below every d_con - gap (the first range left empty)
-        ({"d_des": [1.8, 2.0], "d_con": [1.5, 1.9]}, "generator.formation.d_des"),
-        ({"d_con": [0.5, 0.9]}, "generator.formation.d_des"),  # the fixed d_des = 1 m
+        # inconsistent (the error names the range that bounds the emptied one from above):
+        # every d_col above every d_des
+        ({"d_col": [1.5, 2.0], "d_des": [1.0, 1.4]}, "generator.formation.d_des"),
+        # no d_con beyond d_des + gap
+        ({"d_des": [1.8, 2.0], "d_con": [1.5, 1.9]}, "generator.formation.d_con"),
+        ({"d_con": [0.5, 0.9]}, "generator.formation.d_con"),
         # robots too large for any d_col
-        ({"radius": [0.4, 0.5], "d_col": [0.3, 0.6]}, "generator.formation.radius"),
+        ({"radius": [0.4, 0.5], "d_col": [0.3, 0.6]}, "generator.formation.d_col"),
         ({"followers": [1.5, 2]}, "generator.formation.followers[0]"),  # not an integer
         ({"d_con": [1.5]}, "generator.formation.d_con"),  # not a range
         ({"width": [1, 2]}, "generator.formation.width"),  # unknown key
@@ -128,6 +129,7 @@ def test_bad_ranges_are_scenario_errors_naming_the_field(
     with pytest.raises(ScenarioError) as err:
         scenario_source(TRAIN, _with(**ranges))
     assert field in str(err.value)
+    assert err.value.path is not None and err.value.path.endswith(field)
 
 
 def test_pinned_ranges_give_a_fixed_formation() -> None:

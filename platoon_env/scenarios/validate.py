@@ -350,23 +350,37 @@ def formation_limits(cfg: ScenarioConfig, path: str = "scenario") -> dict[str, t
         f"must lie in [{a_lo:g}, {a_hi:g}], got [{v_lo}, {v_hi}]",
     )
     gap = formation_gap(cfg)
-    # floors: what the previous distance imposes on each (r: none; d_col >= 2 r; ...)
-    lows = [raw["radius"][0]]
-    lows.append(max(raw["d_col"][0], 2.0 * lows[0]))
-    lows.append(max(raw["d_des"][0], lows[1] + gap))
-    lows.append(max(raw["d_con"][0], lows[2] + gap))
-    highs = [0.0, 0.0, 0.0, raw["d_con"][1]]
-    highs[2] = min(raw["d_des"][1], highs[3] - gap)
-    highs[1] = min(raw["d_col"][1], highs[2] - gap)
-    highs[0] = min(raw["radius"][1], 0.5 * highs[1])
-    for k, name in enumerate(FORMATION_DISTANCES):
+    names = FORMATION_DISTANCES
+    floors = (0.0, 0.0, gap, gap)  # what the previous distance adds: r; 2 r; + g; + g
+    factor = (1.0, 2.0, 1.0, 1.0)
+    # the chain of lower ends (each raised by the previous one) and of upper ends (each
+    # lowered by the next one), and which field's own range set each end
+    lows, low_from = [raw[names[0]][0]], [0]
+    for k in range(1, 4):
+        chained = factor[k] * lows[k - 1] + floors[k]
+        own = raw[names[k]][0]
+        lows.append(max(own, chained))
+        low_from.append(k if own >= chained else low_from[k - 1])
+    highs, high_from = [0.0, 0.0, 0.0, raw[names[3]][1]], [0, 0, 0, 3]
+    for k in range(2, -1, -1):
+        chained = (highs[k + 1] - floors[k + 1]) / factor[k + 1]
+        own = raw[names[k]][1]
+        highs[k] = min(own, chained)
+        high_from[k] = k if own <= chained else high_from[k + 1]
+    for k, name in enumerate(names):
         if lows[k] > highs[k]:
-            given = raw[name]
+            # name a range the user gave that is in the conflict (the one that emptied it)
+            blame = names[high_from[k]] if high_from[k] != k else names[low_from[k]]
+            if getattr(ranges, blame) is None:
+                blame = name
+            lo_name, hi_name = names[low_from[k]], names[high_from[k]]
             raise field_error(
-                f"{where}.{name}",
-                f"no consistent formation: [{given[0]:g}, {given[1]:g}] leaves [{lows[k]:g}, "
-                f"{highs[k]:g}] under the chain 2 r <= d_col, d_col + g <= d_des, d_des + g <= "
-                f"d_con (g = {gap:g} m: FORMATION_GAP, plus 2 ppc.rho_d_inf with a ppc block)",
+                f"{where}.{blame}",
+                f"no consistent formation: {name} must be >= {lows[k]:g} (from {lo_name}'s "
+                f"range) and <= {highs[k]:g} (from {hi_name}'s range) under the chain 2 r <= "
+                f"d_col, d_col + g <= d_des, d_des + g <= d_con (g = {gap:g} m: FORMATION_GAP, "
+                "plus 2 ppc.rho_d_inf with a ppc block); ranges: "
+                + ", ".join(f"{n} [{raw[n][0]:g}, {raw[n][1]:g}]" for n in names),
             )
     out = dict(raw)
     for k, name in enumerate(FORMATION_DISTANCES):
