@@ -527,7 +527,10 @@ class PlatoonCore:
         """
         mask = self._all if active is None else active
         args = (mask, n_substeps, *self.step_args)
-        if self.n_threads == 1 or self.batch_size == 1:
+        # A reset's sensing (n_substeps = 0) of some envs runs serially: one env's sensing is
+        # microseconds, and waking numba's thread pool after the Python of a reset (drawing a
+        # layout) costs milliseconds. Results do not depend on the driver.
+        if self.n_threads == 1 or self.batch_size == 1 or (active is not None and not n_substeps):
             ended = int(step_serial(*args))
         else:
             previous = numba.get_num_threads()
