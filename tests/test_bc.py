@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from baselines.ppc import PPCPolicy
+from platoon_env.batched import BatchedPlatoon
 from training.bc import (
     FINETUNE,
     BatchedExpert,
@@ -28,6 +29,7 @@ from training.bc import (
 from training.config import TrainConfig
 from training.fast_ppo import ActorCritic, FastPPOConfig, SlotSpec, make_core, train_fast
 from training.policies import LearnedPolicy
+from training.seeding import env_seeds
 from training.train import bc_config, fast_config, main, parse_args
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -70,6 +72,21 @@ def test_the_expert_of_a_copy_is_the_ppc_law_on_that_copy() -> None:
     mine = law.act({a: obs[2, i, :7] for i, a in enumerate(core.possible_agents)})
     for i, agent in enumerate(core.possible_agents):
         np.testing.assert_array_equal(commands[2, i], mine[agent])
+
+
+def test_the_expert_reads_scale_free_observations_in_metres() -> None:
+    # One start, two observation layouts: the law's commands are the same (sensor_columns
+    # undoes the scaling, up to float32 rounding).
+    seeds = env_seeds(0, 4)
+    layouts = ({"task_aware": True}, {"task_aware": True, "scale_free": True})
+    commands = []
+    for layout in layouts:
+        core = BatchedPlatoon(
+            "study_c", 4, auto_reset=True, control_period=0.02, observation=layout
+        )
+        commands.append(BatchedExpert(core).act(core.reset(seeds)))
+    np.testing.assert_allclose(commands[0], commands[1], rtol=1e-4, atol=1e-4)
+    assert np.abs(commands[0]).max() > 0.01
 
 
 def test_labels_are_the_inverse_of_the_action_range_clipped() -> None:

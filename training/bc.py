@@ -10,9 +10,11 @@ law instead:
    :class:`baselines.filtered_ppc.FilteredPPCPolicy`), built through a small
    :class:`~baselines.policy.PolicyEnv` shim (:class:`CopyEnv`: the copy's followers, the
    control period and *the copy's current scenario*) and rebuilt and reset at each episode
-   start of that copy. It reads the physical sensor 7-vector of its copy's observations
-   (:func:`expert_sensors`); the learner reads what :class:`~training.fast_ppo.FastPPOConfig`'s
-   observation options give (the same arrays, divided by the fixed observation scale).
+   start of that copy. It is fed its copy's observations as the core gives them, in whatever
+   layout :class:`~training.fast_ppo.FastPPOConfig`'s observation options make, and reads its
+   physical sensor 7-vector from them by the laws' own rule
+   (:func:`baselines.policy.sensor_part`, which un-scales a scale-free layout); the learner
+   reads the same arrays, divided by the fixed observation scale.
 2. **Labels in the learner's action space.** The law's command ``[u, omega]`` is mapped to the
    normalised action by the inverse of :class:`~training.vec_env.ActionRange`
    (:func:`to_normalised`) and **clipped to** ``[-1, 1]^2``: the law's commands are unbounded
@@ -84,8 +86,6 @@ from baselines.filtered_ppc import FilteredPPCPolicy
 from baselines.policy import Policy
 from baselines.ppc import PPCPolicy
 from platoon_env.batched import BatchedPlatoon
-from platoon_env.config import ScenarioConfig
-from platoon_env.observation import sensor_columns
 from platoon_env.scenarios.fingerprint import file_sha256
 from platoon_env.scenarios.scenario import Scenario
 from training.config import BOUNDS, env_metadata
@@ -117,7 +117,6 @@ __all__ = [
     "CopyEnv",
     "Rollout",
     "action_error",
-    "expert_sensors",
     "to_normalised",
     "train_bc",
     "train_bc_ppo",
@@ -216,13 +215,6 @@ class CopyEnv:
     scenario: Scenario
 
 
-def expert_sensors(obs: NDArray[np.float32], config: ScenarioConfig) -> NDArray[np.float64]:
-    """The physical sensor 7-vectors ``(n, 7)`` the analytic laws read, from the observations
-    ``(n, K)`` of an env copy whose scenario is ``config``, whatever its observation layout:
-    :func:`platoon_env.observation.sensor_columns`, the one rule that undoes a scaling."""
-    return sensor_columns(obs, config)
-
-
 def to_normalised(
     physical: NDArray[Any], action_range: ActionRange
 ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
@@ -254,7 +246,6 @@ class BatchedExpert:
         self.options = dict(options)
         self.policies: list[Policy] = []
         self._agents: list[tuple[str, ...]] = []
-        self._configs: list[ScenarioConfig] = []
         for b in range(core.batch_size):
             self.policies.append(self._build(b))
 
@@ -266,10 +257,9 @@ class BatchedExpert:
         policy = EXPERTS[self.name](env, **self.options)
         policy.reset()
         if b < len(self._agents):
-            self._agents[b], self._configs[b] = agents, scenario.config
+            self._agents[b] = agents
         else:
             self._agents.append(agents)
-            self._configs.append(scenario.config)
         return policy
 
     def restart(self, envs: NDArray[np.bool_] | NDArray[np.intp]) -> None:
@@ -284,8 +274,9 @@ class BatchedExpert:
         out = np.zeros((*obs.shape[:2], 2), dtype=np.float32)
         for b, policy in enumerate(self.policies):
             agents = self._agents[b]
-            sensors = expert_sensors(obs[b, : len(agents)], self._configs[b])
-            actions = policy.act(dict(zip(agents, sensors, strict=True)))
+            # As the env gives them: the law reads its physical sensor 7-vector from any layout
+            # (baselines.policy.sensor_part, which un-scales a scale-free one).
+            actions = policy.act(dict(zip(agents, obs[b, : len(agents)], strict=True)))
             for i, agent in enumerate(agents):
                 out[b, i] = actions[agent]
         return out
