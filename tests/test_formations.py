@@ -9,7 +9,7 @@ adapters refuse a variable N and the Gymnasium ids draw one follower.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -20,6 +20,7 @@ from platoon_env.config import FORMATION_GAP, FormationRanges
 from platoon_env.scenarios import load_config, scenario_source
 from platoon_env.scenarios.procedural import draw_formation, generate_scenario
 from platoon_env.scenarios.schema import ScenarioError
+from platoon_env.scenarios.source import ProceduralSource
 from platoon_env.scenarios.validate import formation_gap
 
 TRAIN = "procedural_formations_train"
@@ -62,6 +63,7 @@ def test_shipped_ranges_cover_the_three_studies() -> None:
 @pytest.mark.parametrize("name", [TRAIN, "procedural_formations_test"])
 def test_every_drawn_layout_is_consistent_and_feasible(name: str) -> None:
     source = scenario_source(name)
+    assert isinstance(source, ProceduralSource)
     gap = formation_gap(source.config)
     seen = set()
     for index in range(25):
@@ -240,12 +242,12 @@ def test_gymnasium_ids_draw_one_follower() -> None:
     for seed in range(3):
         obs, _ = env.reset(seed=seed)
         assert env.observation_space.contains(obs)
-        cfg = env.unwrapped.parallel.scenario.config
+        cfg = cast(Any, env.unwrapped).parallel.scenario.config
         assert cfg.followers == 1
     radii = set()
     for seed in range(4):
         env.reset(seed=seed)
-        radii.add(env.unwrapped.parallel.scenario.config.robot.radius)
+        radii.add(cast(Any, env.unwrapped).parallel.scenario.config.robot.radius)
     assert len(radii) > 1  # the rest of the formation is still drawn
 
 

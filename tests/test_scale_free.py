@@ -143,7 +143,12 @@ def test_batched_equals_single_env() -> None:
 def test_analytic_laws_act_as_in_metres(name: str) -> None:
     from baselines import FilteredPPCPolicy, LastSeenPolicy, PPCPolicy
 
-    cls = {"ppc": PPCPolicy, "last_seen": LastSeenPolicy, "filtered_ppc": FilteredPPCPolicy}[name]
+    laws: dict[str, Any] = {
+        "ppc": PPCPolicy,
+        "last_seen": LastSeenPolicy,
+        "filtered_ppc": FilteredPPCPolicy,
+    }
+    cls = laws[name]
     plain = platoon_env.make("study_c", observation=TASK)
     free = platoon_env.make("study_c", observation=FREE)
     p1, p2 = cls(plain), cls(free)
