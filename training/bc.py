@@ -601,6 +601,8 @@ _CLONE_KEYS = (
     "max_episode_steps",
     "sensor_profile",
     "task_aware_observations",
+    "scale_free_observations",
+    "realism_preset",
     "u_low",
     "u_high",
     "omega_high",

@@ -27,6 +27,7 @@ import torch
 import platoon_env
 from platoon_env.env import PlatoonParallelEnv
 from platoon_env.observation import observation_names
+from platoon_env.realism import REALISM_PRESETS
 from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping
 from platoon_env.scenarios.schema import (
     ACTION_BOUND_RANGE,
@@ -145,6 +146,18 @@ class TrainConfig:
         "train on task-aware observations (the scenario option observation.task_aware: the "
         "7-vector, then d_des, d_col, d_con, beta_con, r over fixed scales and the time since "
         "the predecessor was last perceived; 13 values, recorded in model.json)",
+    )
+    scale_free_observations: bool = _opt(
+        False,
+        "with --task-aware-observations: express positions and clearances over d_con and the "
+        "bearing over beta_con (the scenario option observation.scale_free; 15 values, one "
+        "policy's inputs in fixed bounds across formations; recorded in model.json)",
+    )
+    realism_preset: str | None = _opt(
+        None,
+        "draw each training episode's sensing and actuation from a preset's ranges (the "
+        "scenario option realism: {preset: NAME}, e.g. ideal_to_beyond_aruco; "
+        "platoon_env/realism.py)",
     )
     # --- action rescaling / observation normalisation ---
     u_low: float = _opt(-0.5, "[m/s] linear speed at normalised action -1")
@@ -422,6 +435,13 @@ def check_config(cfg: TrainConfig) -> list[str]:
         elif value not in bound:
             extra = " or -1" if name == "gradient_steps" else ""
             bad(name, f"must be {bound}{extra}, got {value!r}")
+    if cfg.scale_free_observations and not cfg.task_aware_observations:
+        bad("scale_free_observations", "needs --task-aware-observations")
+    if cfg.realism_preset is not None and cfg.realism_preset not in REALISM_PRESETS:
+        bad(
+            "realism_preset",
+            f"must be one of {sorted(REALISM_PRESETS)}, got {cfg.realism_preset!r}",
+        )
     threads = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
     if cfg.env_threads > threads:
         bad("env_threads", f"must be at most numba's {threads} threads, got {cfg.env_threads}")
@@ -540,6 +560,10 @@ def env_overrides(cfg: TrainConfig) -> dict[str, Any]:
         overrides["sensor_profile"] = cfg.sensor_profile
     if cfg.task_aware_observations:
         overrides["observation"] = {"task_aware": True}
+        if cfg.scale_free_observations:
+            overrides["observation"]["scale_free"] = True
+    if cfg.realism_preset is not None:
+        overrides["realism"] = {"preset": cfg.realism_preset}
     return overrides
 
 
@@ -638,6 +662,8 @@ ENV_FIELDS = (
     "max_episode_steps",
     "sensor_profile",
     "task_aware_observations",
+    "scale_free_observations",
+    "realism_preset",
 )
 
 

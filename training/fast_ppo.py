@@ -118,6 +118,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from platoon_env.batched import BatchedPlatoon
+from platoon_env.realism import REALISM_PRESETS
 from platoon_env.scenarios.fingerprint import file_sha256
 from platoon_env.scenarios.scenario import Scenario
 from platoon_env.scenarios.source import ScenarioSource, scenario_source
@@ -231,6 +232,8 @@ class FastPPOConfig:
     max_episode_steps: int | None = _TRAIN.max_episode_steps
     sensor_profile: str | None = _TRAIN.sensor_profile
     task_aware_observations: bool = _TRAIN.task_aware_observations
+    scale_free_observations: bool = _TRAIN.scale_free_observations
+    realism_preset: str | None = _TRAIN.realism_preset
     # --- action rescaling / observation normalisation (platoon-train's defaults) ---
     u_low: float = _TRAIN.u_low
     u_high: float = _TRAIN.u_high
@@ -343,6 +346,17 @@ def config_problems(cfg: FastPPOConfig) -> list[str]:
     for name in ("task_aware_observations", "normalize_observations", "progress_bar"):
         if not isinstance(getattr(cfg, name), bool):
             problems.append(f"{name} must be True or False, got {getattr(cfg, name)!r}")
+    if cfg.scale_free_observations is not False and not (
+        cfg.scale_free_observations is True and cfg.task_aware_observations
+    ):
+        problems.append(
+            "scale_free_observations must be True (with task_aware_observations) or False, got "
+            f"{cfg.scale_free_observations!r}"
+        )
+    if cfg.realism_preset is not None and cfg.realism_preset not in REALISM_PRESETS:
+        problems.append(
+            f"realism_preset must be one of {sorted(REALISM_PRESETS)}, got {cfg.realism_preset!r}"
+        )
     if cfg.algo not in ALGOS:
         problems.append(f"algo must be one of {ALGOS}, got {cfg.algo!r}")
     if not problems and not cfg.u_low < cfg.u_high:
@@ -383,6 +397,8 @@ def _train_view(cfg: FastPPOConfig) -> TrainConfig:
         max_episode_steps=cfg.max_episode_steps,
         sensor_profile=cfg.sensor_profile,
         task_aware_observations=cfg.task_aware_observations,
+        scale_free_observations=cfg.scale_free_observations,
+        realism_preset=cfg.realism_preset,
     )
 
 
