@@ -72,6 +72,7 @@ def test_the_fast_learner_gets_them_and_checks_them() -> None:
     assert cfg.scale_free_observations and cfg.realism_preset is None
     core, _ = make_core(cfg)
     spec = SlotSpec.of(cfg, core)
+    assert spec.obs_scale is not None
     assert spec.obs_scale.shape == (len(OBS_NAMES_SCALE_FREE),)
     assert np.all(np.isfinite(spec.obs_scale))
     with pytest.raises(ValueError, match="scale_free_observations"):
