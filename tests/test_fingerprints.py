@@ -39,6 +39,12 @@ SCENARIO_FINGERPRINTS = {
     "procedural_formations_train": (
         "7339b91dab1a7bb0fa0632a1e541f3da731484a420df265b8bff8a4949d84b56"
     ),
+    "procedural_formations_sharp_test": (
+        "bfa8c4342b4c711ea3ca3c466f7d19bd9f230b55d6f390d5195933a309e0afef"
+    ),
+    "procedural_formations_sharp_train": (
+        "ff92fa3fa6ea6a1048f6368492768118ed9db28272d6eeb8234ed469d6bb243f"
+    ),
     "procedural_hard_test": "c160fad89472b718ad5f0cddd69420ac2935a8498518691aabadc053c8bbee5e",
     "procedural_hard_train": "b6d09085dcc97d1f7e5216c3b9c1ac05478ef9da3c46ad2f5f28a60118d5f140",
     "procedural_medium_test": "d2dd7406c26f74edf3df24ed0a067ad46a7a94886ce58f6adc5e7a583f525905",

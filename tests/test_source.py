@@ -62,7 +62,12 @@ def test_shipped_names_split_both_ways() -> None:
 
 
 #: The shipped scenarios that draw their formation per layout (generator.formation).
-DRAWN = ("procedural_formations_train", "procedural_formations_test")
+DRAWN = (
+    "procedural_formations_train",
+    "procedural_formations_test",
+    "procedural_formations_sharp_train",
+    "procedural_formations_sharp_test",
+)
 
 
 @pytest.mark.parametrize("name", SCENARIOS)
