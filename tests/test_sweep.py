@@ -107,7 +107,7 @@ def test_a_run_killed_before_its_first_checkpoint_starts_over(tmp_path: Path) ->
 # The shipped configurations
 # ------------------------------------------------------------------------------------------------
 def test_configs_are_named_by_their_keys() -> None:
-    assert set(CONFIGS) == {"ppo_ta_aruco", "lag_ta_aruco"}
+    assert set(CONFIGS) == {"ppo_ta_aruco", "lag_ta_aruco", "bc_ppo_sharp", "bc_ppo_formations_sf"}
     for name, config in CONFIGS.items():
         assert config.name == name and config.summary
         assert "--seed" not in config.args and "--out" not in config.args
@@ -119,16 +119,28 @@ def test_every_config_parses_and_resolves(name: str) -> None:
     config = CONFIGS[name]
     cfg = parse_args([*config.args, "--seed", "0", "--out", "x"])
     assert cfg.task_aware_observations is True
-    assert cfg.sensor_profile == "aruco"
+    # the SB3 configurations train under aruco (30 Hz frames), the clones with ideal sensing
+    assert cfg.sensor_profile == ("aruco" if cfg.engine == "sb3" else None)
     assert cfg.control_period <= 1 / 30
-    assert cfg.algo == {"ppo_ta_aruco": "ppo", "lag_ta_aruco": "ppo_lagrangian"}[name]
+    assert cfg.scale_free_observations == (name == "bc_ppo_formations_sf")
+    assert (
+        cfg.algo
+        == {
+            "ppo_ta_aruco": "ppo",
+            "lag_ta_aruco": "ppo_lagrangian",
+            "bc_ppo_sharp": "bc_ppo",
+            "bc_ppo_formations_sf": "bc_ppo",
+        }[name]
+    )
     assert cfg.timesteps >= 1
     env = make_env(cfg)
     try:
         assert check_scenario(cfg, env) == []  # platoon-train would not refuse it
         assert env.control_period == pytest.approx(cfg.control_period)
         agent = env.possible_agents[0]
-        assert env.observation_space(agent).shape == (13,)  # the task-aware observation
+        # the task-aware observation (13 values), scale-free (15)
+        size = 15 if cfg.scale_free_observations else 13
+        assert env.observation_space(agent).shape == (size,)
     finally:
         env.close()
 
@@ -324,7 +336,7 @@ def test_main_trains_every_run_and_fails_if_one_failed(
     assert main(["--seeds", "0", "1", "--jobs", "2", "--runs", str(runs)]) == 1
     assert sorted(started) == sorted((n, s, run_dir(runs, n, s)) for n in CONFIGS for s in (0, 1))
     out = capsys.readouterr().out
-    assert "4 runs, 2 at a time" in out
+    assert f"{2 * len(CONFIGS)} runs, 2 at a time" in out
     assert "lag_ta_aruco s1: FAILED (exit 3" in out
     assert "ppo_ta_aruco s0: done in 0.1 min" in out
     started.clear()
@@ -353,3 +365,36 @@ def test_train_runs_platoon_train_with_one_torch_thread_and_logs(
     assert seen["kwargs"]["cwd"] == sweep.REPO_ROOT
     log = (out / "train.log").read_text()
     assert log.startswith("$ " + " ".join(cmd) + "\n") and log.endswith("trained\n")
+
+
+def fast_options(name: str, seed: int, *extra: str) -> dict[str, Any]:
+    """The fast learner's options a ``model.json`` of configuration ``name`` records."""
+    from training.fast_ppo import json_config
+    from training.train import fast_config
+
+    cfg = parse_args([*CONFIGS[name].args, "--seed", str(seed), "--out", "unused", *extra])
+    return json_config(fast_config(cfg))
+
+
+def test_ship_compares_a_fast_run_with_the_learners_own_options(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A fast-engine run records the learner's options (no --engine): those are compared, but
+    the clone it was fine-tuned from (its own path) and the options a resume may change; an
+    option recorded before it existed counts as its default; the trainer must be the cloner."""
+    runs, models = tmp_path / "runs", tmp_path / "models"
+    name = "bc_ppo_sharp"
+    done = {"timesteps": 5, "timesteps_requested": 5, "trainer": "training.bc"}
+    options = fast_options(name, 0)
+    older = {k: v for k, v in fast_options(name, 1).items() if k != "realism_preset"}
+    fake_run(runs, name, 0, **done, config={**options, "init_from": "/a/run/bc/model.zip"})
+    fake_run(runs, name, 1, **done, config={**older, "torch_threads": 2})
+    fake_run(runs, name, 2, **done, config=fast_options(name, 2, "--n-envs", "32"))
+    fake_run(
+        runs, name, 3, **{**done, "trainer": "training.fast_ppo"}, config=fast_options(name, 3)
+    )
+    shipped = ship(runs, models, [name], range(4))
+    assert shipped == [models / f"{name}_s0", models / f"{name}_s1"]
+    err = capsys.readouterr().err
+    assert "skip bc_ppo_sharp s2: " in err and "n_envs: stored 32, given 64" in err
+    assert "skip bc_ppo_sharp s3: " in err and "trainer: stored 'training.fast_ppo'" in err

@@ -51,7 +51,7 @@ class Config:
     args: tuple[str, ...]
 
 
-#: The options every shipped configuration shares: the medium procedural tier (corridors and
+#: The options the two SB3 configurations share: the medium procedural tier (corridors and
 #: rooms, disjoint from every test split), trained under the aruco sensing profile (camera noise,
 #: 30 Hz frames with 50 ms latency, detection drop-outs, LiDAR noise, acceleration limits) with
 #: the task-aware observation; 25 ms control period (aruco's 30 Hz camera needs one <= 1/30 s).
@@ -65,6 +65,36 @@ _COMMON = (
     "0.025",
     "--timesteps",
     "1500000",
+)
+
+#: The fast engine's cloning + fine-tuning options (``training/bc.py``, ``docs/training.md``): 30 ms
+#: control period (at 50 ms the PPC law itself fails the sharp tier), ideal sensing, task-aware
+#: observations, 64 env copies keeping a layout for 8 episodes, DAgger with 6 iterations of
+#: 1,500 steps per copy, then 1.5 M transitions of PPO at learning rate 3e-4.
+_BC_PPO = (
+    "--engine",
+    "fast",
+    "--algo",
+    "bc_ppo",
+    "--task-aware-observations",
+    "--control-period",
+    "0.03",
+    "--layout-repeats",
+    "8",
+    "--n-envs",
+    "64",
+    "--learning-rate",
+    "3e-4",
+    "--timesteps",
+    "1500000",
+    "--bc-iterations",
+    "6",
+    "--bc-steps-per-iteration",
+    "1500",
+    "--bc-epochs",
+    "8",
+    "--log-every",
+    "100000",
 )
 
 #: The configurations trained by ``python -m experiments.studies.sweep`` and shipped in ``models/``.
@@ -81,6 +111,23 @@ CONFIGS: dict[str, Config] = {
             "PPO-Lagrangian (cost budget 0.05 per follower episode), aruco profile, task-aware "
             "observations",
             ("--algo", "ppo_lagrangian", "--cost-budget", "0.05", *_COMMON),
+        ),
+        Config(
+            "bc_ppo_sharp",
+            "fast engine: the PPC law cloned with DAgger (6 iterations), then PPO fine-tuning, on "
+            "the sharp tier (study C's formation), ideal sensing, task-aware observations, 30 ms",
+            ("--scenario", "procedural_sharp_train", *_BC_PPO),
+        ),
+        Config(
+            "bc_ppo_formations_sf",
+            "fast engine: as bc_ppo_sharp, on the sharp tier with a formation drawn per layout "
+            "(1-7 followers, the three studies' ranges), scale-free observations",
+            (
+                "--scenario",
+                "procedural_formations_sharp_train",
+                "--scale-free-observations",
+                *_BC_PPO,
+            ),
         ),
     )
 }
@@ -195,12 +242,37 @@ def option_differences(config: Config, seed: int, meta: dict[str, Any]) -> list[
     if not isinstance(recorded, dict):
         return ["no recorded options (model.json has no 'config')"]
     cfg = parse_args([*config.args, "--seed", str(seed), "--out", "unused"])
+    if cfg.engine == "fast":
+        return _fast_differences(cfg, meta, recorded)
     # without the scenario fingerprint, the env options are compared one by one (resolving the
     # scenario here would only repeat what platoon-train checked when it trained the run)
     options_only = {k: v for k, v in meta.items() if k != "scenario_fingerprint"}
     out = config_differences(cfg, options_only, "", {})
     if recorded.get("timesteps") != cfg.timesteps:
         out.append(f"--timesteps: stored {recorded.get('timesteps')!r}, given {cfg.timesteps!r}")
+    return out
+
+
+def _fast_differences(cfg: Any, meta: dict[str, Any], recorded: dict[str, Any]) -> list[str]:
+    """:func:`option_differences` of a run of the fast engine, whose ``model.json`` records the
+    learner's own options (:func:`training.fast_ppo.json_config`): each compared with what
+    ``platoon-train`` makes of the configuration's, but those a resume may change and the
+    fine-tuning's ``init_from`` (the run's own clone); an option recorded before it existed
+    counts as its default. A ``bc_*`` configuration must have been trained by the cloner."""
+    from training.fast_ppo import RESUMABLE_CHANGES, FastPPOConfig, json_config
+    from training.train import fast_config
+
+    expected = json_config(fast_config(cfg))
+    defaults = json_config(FastPPOConfig())
+    skip = {*RESUMABLE_CHANGES, "init_from"}
+    out = []
+    for key, value in expected.items():
+        stored = recorded.get(key, defaults.get(key))
+        if key not in skip and stored != value:
+            out.append(f"{key}: stored {stored!r}, given {value!r}")
+    trainer = "training.bc" if cfg.algo.startswith("bc_") else "training.fast_ppo"
+    if meta.get("trainer") != trainer:
+        out.append(f"trainer: stored {meta.get('trainer')!r}, given {trainer!r}")
     return out
 
 
