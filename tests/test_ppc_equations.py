@@ -36,7 +36,7 @@ from baselines.ppc import (
     rho_dot,
     transformed_error,
 )
-from platoon_env.scenarios.schema import PPCConfig
+from platoon_env.scenarios.schema import ObservationConfig, PPCConfig
 
 R, D_DES, D_COL, D_CON, BETA_CON = 0.15, 1.0, 0.3, 1.5, 0.4
 LAM, RHO_D_INF, RHO_B_INF, K_D, K_B, DELTA, EPS, DT = 0.5, 0.05, 0.1, 1.0, 2.0, 0.5, 0.75, 0.01
@@ -61,6 +61,7 @@ def make_env(n: int = 2, ppc: PPCConfig | None = STUDY_C_PPC, dt: float = DT) ->
         safety=SimpleNamespace(d_col=D_COL),
         camera=SimpleNamespace(range=D_CON, half_angle=BETA_CON),
         robot=SimpleNamespace(radius=R),
+        observation=ObservationConfig(),  # the 7-vector in metres
     )
     return SimpleNamespace(
         possible_agents=[f"follower_{i + 1}" for i in range(n)],
