@@ -99,8 +99,13 @@ __all__ = [
 _TOOL = "platoon-leaderboard"
 #: The step a violation rate is counted per (the analytic laws' control period) [s].
 RATE_STEP = 0.01
-#: README markers between which the table is written.
-MARKERS = ("<!-- leaderboard:start -->", "<!-- leaderboard:end -->")
+#: README markers between which the table is written: a generated block of
+#: ``scripts/docs_blocks.py`` (the first table of ``docs/leaderboard.md``, which this writes).
+MARKERS = (
+    "<!-- begin: python -m experiments.studies.leaderboard ; file docs/leaderboard.md ; "
+    "table 1 -->",
+    "<!-- end -->",
+)
 
 
 # ----------------------------------------------------------------------------------------------
