@@ -377,17 +377,8 @@ class PlatoonCore:
         self.live[b] = self._slot_index < n_live
         if n_live < self.n_followers:
             self.poses[b, n_live + 1 :] = 0.0
-            for rows in (
-                self.actions,
-                self.applied,
-                self.violations,
-                self.sensed,
-                self.obs,
-                self.terms,
-                self.rewards,
-                self.frames,
-                self.unseen,
-            ):
+            # every per-follower buffer after the poses (which hold the leader's row too)
+            for rows in (*self.buffers[1:], self.unseen):
                 rows[b, n_live:] = 0
 
     def _task_install(self, b: int, cfg: ScenarioConfig) -> None:

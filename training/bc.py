@@ -88,7 +88,7 @@ from baselines.ppc import PPCPolicy
 from platoon_env.batched import BatchedPlatoon
 from platoon_env.scenarios.fingerprint import file_sha256
 from platoon_env.scenarios.scenario import Scenario
-from training.config import BOUNDS, env_metadata
+from training.config import BOUNDS, ENV_FIELDS, env_metadata
 from training.fast_ppo import (
     ActorCritic,
     FastPPOConfig,
@@ -591,18 +591,13 @@ def _stored_clone(bc_dir: Path) -> Mapping[str, Any] | None:
     return None if point is None else point.meta
 
 
+#: The options a stored clone must share with the run that fine-tunes it: the env's
+#: (:data:`training.config.ENV_FIELDS`), and what shapes the samples and the network.
 _CLONE_KEYS = (
-    "scenario",
+    *ENV_FIELDS,
     "seed",
     "n_envs",
     "layout_repeats",
-    "control_period",
-    "physics_substeps",
-    "max_episode_steps",
-    "sensor_profile",
-    "task_aware_observations",
-    "scale_free_observations",
-    "realism_preset",
     "u_low",
     "u_high",
     "omega_high",
