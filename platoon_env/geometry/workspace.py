@@ -56,9 +56,11 @@ def build_free_space(cfg: WorkspaceConfig, path: str = "scenario.workspace") -> 
         region = bounds_box if region is None else region.intersection(bounds_box)
     if region is None:
         raise ScenarioError(f"{path}: give 'bounds' and/or 'free_space'")
-    free = region
-    for k, obstacle in enumerate(cfg.obstacles):
-        free = free.difference(_polygon(obstacle, f"{path}.obstacles[{k}]"))
+    obstacles = [_polygon(o, f"{path}.obstacles[{k}]") for k, o in enumerate(cfg.obstacles)]
+    # One difference with the obstacles' union (a cascaded union, about n log n) rather than one
+    # difference per obstacle, whose cost grows with the free space cut so far (quadratic:
+    # 2,000 small obstacles took 12 s, 5,000 about a minute).
+    free = region.difference(shapely.union_all(obstacles)) if obstacles else region
     free = shapely.make_valid(free)
     if isinstance(free, MultiPolygon):
         pieces = [g for g in free.geoms if g.area > 1e-12]
