@@ -3,19 +3,11 @@
 # gets its own venv), run the RLlib tests in it (extra arguments go to pytest), then train once
 # on a two-node Ray cluster started on this machine (RLLIB_PYTEST=0 skips the tests,
 # RLLIB_CLUSTER=0 the cluster run).
-# torch==2.13.0 is named in the same pip command as ray: any other torch request pulls a
+# scripts/setup.sh names torch==2.13.0 in the same pip command as ray: any other torch request pulls a
 # multi-GB CUDA build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-PY="${PYTHON:-}"
-if [ -z "$PY" ]; then
-  if command -v python3.11 >/dev/null 2>&1; then PY=python3.11; else PY=python3; fi
-fi
-if [ ! -x .venv-rllib/bin/python ]; then
-  "$PY" -m venv .venv-rllib
-fi
-.venv-rllib/bin/python -m pip install -q --upgrade pip
-.venv-rllib/bin/python -m pip install -q "torch==2.13.0" -e ".[train,plot,dev,rllib]"
+bash scripts/setup.sh .venv-rllib train,plot,dev,rllib
 export MPLBACKEND=Agg
 # Ray must not join a cluster that happens to run on this machine.
 unset RAY_ADDRESS

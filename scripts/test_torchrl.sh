@@ -3,19 +3,11 @@
 # venv beside the default one; [plot] because tests/conftest.py imports matplotlib) and run the
 # TorchRL tests in it (PettingZooWrapper on the numeric info view, GymEnv on the Gymnasium ids,
 # check_env_specs). Extra arguments go to pytest.
-# torch==2.13.0 is named in the same pip command as torchrl: any other torch request pulls a
+# scripts/setup.sh names torch==2.13.0 in the same pip command as torchrl: any other torch request pulls a
 # multi-GB CUDA build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-PY="${PYTHON:-}"
-if [ -z "$PY" ]; then
-  if command -v python3.11 >/dev/null 2>&1; then PY=python3.11; else PY=python3; fi
-fi
-if [ ! -x .venv-torchrl/bin/python ]; then
-  "$PY" -m venv .venv-torchrl
-fi
-.venv-torchrl/bin/python -m pip install -q --upgrade pip
-.venv-torchrl/bin/python -m pip install -q "torch==2.13.0" -e ".[plot,dev,torchrl]"
+bash scripts/setup.sh .venv-torchrl plot,dev,torchrl
 export MPLBACKEND=Agg
 echo "== pytest (torchrl)"
 .venv-torchrl/bin/python -m pytest -p no:cacheprovider tests/test_torchrl.py "$@"
