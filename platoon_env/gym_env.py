@@ -46,7 +46,11 @@ GYM_SCENARIOS: tuple[str, ...] = (
     "study_c",
     *(f"procedural_{tier}_{split}" for tier in GENERATOR_TIERS for split in GENERATOR_SPLITS),
     *(f"procedural_formations_{split}" for split in GENERATOR_SPLITS),
-    *(f"procedural_formations_sharp_{split}" for split in GENERATOR_SPLITS),
+    *(
+        f"procedural_formations_{tier}_{split}"
+        for tier in ("sharp", "paper")
+        for split in GENERATOR_SPLITS
+    ),
 )
 
 

@@ -39,6 +39,12 @@ SCENARIO_FINGERPRINTS = {
     "procedural_formations_train": (
         "7339b91dab1a7bb0fa0632a1e541f3da731484a420df265b8bff8a4949d84b56"
     ),
+    "procedural_formations_paper_test": (
+        "9ddd4017da373e303e00f38408ad8c257b4f35a1bedd90318149a3a5df7087ac"
+    ),
+    "procedural_formations_paper_train": (
+        "bb243f1b4029e0202f711966233feaba291efd0fee1e62b9825d1e4a9d688384"
+    ),
     "procedural_formations_sharp_test": (
         "bfa8c4342b4c711ea3ca3c466f7d19bd9f230b55d6f390d5195933a309e0afef"
     ),

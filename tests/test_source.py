@@ -67,6 +67,8 @@ DRAWN = (
     "procedural_formations_test",
     "procedural_formations_sharp_train",
     "procedural_formations_sharp_test",
+    "procedural_formations_paper_train",
+    "procedural_formations_paper_test",
 )
 
 

@@ -364,8 +364,8 @@ def test_heldout_suite_runs_every_tier() -> None:
     assert "heldout" in SUITES
     generators = {name: load_config(name).generator for name in list_scenarios()}
     train = [seed_range(g.split, g.tier) for g in generators.values() if g and g.split == "train"]
-    # untiered, corridors and formations (both untiered), the tiers, formations on the sharp tier
-    assert len(train) == 3 + len(GENERATOR_TIERS) + 1
+    # untiered, corridors and formations (both untiered), the tiers, formations on sharp and paper
+    assert len(train) == 3 + len(GENERATOR_TIERS) + 2
     for name in heldout.scenarios:
         gen = generators[name]
         assert gen is not None and gen.split == "test"
