@@ -125,6 +125,7 @@ from platoon_env.scenarios.source import ScenarioSource, scenario_source
 from platoon_env.violations import VIOLATION_INFO
 from training.config import (
     BOUNDS,
+    ENV_FIELDS,
     FAST_ONLY,
     MAX_LAYER,
     SB3_OPTIONS,
@@ -388,18 +389,9 @@ def config_problems(cfg: FastPPOConfig) -> list[str]:
 def _train_view(cfg: FastPPOConfig) -> TrainConfig:
     """``cfg``'s env options as ``platoon-train`` options, for the env rules shared with it
     (:func:`training.config.env_overrides`, :func:`training.config.env_metadata`)."""
-    return TrainConfig(
-        scenario=cfg.scenario,  # type: ignore[arg-type]  # a mapping is a scenario too
-        seed=cfg.seed,
-        n_envs=cfg.n_envs,
-        control_period=cfg.control_period,
-        physics_substeps=cfg.physics_substeps,
-        max_episode_steps=cfg.max_episode_steps,
-        sensor_profile=cfg.sensor_profile,
-        task_aware_observations=cfg.task_aware_observations,
-        scale_free_observations=cfg.scale_free_observations,
-        realism_preset=cfg.realism_preset,
-    )
+    # the options that shape the env (training.config.ENV_FIELDS; a mapping is a scenario too)
+    env = {name: getattr(cfg, name) for name in ENV_FIELDS}
+    return TrainConfig(seed=cfg.seed, n_envs=cfg.n_envs, **env)
 
 
 # ------------------------------------------------------------------------------------------------
