@@ -37,6 +37,7 @@ from platoon_env.scenarios.schema import (
     MIN_CONTROL_PERIOD,
     ScenarioError,
 )
+from platoon_env.scenarios.source import MixtureSource
 from training.policies import ACTION_LAYOUT, scenario_differences
 from training.vec_env import ActionRange
 
@@ -210,6 +211,11 @@ class TrainConfig:
         "fast: first rollouts in which only the critic learns (FastPPOConfig's; bc_*: "
         "training.bc.FINETUNE)",
     )
+    anchor_coef: float | None = _opt(
+        None,
+        "fast: weight of the squared distance of the policy's mean action from the network it "
+        "started from (--init-from; bc_*: the clone); 0: none (FastPPOConfig's default)",
+    )
     # --- behaviour cloning (--algo bc_*; None: training.bc.BCConfig's default) ---
     bc_expert: str | None = _opt(
         None, "bc: the analytic law cloned (ppc)", choices=("ppc", "filtered_ppc")
@@ -352,6 +358,7 @@ BOUNDS: dict[str, Bound] = {
     "lagrangian_init": Bound(0),
     "lagrangian_max": Bound(0, low_open=True),
     "value_warmup": Bound(0, 10**6),
+    "anchor_coef": Bound(0),
     # --- behaviour cloning (training.bc.BCConfig: the same names without bc_) ---
     "bc_iterations": Bound(1, 10_000),
     "bc_steps_per_iteration": Bound(1, 10**7),
@@ -370,6 +377,7 @@ FAST_ONLY = (
     "lagrangian_max",
     "init_from",
     "value_warmup",
+    "anchor_coef",
 )
 #: Largest layer of --net-arch.
 MAX_LAYER = 65536
@@ -580,7 +588,9 @@ def env_metadata(cfg: TrainConfig, env: Any) -> dict[str, Any]:
     """What ``model.json`` records of the training env, for every engine: scenario (as given,
     and the resolved config with its fingerprint), seed, time step, step limit, episode-ending
     causes, the number of followers and the observation/action layout (the resolved
-    scenario's: the 7-vector, or the 13 task-aware values)."""
+    scenario's: the 7-vector, or the 13 task-aware values). A mixture (``"a+b"``,
+    :class:`~platoon_env.scenarios.source.MixtureSource`) also records each component's name
+    and fingerprint (``scenario_components``); ``scenario_config`` is the first's."""
     # A procedural source's layouts each derive the limit from their own path: record only a
     # set one.
     procedural = env.source.procedural
@@ -597,6 +607,22 @@ def env_metadata(cfg: TrainConfig, env: Any) -> dict[str, Any]:
         "n_followers": env.n_followers,
         "observation_layout": list(observation_names(resolved)),
         "action_layout": list(ACTION_LAYOUT),
+        **_mixture_metadata(env.source),
+    }
+
+
+def _mixture_metadata(source: Any) -> dict[str, Any]:
+    """``{"scenario_components": [{"name", "fingerprint"}, ...]}`` of a mixture source (also
+    one wrapped by the fast engine's layout repeater, ``.inner``), else ``{}``."""
+    while not isinstance(source, MixtureSource) and hasattr(source, "inner"):
+        source = source.inner
+    if not isinstance(source, MixtureSource):
+        return {}
+    return {
+        "scenario_components": [
+            {"name": part.config.name, "fingerprint": config_fingerprint(part.config)}
+            for part in source.components
+        ]
     }
 
 

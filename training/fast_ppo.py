@@ -207,7 +207,13 @@ class FastPPOConfig:
     observation size and ``net_arch``, e.g. the cloned model of :mod:`training.bc`, whose
     policy parameters, all but ``log_std``, the network starts from; ``log_std`` starts at
     ``log_std_init``), ``value_warmup`` (the first rollouts of a run in which only the critic
-    learns: a critic not trained with the actor it starts from gives noise for advantages).
+    learns: a critic not trained with the actor it starts from gives noise for advantages),
+    ``anchor_coef`` (``c_a >= 0``; needs ``init_from``: the update's loss gains
+    ``c_a * E ||mu_theta(o) - mu_0(o)||^2``, the squared distance of the policy's mean action
+    (normalised, before clipping) from that of the frozen network it started from, over the
+    minibatch: for Gaussians of one ``sigma`` this is ``2 sigma^2`` times their KL divergence.
+    It keeps a fine-tuned clone near the law it copies, a behaviour-cloning regulariser as in
+    DAPG; 0: none).
 
     PPO-Lagrangian: ``cost_budget`` (``b``, expected cost per follower episode),
     ``lagrangian_lr`` (``η`` per rollout; a rollout here is tens of thousands of transitions,
@@ -256,6 +262,7 @@ class FastPPOConfig:
     # --- start ---
     init_from: str | None = None
     value_warmup: int = 0
+    anchor_coef: float = 0.0
     # --- PPO-Lagrangian ---
     cost_budget: float = _TRAIN.cost_budget
     lagrangian_lr: float = 0.5
@@ -888,6 +895,15 @@ def _learn(
         initialised_from = initial_weights(cfg.init_from, net)
     elif stored is not None:
         initialised_from = stored.meta.get("initialised_from")
+    # The frozen start the anchor term pulls the actor's mean towards (anchor_coef > 0).
+    anchor: ActorCritic | None = None
+    if cfg.anchor_coef > 0:
+        if cfg.init_from is None:
+            raise ValueError("anchor_coef: needs init_from (the network the policy is kept near)")
+        anchor = ActorCritic(K, cfg.net_arch, cfg.log_std_init, cost_head=False).to(device)
+        initial_weights(cfg.init_from, anchor)
+        anchor.requires_grad_(False)
+        anchor.eval()
     if stored is not None:
         net.load_state_dict(stored.state["network"])
         optimizer.load_state_dict(stored.state["optimizer"])
@@ -1098,6 +1114,11 @@ def _learn(
                         value_loss = value_loss + ((cvalue - b_cret[idx]) ** 2).mean()
                     entropy = (0.5 + _LOG_SQRT_2PI + net.log_std).sum()
                     loss = policy_loss - cfg.ent_coef * entropy + cfg.vf_coef * value_loss
+                    if anchor is not None:
+                        with torch.no_grad():
+                            anchored = anchor.actor(b_obs[idx])
+                        drift = ((mean - anchored) ** 2).sum(-1).mean()
+                        loss = loss + cfg.anchor_coef * drift
                     if warmup:  # no gradient reaches the actor or log_std
                         loss = cfg.vf_coef * value_loss
                     optimizer.zero_grad(set_to_none=True)

@@ -11,6 +11,8 @@ needs no special case for procedural scenarios:
   ``procedural_train``). :meth:`~ProceduralSource.sample` draws the layout number
   ``int(rng.integers(LAYOUTS_PER_SPLIT))`` from the env's stream and builds it with
   :func:`~platoon_env.scenarios.procedural.generate_scenario`.
+* :class:`MixtureSource` draws each episode from one of several sources, chosen uniformly (a
+  name ``"a+b"``: families ``a`` and ``b``, e.g. two difficulty tiers for training).
 
 :func:`scenario_source` turns whatever a user passes to ``make()`` (a shipped name, a YAML path,
 a dict, a :class:`~platoon_env.scenarios.schema.ScenarioConfig`, a built scenario or a source)
@@ -32,7 +34,7 @@ Imports run one way: this module imports :mod:`~platoon_env.scenarios.procedural
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol, TypeAlias, runtime_checkable
 
@@ -46,10 +48,13 @@ from platoon_env.scenarios.scenario import Scenario, build_scenario
 from platoon_env.scenarios.validate import check_ranges
 
 __all__ = [
+    "MIXTURE_SEPARATOR",
     "FixedSource",
+    "MixtureSource",
     "ProceduralSource",
     "ScenarioSource",
     "SourceLike",
+    "is_mixture",
     "scenario_source",
 ]
 
@@ -230,6 +235,99 @@ class ProceduralSource:
         )
 
 
+#: The separator of a mixture's names: ``"procedural_sharp_train+procedural_paper_train"``.
+MIXTURE_SEPARATOR = "+"
+#: The config blocks every component of a :class:`MixtureSource` must share: the env sizes its
+#: observation, buffers and camera-frame ring by the first component's, and times every
+#: episode by its simulation block.
+MIXTURE_SHARED = (
+    "observation",
+    "simulation",
+    "realism",
+    "camera",
+    "proximity",
+    "reward",
+    "initial",
+)
+
+
+class MixtureSource:
+    """Several sources, one chosen per episode: each episode first draws the component
+    ``k = int(rng.integers(K))`` (uniform over the ``K`` components, one draw), then that
+    component's scenario from the same stream (:meth:`ScenarioSource.sample`).
+
+    For training on several families at once (e.g. the ``sharp`` and ``paper`` tiers, each with
+    a formation drawn per layout); :func:`scenario_source` builds one from a name
+    ``"a+b"`` (:data:`MIXTURE_SEPARATOR`). The components may differ in their generator (kind,
+    split, tier, formation ranges), leader, robots, followers, safety and formation; the blocks
+    of :data:`MIXTURE_SHARED`, which fix the env's observation layout, buffers and clock, must
+    be equal (``ScenarioError`` naming the block otherwise). :attr:`config` is the first
+    component's template; :attr:`followers_range` spans the components'.
+    """
+
+    def __init__(self, components: Sequence[ScenarioSource]) -> None:
+        """Mix ``components`` (at least two sources; ``ValueError`` otherwise)."""
+        parts = tuple(components)
+        if len(parts) < 2:
+            raise ValueError(f"MixtureSource needs at least two sources, got {len(parts)}")
+        first = parts[0].config
+        for part in parts[1:]:
+            for block in MIXTURE_SHARED:
+                if getattr(part.config, block) != getattr(first, block):
+                    raise ScenarioError(
+                        f"MixtureSource: {part.config.name!r} differs from {first.name!r} in its "
+                        f"{block!r} block; the components of a mixture share "
+                        f"{', '.join(MIXTURE_SHARED)}"
+                    )
+        self.components = parts
+
+    @property
+    def config(self) -> ScenarioConfig:
+        """The first component's config (the template the env sizes itself by)."""
+        return self.components[0].config
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The components' config names, in order."""
+        return tuple(part.config.name for part in self.components)
+
+    @property
+    def bounds(self) -> Bounds:
+        """The smallest box containing every component's bounds."""
+        boxes = np.array([part.bounds for part in self.components], dtype=float)
+        return (
+            float(boxes[:, 0].min()),
+            float(boxes[:, 1].min()),
+            float(boxes[:, 2].max()),
+            float(boxes[:, 3].max()),
+        )
+
+    @property
+    def procedural(self) -> bool:
+        """True: the workspace may change at every episode."""
+        return True
+
+    @property
+    def followers_range(self) -> tuple[int, int]:
+        """The least and the most followers an episode of any component may have."""
+        ranges = [
+            getattr(part, "followers_range", (part.config.followers, part.config.followers))
+            for part in self.components
+        ]
+        return min(int(lo) for lo, _ in ranges), max(int(hi) for _, hi in ranges)
+
+    def initial(self) -> Scenario:
+        """The first component's representative scenario."""
+        return self.components[0].initial()
+
+    def sample(self, rng: np.random.Generator) -> Scenario:
+        """Draw the component (one draw), then its scenario from ``rng``."""
+        return self.components[int(rng.integers(len(self.components)))].sample(rng)
+
+    def __repr__(self) -> str:
+        return f"MixtureSource({', '.join(repr(part) for part in self.components)})"
+
+
 #: Anything :func:`scenario_source` accepts.
 SourceLike: TypeAlias = ScenarioLike | ScenarioSource
 
@@ -246,7 +344,10 @@ def scenario_source(
         scenario: a shipped name (see :func:`~platoon_env.scenarios.loader.list_scenarios`), a
             YAML path, a mapping in the scenario schema, a
             :class:`~platoon_env.scenarios.schema.ScenarioConfig`, a built :class:`Scenario`,
-            or a :class:`ScenarioSource`. A config or scenario with a ``generator`` block gives
+            or a :class:`ScenarioSource`. A name ``"a+b"`` (shipped names or paths joined by
+            :data:`MIXTURE_SEPARATOR`, not itself an existing file) gives a
+            :class:`MixtureSource` of their sources, each with ``overrides``. A config or
+            scenario with a ``generator`` block gives
             a :class:`ProceduralSource` (a built layout of one serves as its template, as
             ``make()`` has always treated it; wrap it in :class:`FixedSource` to pin that
             layout); anything else a :class:`FixedSource`.
@@ -261,6 +362,13 @@ def scenario_source(
     unsupported argument (or overrides on a source of another type).
     """
     fixed: Scenario | None = None  # a built scenario to rebuild (rather than from its config)
+    if isinstance(scenario, str) and is_mixture(scenario):
+        return MixtureSource(
+            [
+                scenario_source(part, overrides, where=where)
+                for part in scenario.split(MIXTURE_SEPARATOR)
+            ]
+        )
     if isinstance(scenario, Scenario):
         if not overrides and scenario.config.generator is None:
             return FixedSource(scenario)
@@ -293,6 +401,13 @@ def scenario_source(
     if fixed is not None:
         return FixedSource(_rebuild(fixed, cfg))
     return FixedSource(build_scenario(cfg))
+
+
+def is_mixture(name: str) -> bool:
+    """Whether ``name`` names a mixture (``"a+b"``): it holds :data:`MIXTURE_SEPARATOR`
+    between non-empty names and is not the path of an existing file."""
+    parts = name.split(MIXTURE_SEPARATOR)
+    return len(parts) > 1 and all(p.strip() for p in parts) and not Path(name).is_file()
 
 
 def _rebuild(scenario: Scenario, cfg: ScenarioConfig) -> Scenario:
