@@ -107,7 +107,13 @@ def test_a_run_killed_before_its_first_checkpoint_starts_over(tmp_path: Path) ->
 # The shipped configurations
 # ------------------------------------------------------------------------------------------------
 def test_configs_are_named_by_their_keys() -> None:
-    assert set(CONFIGS) == {"ppo_ta_aruco", "lag_ta_aruco", "bc_ppo_sharp", "bc_ppo_formations_sf"}
+    assert set(CONFIGS) == {
+        "ppo_ta_aruco",
+        "lag_ta_aruco",
+        "bc_ppo_sharp",
+        "bc_ppo_formations_sf",
+        "bc_ppo_mixed_anchor",
+    }
     for name, config in CONFIGS.items():
         assert config.name == name and config.summary
         assert "--seed" not in config.args and "--out" not in config.args
@@ -122,7 +128,7 @@ def test_every_config_parses_and_resolves(name: str) -> None:
     # the SB3 configurations train under aruco (30 Hz frames), the clones with ideal sensing
     assert cfg.sensor_profile == ("aruco" if cfg.engine == "sb3" else None)
     assert cfg.control_period <= 1 / 30
-    assert cfg.scale_free_observations == (name == "bc_ppo_formations_sf")
+    assert cfg.scale_free_observations == (name in {"bc_ppo_formations_sf", "bc_ppo_mixed_anchor"})
     assert (
         cfg.algo
         == {
@@ -130,6 +136,7 @@ def test_every_config_parses_and_resolves(name: str) -> None:
             "lag_ta_aruco": "ppo_lagrangian",
             "bc_ppo_sharp": "bc_ppo",
             "bc_ppo_formations_sf": "bc_ppo",
+            "bc_ppo_mixed_anchor": "bc_ppo",
         }[name]
     )
     assert cfg.timesteps >= 1

@@ -138,6 +138,19 @@ CONFIGS: dict[str, Config] = {
                 *_BC_PPO,
             ),
         ),
+        Config(
+            "bc_ppo_mixed_anchor",
+            "fast engine: as bc_ppo_formations_sf, on the sharp and paper tiers mixed (a family "
+            "drawn per episode), the fine-tuning anchored to the clone (--anchor-coef 1)",
+            (
+                "--scenario",
+                "procedural_formations_sharp_train+procedural_formations_paper_train",
+                "--scale-free-observations",
+                "--anchor-coef",
+                "1.0",
+                *_BC_PPO,
+            ),
+        ),
     )
 }
 
