@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 import torch
+from test_fast_ppo import TINY
 
 from platoon_env.batched import BatchedPlatoon
 from platoon_env.config import ScenarioError
@@ -56,19 +56,6 @@ def test_a_mixture_refuses_families_of_other_observation_layouts() -> None:
         MixtureSource([plain])
 
 
-TINY: dict[str, Any] = {
-    "scenario": "study_c",
-    "n_envs": 4,
-    "n_steps": 32,
-    "batch_size": 64,
-    "n_epochs": 2,
-    "timesteps": 2048,
-    "log_every": 256,
-    "checkpoint_every": 0,
-    "progress_bar": False,
-}
-
-
 def actor_keys(state: dict[str, torch.Tensor]) -> list[str]:
     return [k for k in state if k.startswith(("mlp_extractor.policy_net", "action_net"))]
 
@@ -79,13 +66,15 @@ def drift(start: dict[str, torch.Tensor], end: dict[str, torch.Tensor]) -> float
 
 def test_the_anchor_keeps_the_actor_near_its_start(tmp_path: Path, one_torch_thread: None) -> None:
     del one_torch_thread
-    train_fast(FastPPOConfig(**TINY), tmp_path / "start")
+    train_fast(FastPPOConfig(**{**TINY, "timesteps": 2048}), tmp_path / "start")
     start = torch.load(tmp_path / "start" / "model.state.pt", weights_only=True)["network"]
     init = str(tmp_path / "start" / "model.zip")
     moved = {}
     for coef in (0.0, 10.0):
         out = tmp_path / f"anchor_{coef:g}"
-        train_fast(FastPPOConfig(**TINY, init_from=init, anchor_coef=coef), out)
+        train_fast(
+            FastPPOConfig(**{**TINY, "timesteps": 2048}, init_from=init, anchor_coef=coef), out
+        )
         end = torch.load(out / "model.state.pt", weights_only=True)["network"]
         moved[coef] = drift(start, end)
         assert json.loads((out / "model.json").read_text())["config"]["anchor_coef"] == coef
