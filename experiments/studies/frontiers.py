@@ -424,20 +424,25 @@ def rows_of(
     grid: Sequence[tuple[tuple[str, ...], Cell]],
     resolved: Sequence[ResolvedCell],
     result: GridResult,
+    *,
+    key_columns: Sequence[str] = KEY_COLUMNS,
+    columns: Sequence[str] = CSV_COLUMNS,
 ) -> list[dict[str, Any]]:
-    """The CSV rows (:data:`CSV_COLUMNS`) of the grid's points that have a result
-    (``resolved``: the grid's cells resolved in order, one per point)."""
+    """The CSV rows (``columns``, default :data:`CSV_COLUMNS`) of the grid's points that have a
+    result (``resolved``: the grid's cells resolved in order, one per point); each point's key
+    is named by ``key_columns`` (default :data:`KEY_COLUMNS`; another study's grid, such as
+    :mod:`experiments.studies.breaks`, names its own)."""
     rows = []
     for (key, _), rc in zip(grid, resolved, strict=True):
         rec = result.records.get(rc.key)
         if rec is None or rec.status not in ("done", "refused"):
             continue
         if rec.status == "refused":
-            row: dict[str, Any] = dict.fromkeys(CSV_COLUMNS, "")
+            row: dict[str, Any] = dict.fromkeys(columns, "")
             row.update(success=False, truncated=False, violation=REFUSED, steps=0)
         else:
             row = dict(rec.metrics)
-        row.update(dict(zip(KEY_COLUMNS, key, strict=True)), wall_time=rec.wall_time)
+        row.update(dict(zip(key_columns, key, strict=True)), wall_time=rec.wall_time)
         rows.append(row)
     return rows
 
