@@ -538,7 +538,8 @@ def startup_answer(
     profile: str,
 ) -> list[str]:
     """The start-up question in generated sentences: per study and controller, how many of the
-    profile's failures with a violation came in the first :data:`STARTUP` s, and where; whether
+    profile's failures with a violation came in the first :data:`STARTUP` s, and where, with the
+    range and median of their times (a window edge splits a cluster just past it); whether
     the start-up transient dominates them (more than :data:`DOMINANCE` of them early); and, if
     it does, the early failures left with each axis removed (which part of the profile makes the
     transient) and with each axis alone."""
@@ -561,9 +562,12 @@ def startup_answer(
             where = ", ".join(f"{p} {places.get(p, 0)}" for p in PLACES)
             verdict = "dominates" if share > DOMINANCE else "does not dominate"
             (dominated if share > DOMINANCE else not_dominated).append(name)
+            times = [_violation_time(r) for r in timed]
             text = (
                 f"- {name}: {len(early)} of {len(timed)} failures under {profile} in the first "
-                f"{STARTUP:g} s ({share:.0%}; {where}): the start-up transient {verdict}."
+                f"{STARTUP:g} s ({share:.0%}; {where}; all first violations between "
+                f"{min(times):.2f} and {max(times):.2f} s, median {float(np.median(times)):.2f} "
+                f"s): the start-up transient {verdict}."
             )
             if share > DOMINANCE:
                 for kind, word in (("without", "with it removed"), ("alone", "alone")):
