@@ -31,6 +31,20 @@ with the points where sight of the predecessor was lost and where it was last se
 Then both studies × both policies over ``--seeds`` seeds: a markdown table of visibility
 breaks, collisions and successes (with 95 % intervals), written to ``OUT/comparison.md`` under
 the run's metadata stamp, and printed.
+
+``--fig15`` runs, instead, the paper's Fig. 15 (§4.3): study C with **one follower**
+(:data:`FIG15_OVERRIDES`: ``make("study_c", followers=1)`` with ``terminate_on`` limited to
+collisions), PPC and the last-seen controller (:data:`FIG15_POLICIES`) over ``--seeds`` seeds.
+Its measure (:func:`fig15_metrics`) adds to :func:`comparison_metrics` the first loss of sight
+(:func:`first_loss`: when, where, what broke it, whether and when sight came back, whether the
+follower reached the last-seen point while still blind). It writes
+``OUT/fig15_one_follower.md`` under the run's stamp — table 1 the comparison's columns
+(:func:`comparison_table`), table 2 the first loss per policy (:func:`first_loss_table`, with
+the corner of the leader's path nearest the follower when it lost sight), table 3 every episode
+(:func:`first_loss_rows`), then a list of what the tables show (:func:`fig15_findings`) — and
+``OUT/study_c_last_seen_trace_one_follower.png``, Fig. 15 from the seed-0 one-follower episode
+of the last-seen controller, the leader path's corners numbered. The two-follower figure
+``study_c_last_seen_trace.png`` is the default run's.
 """
 
 from __future__ import annotations
@@ -63,11 +77,21 @@ from platoon_env.scenarios.schema import VIOLATION_CAUSES
 
 __all__ = [
     "COLLISIONS",
+    "FIG15_OVERRIDES",
+    "FIG15_POLICIES",
+    "FIG15_STUDY",
     "POLICIES",
     "STUDIES",
     "break_intervals",
     "comparison_metrics",
     "comparison_table",
+    "fig15_cells",
+    "fig15_findings",
+    "fig15_metrics",
+    "first_loss",
+    "first_loss_rows",
+    "first_loss_table",
+    "leader_corners",
     "make_env",
     "plot_distances",
     "plot_last_seen_trace",
@@ -94,6 +118,20 @@ POLICIES: dict[str, PolicySpec] = {
     kind.label: PolicySpec.of(name, kind.label)
     for name, kind in analytic_policies("comparison").items()
 }
+
+
+#: Fig. 15 (``--fig15``, paper §4.3): the study, ...
+FIG15_STUDY = "study_c"
+#: ... its ``make()`` overrides: one follower, ``terminate_on`` limited to collisions ...
+FIG15_OVERRIDES: dict[str, Any] = {**OVERRIDES, "followers": 1}
+#: ... and its policies (keys of :data:`POLICIES`).
+FIG15_POLICIES: tuple[str, ...] = ("PPC", "last-seen [32]")
+#: The measure of a Fig. 15 episode (:func:`fig15_metrics`).
+FIG15_MEASURE = "experiments.studies.comparison:fig15_metrics"
+#: The markdown ``--fig15`` writes under ``--out``.
+FIG15_FILE = "fig15_one_follower.md"
+#: The violation causes that make a predecessor not visible (the camera's, eq. 5).
+_SIGHT_CAUSES: tuple[str, ...] = ("out_of_range", "out_of_fov", "occluded")
 
 
 def make_env(study: str) -> platoon_env.PlatoonParallelEnv:
@@ -153,6 +191,233 @@ def comparison_metrics(ep: Episode) -> dict[str, Any]:
         "completed": bool(ep.leader_arrived and ep.first_violation is None),
         "cause_steps": cause_steps,
     }
+
+
+def first_loss(ep: Episode) -> dict[str, Any]:
+    """The first loss of sight of an episode: the earliest interval of
+    :func:`break_intervals` (on a tie, the lowest follower), as JSON-able metrics.
+
+    ``first_loss`` (whether sight was ever lost); then, or ``None`` if not: ``first_loss_follower``
+    ``i`` (1-based), ``first_loss_step`` ``k`` (the first sample without sight) and
+    ``first_loss_time`` ``t_k`` [s]; ``first_loss_position``, follower ``R_i``'s ``[x, y]`` at
+    ``k``; ``first_loss_last_seen``, its predecessor ``R_{i-1}``'s ``[x, y]`` at ``k - 1`` (the
+    last-seen point of the leader-loss mode); ``first_loss_causes``, the camera constraints of
+    eq. 5 the step into ``k`` violated (``out_of_range``: ``d_i >= d_con``, ``out_of_fov``:
+    ``|beta_i| >= beta_con``, ``occluded``: ``d_l,i`` or ``d_r,i`` <= 0, the line of sight
+    blocked); ``first_loss_duration`` [s] (the interval's); ``first_loss_regained`` (sight back
+    before the episode ended); ``first_loss_reached_blind`` (from the policy's ``arrived``
+    signal, :class:`baselines.LastSeenPolicy`: the follower reached the last-seen point during
+    the interval, still without sight; ``None`` for a policy without that signal or an episode
+    run without signals).
+
+    For the whole episode: ``ends_blind`` (some follower is without sight at the last sample) and
+    ``reached_blind_intervals`` (the intervals in which the follower reached the last-seen point
+    without sight; ``None`` without the ``arrived`` signal).
+    """
+    intervals = break_intervals(ep)
+    last = int(ep.times.size) - 1
+    arrived = ep.signals.get("arrived")
+    out: dict[str, Any] = {
+        "first_loss": bool(intervals),
+        "ends_blind": any(k + n > last for _, k, n in intervals),
+        "reached_blind_intervals": None
+        if arrived is None
+        else sum(bool(np.any(arrived[k : k + n, i - 1])) for i, k, n in intervals),
+    }
+    keys = "follower step time position last_seen causes duration regained reached_blind"
+    if not intervals:
+        return {**out, **{f"first_loss_{key}": None for key in keys.split()}}
+    i, k, n = min(intervals, key=lambda iv: (iv[1], iv[0]))
+    causes = mask_to_causes(int(ep.violations[k - 1, i - 1]))
+    return {
+        **out,
+        "first_loss_follower": i,
+        "first_loss_step": k,
+        "first_loss_time": float(ep.times[k]),
+        "first_loss_position": [float(v) for v in ep.poses[k, i, :2]],
+        "first_loss_last_seen": [float(v) for v in ep.poses[k - 1, i - 1, :2]],
+        "first_loss_causes": [c for c in _SIGHT_CAUSES if c in causes],
+        "first_loss_duration": n * float(ep.control_period),
+        "first_loss_regained": k + n <= last,
+        "first_loss_reached_blind": None
+        if arrived is None
+        else bool(np.any(arrived[k : k + n, i - 1])),
+    }
+
+
+def fig15_metrics(ep: Episode) -> dict[str, Any]:
+    """The metrics of one Fig. 15 episode: :func:`comparison_metrics`, the number of
+    ``followers`` ``N`` and the first loss of sight (:func:`first_loss`)."""
+    return {**comparison_metrics(ep), "followers": int(ep.poses.shape[1]) - 1, **first_loss(ep)}
+
+
+def leader_corners(config: Any) -> list[tuple[float, float]]:
+    """The corners of the scripted leader's path (its polyline's interior vertices, in driving
+    order: corner 1 is the first sharp corner the leader turns); a ``ValueError`` if the
+    scenario's leader has no path with a corner."""
+    path = getattr(config.leader, "path", None)
+    if path is None or len(path) < 3:
+        raise ValueError(
+            f"scenario {config.name!r}: the leader has no path with a corner (a polyline of at "
+            "least 3 vertices); the first-loss tables name corners of that path"
+        )
+    return [(float(x), float(y)) for x, y in path[1:-1]]
+
+
+def _nearest_corner(
+    position: Sequence[float], corners: Sequence[tuple[float, float]]
+) -> tuple[int, float]:
+    """(1-based index, distance [m]) of the corner nearest ``position``."""
+    d = np.hypot(*(np.asarray(corners, dtype=float) - np.asarray(position, dtype=float)).T)
+    j = int(np.argmin(d))
+    return j + 1, float(d[j])
+
+
+def _xy(p: Sequence[float]) -> str:
+    return f"({p[0]:.2f}, {p[1]:.2f})"
+
+
+def _corner(j: int, corners: Sequence[tuple[float, float]]) -> str:
+    return f"{j} ({corners[j - 1][0]:g}, {corners[j - 1][1]:g})"
+
+
+def _yes_no(value: bool | None) -> str:
+    return "–" if value is None else ("yes" if value else "no")
+
+
+def _count(ms: Sequence[Mapping[str, Any]], key: str) -> str:
+    """``k/n`` of the episodes whose ``key`` is true among those where it is known; ``–`` if
+    it is known in none."""
+    known = [bool(m[key]) for m in ms if m.get(key) is not None]
+    return f"{sum(known)}/{len(known)}" if known else "–"
+
+
+def first_loss_table(
+    groups: Mapping[tuple[str, str], Sequence[Mapping[str, Any]]],
+    corners: Sequence[tuple[float, float]],
+) -> str:
+    """The markdown table of the first loss of sight: one line per study × policy from its
+    episodes' :func:`fig15_metrics`, the corner of the leader's path (:func:`leader_corners`)
+    nearest the follower when it lost sight counted per corner."""
+    lines = [
+        "The first loss of sight of each episode (the earliest interval; the follower's "
+        "position at its first sample without sight, the nearest corner of the leader's path "
+        "numbered in driving order: corner 1 is the first sharp corner). Regained: sight "
+        "back before the episode's end. Reached blind: the follower arrived at the last-seen "
+        "point (within `arrive_radius`) while still without sight, as the paper says of "
+        "Fig. 15 (known only for the last-seen controller's `arrived` signal). The fractions "
+        "count the episodes with a loss.",
+        "",
+        "| study | policy | followers | episodes | episodes with a loss of sight | "
+        "first loss t [s] median (min–max) | nearest corner of the first loss: episodes | "
+        "follower to that corner max [m] | constraint broken at the first loss: episodes | "
+        "first loss regained | first interval median / max [s] | "
+        "reached the last-seen point blind (first loss) | episodes ending without sight |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for (study, policy), ms in groups.items():
+        lost = [m for m in ms if m["first_loss"]]
+        followers = ", ".join(str(f) for f in sorted({int(m["followers"]) for m in ms}))
+        cells = ["–"] * 4
+        if lost:
+            t = [float(m["first_loss_time"]) for m in lost]
+            near = [_nearest_corner(m["first_loss_position"], corners) for m in lost]
+            at = {j: sum(k == j for k, _ in near) for j in sorted({k for k, _ in near})}
+            causes = {c: sum(c in m["first_loss_causes"] for m in lost) for c in _SIGHT_CAUSES}
+            dur = [float(m["first_loss_duration"]) for m in lost]
+            cells = [
+                f"{np.median(t):.2f} ({min(t):.2f}–{max(t):.2f})",
+                ", ".join(f"{_corner(j, corners)}: {k}" for j, k in at.items()),
+                f"{max(d for _, d in near):.2f}",
+                ", ".join(f"{c} {k}" for c, k in causes.items() if k) or "none",
+            ]
+            regain = f"{np.median(dur):.2f} / {max(dur):.2f}"
+        else:
+            regain = "–"
+        lines.append(
+            f"| {study} | {policy} | {followers} | {len(ms)} | {len(lost)} | "
+            f"{' | '.join(cells)} | {_count(lost, 'first_loss_regained')} | {regain} | "
+            f"{_count(lost, 'first_loss_reached_blind')} | "
+            f"{sum(bool(m['ends_blind']) for m in ms)} |"
+        )
+    return "\n".join(lines)
+
+
+def first_loss_rows(
+    rows: Sequence[tuple[str, int, Mapping[str, Any]]], corners: Sequence[tuple[float, float]]
+) -> str:
+    """The markdown table of every episode: ``rows`` of (policy, seed, :func:`fig15_metrics`),
+    one line each, in the given order."""
+    lines = [
+        "Every episode: its first loss of sight (the follower's position, its predecessor's "
+        "last-seen position, the nearest corner of the leader's path and the follower's "
+        "distance to it), how long it lasted, and the episode's totals.",
+        "",
+        "| policy | seed | first loss t [s] | follower at | predecessor last seen at | "
+        "nearest corner (distance [m]) | constraint broken | first interval [s] | regained | "
+        "reached the last-seen point blind | intervals | ends without sight | collision | "
+        "success |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for policy, seed, m in rows:
+        if m["first_loss"]:
+            j, d = _nearest_corner(m["first_loss_position"], corners)
+            loss = (
+                f"{m['first_loss_time']:.2f} | {_xy(m['first_loss_position'])} | "
+                f"{_xy(m['first_loss_last_seen'])} | {_corner(j, corners)} ({d:.2f}) | "
+                f"{', '.join(m['first_loss_causes']) or 'none'} | "
+                f"{m['first_loss_duration']:.2f} | {_yes_no(m['first_loss_regained'])} | "
+                f"{_yes_no(m['first_loss_reached_blind'])}"
+            )
+        else:
+            loss = " | ".join(["–"] * 8)
+        lines.append(
+            f"| {policy} | {seed} | {loss} | {m['break_intervals']} | "
+            f"{_yes_no(m['ends_blind'])} | {_yes_no(m['collision'])} | "
+            f"{_yes_no(m['completed'])} |"
+        )
+    return "\n".join(lines)
+
+
+def fig15_findings(
+    groups: Mapping[tuple[str, str], Sequence[Mapping[str, Any]]],
+    corners: Sequence[tuple[float, float]],
+) -> str:
+    """A markdown list, one item per study × policy, saying in words what the tables show: how
+    many episodes lost sight, when and at which corner first, whether it came back, whether the
+    follower reached the last-seen point blind, and the collisions and successes."""
+    items = []
+    for (_study, policy), ms in groups.items():
+        n = len(ms)
+        lost = [m for m in ms if m["first_loss"]]
+        ok = sum(bool(m["completed"]) for m in ms)
+        tail = (
+            f"{sum(bool(m['collision']) for m in ms)} collision(s); {ok}/{n} successes "
+            f"[{', '.join(f'{v:.2f}' for v in wilson(ok, n))}]."
+        )
+        if not lost:
+            items.append(f"- **{policy}**: sight never lost in {n} episodes; {tail}")
+            continue
+        t = [float(m["first_loss_time"]) for m in lost]
+        near = [_nearest_corner(m["first_loss_position"], corners)[0] for m in lost]
+        first = sum(j == 1 for j in near)
+        regained = sum(bool(m["first_loss_regained"]) for m in lost)
+        blind = [m["first_loss_reached_blind"] for m in lost]
+        reached = (
+            ""
+            if any(b is None for b in blind)
+            else f"; the follower reached the last-seen point still blind in {sum(blind)} of them"
+        )
+        intervals = sum(int(m["break_intervals"]) for m in ms)
+        items.append(
+            f"- **{policy}**: sight lost in {len(lost)} of {n} episodes, first at "
+            f"t = {min(t):.1f}–{max(t):.1f} s, nearest corner 1 {_xy(corners[0])} (the first "
+            f"sharp corner) in {first} of them; the first loss regained in {regained} of "
+            f"{len(lost)}{reached}; {intervals} interval(s) of lost sight in all "
+            f"({intervals / n:.1f} per episode); "
+            f"{sum(bool(m['ends_blind']) for m in ms)} episode(s) end without sight; {tail}"
+        )
+    return "\n".join(items)
 
 
 def comparison_table(groups: Mapping[tuple[str, str], Sequence[Mapping[str, Any]]]) -> str:
@@ -259,16 +524,37 @@ def plot_distances(
     axes[0, 0].legend(loc="upper right", fontsize=7)
 
 
-def plot_last_seen_trace(ax: Any, scenario: Any, ep: Episode) -> str:
+def plot_last_seen_trace(
+    ax: Any,
+    scenario: Any,
+    ep: Episode,
+    *,
+    corners: Sequence[tuple[float, float]] | None = None,
+    label: str | None = None,
+) -> str:
     """Fig. 15: the traces of all robots under the last-seen controller (leader blue, follower
     1 black, follower 2 purple, ...), the final configuration, and for every loss of sight the
     follower's position (red x) and its predecessor's last-seen position (red circle).
+
+    ``scenario`` must have the episode's team (``scenario.config.followers`` = ``N``);
+    ``corners`` (:func:`leader_corners`), if given, are numbered in grey; ``label`` names the
+    run in the title (default: the scenario's name).
 
     Returns a one-line description of the losses (used as the title).
     """
     from platoon_env.plots import draw_episode_at
 
+    if scenario.config.followers != ep.poses.shape[1] - 1:
+        raise ValueError(
+            f"the scenario has {scenario.config.followers} follower(s), the episode "
+            f"{ep.poses.shape[1] - 1}: draw it on the scenario it ran on"
+        )
     draw_episode_at(ax, scenario, ep, ep.times.size - 1)
+    for j, (x, y) in enumerate(corners or (), start=1):
+        ax.annotate(
+            str(j), (x, y), xytext=(4, 4), textcoords="offset points", color="0.35",
+            fontsize=7, zorder=9,
+        )  # fmt: skip
     colours = ("tab:blue", "black", "tab:purple", "tab:olive", "tab:cyan", "tab:brown")
     for i in range(ep.poses.shape[1]):
         name = "leader" if i == 0 else f"follower {i}"
@@ -296,9 +582,8 @@ def plot_last_seen_trace(ax: Any, scenario: Any, ep: Episode) -> str:
         notes.append(f"follower {i + 1} lost sight {lost.size}x (t = {times} s)")
     ax.legend(loc="upper left", fontsize=7)
     text = "; ".join(notes) if notes else "no loss of sight"
-    ax.set_title(
-        f"{scenario.config.name}, last-seen controller [32], seed {ep.seed}: {text}", fontsize=9
-    )
+    name = scenario.config.name if label is None else label
+    ax.set_title(f"{name}, last-seen controller [32], seed {ep.seed}: {text}", fontsize=9)
     return text
 
 
@@ -338,15 +623,27 @@ def figures(
     return paths
 
 
-def trace_figure(episode: Episode, out: Path, metadata: dict[str, str] | None = None) -> Path:
-    """Fig. 15 from a study C episode of the last-seen controller."""
+def trace_figure(
+    episode: Episode,
+    out: Path,
+    metadata: dict[str, str] | None = None,
+    *,
+    scenario: Any = None,
+    suffix: str = "",
+    label: str | None = None,
+) -> Path:
+    """Fig. 15 from a study C episode of the last-seen controller:
+    ``OUT/<study>_last_seen_trace<suffix>.png``. ``scenario``: the one the episode ran on
+    (default: the study's, :func:`make_env`); with ``suffix`` the leader path's corners are
+    numbered (:func:`leader_corners`); ``label``: the run's name in the title."""
     from platoon_env.plots import new_figure, save_figure
 
-    sc = make_env(episode.scenario).scenario
+    sc = make_env(episode.scenario).scenario if scenario is None else scenario
     xmin, ymin, xmax, ymax = sc.workspace.bounds
     fig = new_figure(8.5, 8.5 * (ymax - ymin) / (xmax - xmin) + 0.5)
-    plot_last_seen_trace(fig.add_subplot(), sc, episode)
-    return save_figure(fig, out / f"{episode.scenario}_last_seen_trace.png", metadata)
+    corners = leader_corners(sc.config) if suffix else None
+    plot_last_seen_trace(fig.add_subplot(), sc, episode, corners=corners, label=label)
+    return save_figure(fig, out / f"{episode.scenario}_last_seen_trace{suffix}.png", metadata)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -354,11 +651,41 @@ def trace_figure(episode: Episode, out: Path, metadata: dict[str, str] | None = 
 # ----------------------------------------------------------------------------------------------
 
 
+def fig15_cells(seeds: int) -> list[Cell]:
+    """The cells of Fig. 15: :data:`FIG15_POLICIES` on :data:`FIG15_STUDY` with
+    :data:`FIG15_OVERRIDES` (one follower), seeds ``0 .. seeds - 1``, measured by
+    :func:`fig15_metrics` with the policies' signals recorded (the ``arrived`` flag)."""
+    if seeds < 1:
+        raise ValueError(f"seeds must be >= 1, got {seeds}")
+    return [
+        Cell.of(
+            POLICIES[name],
+            FIG15_STUDY,
+            seed,
+            FIG15_OVERRIDES,
+            measure=FIG15_MEASURE,
+            record_signals=True,
+        )
+        for seed in range(seeds)
+        for name in FIG15_POLICIES
+    ]
+
+
 def main(argv: Sequence[str] | None = None) -> str:
-    """Run the comparison; write the figures and ``comparison.md``; return the table."""
+    """Run the comparison; write the figures and ``comparison.md``; return the table. With
+    ``--fig15``: the one-follower run of Fig. 15 instead (:func:`fig15_cells`); write its
+    figure and ``fig15_one_follower.md``; return that file's text."""
     parser = new_parser(_TOOL, __doc__, out=Path("docs/figures"))
     add_grid_options(parser, seeds=20, seeds_help="seeds per study and policy", store=_STORE)
+    parser.add_argument(
+        "--fig15",
+        action="store_true",
+        help=f"run Fig. 15 instead: {FIG15_STUDY} with one follower, "
+        f"{' and '.join(FIG15_POLICIES)}; write {FIG15_FILE} and the one-follower trace figure",
+    )
     args = parser.parse_args(argv)
+    if args.fig15:
+        return _fig15(args.seeds, args.workers, args.store, args.out, argv)
     out: Path = args.out
     cells = [
         Cell.of(spec, study, seed, OVERRIDES, measure=MEASURE)
@@ -394,6 +721,56 @@ def main(argv: Sequence[str] | None = None) -> str:
     return table
 
 
+def _fig15(
+    seeds: int, workers: int, store_path: Path, out: Path, argv: Sequence[str] | None
+) -> str:
+    """``--fig15``: run the cells, write the figure and the markdown, return its text."""
+    env = platoon_env.make(FIG15_STUDY, **FIG15_OVERRIDES)
+    scenario = env.scenario
+    corners = leader_corners(scenario.config)
+    cells = fig15_cells(seeds)
+    config = {"fig15": True, "seeds": seeds, "overrides": FIG15_OVERRIDES}
+    config["policies"] = list(FIG15_POLICIES)
+    stamp = metadata_stamp(_TOOL, config, argv)
+    trace_policy = POLICIES[FIG15_POLICIES[-1]].name
+    with open_store(_TOOL, store_path) as store:
+        result = run_grid(
+            store, cells, tool=_TOOL, stamp=stamp, workers=workers,
+            keep=lambda cell: cell.seed == 0 and cell.policy.name == trace_policy,
+        )  # fmt: skip
+        if result.interrupted:
+            raise SystemExit(130)
+        header = _header(result, store, title=_FIG15_TITLE)
+    out.mkdir(parents=True, exist_ok=True)
+    traced = [result.episodes[rc.key] for rc in result.cells if rc.key in result.episodes]
+    if traced:
+        path = trace_figure(
+            traced[0], out, png_metadata(stamp), scenario=scenario, suffix="_one_follower",
+            label=f"{FIG15_STUDY}, 1 follower",
+        )  # fmt: skip
+        tqdm.write(f"wrote {path}")
+    groups = _groups(result)
+    rows = [(rc.cell.policy.name, rc.cell.seed, rec.metrics) for rc, rec in result.finished()]
+    rows.sort(key=lambda r: (FIG15_POLICIES.index(r[0]), r[1]))
+    text = (
+        f"{header}{comparison_table(groups)}\n\n{first_loss_table(groups, corners)}\n\n"
+        f"{first_loss_rows(rows, corners)}\n\nWhat the tables show:\n\n"
+        f"{fig15_findings(groups, corners)}\n"
+    )
+    (out / FIG15_FILE).write_text(text)
+    tqdm.write(f"wrote {out / FIG15_FILE}")
+    print(text, end="")
+    if result.failed:
+        print(f"{len(result.failed)} episode(s) failed; re-run to retry them", file=sys.stderr)
+        raise SystemExit(1)
+    return text
+
+
+_FIG15_TITLE = (
+    f"Fig. 15: {FIG15_STUDY} with one follower, PPC against the last-seen controller of ref. [32]"
+)
+
+
 def _groups(result: GridResult) -> dict[tuple[str, str], list[dict[str, Any]]]:
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for rc, rec in result.finished():
@@ -401,10 +778,14 @@ def _groups(result: GridResult) -> dict[tuple[str, str], list[dict[str, Any]]]:
     return groups
 
 
-def _header(result: GridResult, store: Store) -> str:
+def _header(
+    result: GridResult,
+    store: Store,
+    title: str = "PPC against the last-seen controller of ref. [32]",
+) -> str:
     records = list(result.records.values())
     return (
-        "# PPC against the last-seen controller of ref. [32]\n\n"
+        f"# {title}\n\n"
         f"{len(result.finished())} episodes ({result.ran} run now, {result.reused} from the "
         f"store {store.path.name}); {len(result.failed)} failed.\n\n"
         f"{provenance_markdown(store, records, result.run_id)}\n"
