@@ -85,6 +85,7 @@ def test_first_loss_when_where_regained_and_reached_blind() -> None:
     assert m["first_loss_regained"] is True and m["first_loss_reached_blind"] is True
     # the second interval is open at the end (its last sample has no signal)
     assert m["ends_blind"] is True and m["reached_blind_intervals"] == 1
+    np.testing.assert_allclose(m["loss_positions"], [[0.3, 0.0], [0.8, 0.0]])
 
 
 def test_first_loss_never_regained_without_signals_and_without_a_loss() -> None:
@@ -93,7 +94,7 @@ def test_first_loss_never_regained_without_signals_and_without_a_loss() -> None:
     assert m["first_loss_reached_blind"] is None and m["reached_blind_intervals"] is None
     none = first_loss(_episode([1, 1, 1], arrived=[0, 0]))
     assert none["first_loss"] is False and none["ends_blind"] is False
-    assert none["reached_blind_intervals"] == 0
+    assert none["reached_blind_intervals"] == 0 and none["loss_positions"] == []
     assert all(v is None for k, v in none.items() if k.startswith("first_loss_"))
 
 
@@ -106,14 +107,16 @@ def test_leader_corners_of_study_c_and_a_clear_error_without_a_path() -> None:
 
 
 def test_first_loss_table_counts_the_corners_of_the_losses() -> None:
-    corners = [(0.0, 0.0), (10.0, 0.0)]
-    lost = first_loss(_episode([1, 1, 1, 0, 1], arrived=[0, 0, 0, 0]))  # at (0.3, 0): corner 1
-    kept = first_loss(_episode([1, 1, 1, 1, 1], arrived=[0, 0, 0, 0]))
+    corners = [(0.0, 0.0), (1.0, 0.0)]
+    # lost at (0.3, 0): corner 1, then at (0.9, 0): corner 2
+    lost = first_loss(_episode([1, 1, 1, 0, 1, 1, 1, 1, 1, 0, 1], arrived=[0] * 10))
+    kept = first_loss(_episode([1] * 11, arrived=[0] * 10))
     groups = {("s", "p"): [{**m, "followers": 1} for m in (lost, lost, kept)]}
     (row,) = [ln for ln in first_loss_table(groups, corners).splitlines() if ln.startswith("| s ")]
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[2:5] == ["1", "3", "2"]  # followers, episodes, episodes with a loss
-    assert cells[6] == "1 (0, 0): 2" and cells[9] == "2/2" and cells[11] == "0/2"
+    assert cells[6] == "1 (0, 0): 2" and cells[9] == "1 (0, 0): 2, 2 (1, 0): 2"
+    assert cells[10] == "2/2" and cells[12] == "0/2"  # regained, reached blind
 
 
 def test_plot_last_seen_trace_refuses_another_team() -> None:
@@ -165,7 +168,9 @@ def test_fig15_command_writes_one_follower_tables_that_add_up(tmp_path: Path) ->
         if n_lost:
             corners = [int(k) for k in re.findall(r": (\d+)", l_row[6])]
             assert sum(corners) == n_lost
-            assert l_row[9].endswith(f"/{n_lost}")  # regained, of the episodes with a loss
+            every = [int(k) for k in re.findall(r": (\d+)", l_row[9])]
+            assert sum(every) == int(s_row[5].split()[0])  # every interval at some corner
+            assert l_row[10].endswith(f"/{n_lost}")  # regained, of the episodes with a loss
     with Store(store) as st:
         metrics = [r.metrics for r in st.episodes().values()]
     assert len(metrics) == 4 and all(m["followers"] == 1 for m in metrics)

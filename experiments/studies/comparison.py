@@ -210,15 +210,17 @@ def first_loss(ep: Episode) -> dict[str, Any]:
     the interval, still without sight; ``None`` for a policy without that signal or an episode
     run without signals).
 
-    For the whole episode: ``ends_blind`` (some follower is without sight at the last sample) and
-    ``reached_blind_intervals`` (the intervals in which the follower reached the last-seen point
-    without sight; ``None`` without the ``arrived`` signal).
+    For the whole episode: ``loss_positions``, the follower's ``[x, y]`` at the first sample of
+    every interval (in order of time), ``ends_blind`` (some follower is without sight at the
+    last sample) and ``reached_blind_intervals`` (the intervals in which the follower reached
+    the last-seen point without sight; ``None`` without the ``arrived`` signal).
     """
-    intervals = break_intervals(ep)
+    intervals = sorted(break_intervals(ep), key=lambda iv: (iv[1], iv[0]))
     last = int(ep.times.size) - 1
     arrived = ep.signals.get("arrived")
     out: dict[str, Any] = {
         "first_loss": bool(intervals),
+        "loss_positions": [[float(v) for v in ep.poses[k, i, :2]] for i, k, _ in intervals],
         "ends_blind": any(k + n > last for _, k, n in intervals),
         "reached_blind_intervals": None
         if arrived is None
@@ -227,7 +229,7 @@ def first_loss(ep: Episode) -> dict[str, Any]:
     keys = "follower step time position last_seen causes duration regained reached_blind"
     if not intervals:
         return {**out, **{f"first_loss_{key}": None for key in keys.split()}}
-    i, k, n = min(intervals, key=lambda iv: (iv[1], iv[0]))
+    i, k, n = intervals[0]
     causes = mask_to_causes(int(ep.violations[k - 1, i - 1]))
     return {
         **out,
@@ -281,6 +283,14 @@ def _corner(j: int, corners: Sequence[tuple[float, float]]) -> str:
     return f"{j} ({corners[j - 1][0]:g}, {corners[j - 1][1]:g})"
 
 
+def _corner_counts(
+    positions: Sequence[Sequence[float]], corners: Sequence[tuple[float, float]]
+) -> str:
+    """``corner: count, ...`` of the corners nearest ``positions``, in driving order."""
+    near = [_nearest_corner(p, corners)[0] for p in positions]
+    return ", ".join(f"{_corner(j, corners)}: {near.count(j)}" for j in sorted(set(near)))
+
+
 def _yes_no(value: bool | None) -> str:
     return "–" if value is None else ("yes" if value else "no")
 
@@ -298,7 +308,8 @@ def first_loss_table(
 ) -> str:
     """The markdown table of the first loss of sight: one line per study × policy from its
     episodes' :func:`fig15_metrics`, the corner of the leader's path (:func:`leader_corners`)
-    nearest the follower when it lost sight counted per corner."""
+    nearest the follower when it lost sight counted per corner (for the first loss of each
+    episode, and for every interval of lost sight)."""
     lines = [
         "The first loss of sight of each episode (the earliest interval; the follower's "
         "position at its first sample without sight, the nearest corner of the leader's path "
@@ -311,25 +322,26 @@ def first_loss_table(
         "| study | policy | followers | episodes | episodes with a loss of sight | "
         "first loss t [s] median (min–max) | nearest corner of the first loss: episodes | "
         "follower to that corner max [m] | constraint broken at the first loss: episodes | "
+        "nearest corner of every loss: intervals | "
         "first loss regained | first interval median / max [s] | "
         "reached the last-seen point blind (first loss) | episodes ending without sight |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for (study, policy), ms in groups.items():
         lost = [m for m in ms if m["first_loss"]]
         followers = ", ".join(str(f) for f in sorted({int(m["followers"]) for m in ms}))
-        cells = ["–"] * 4
+        cells = ["–"] * 5
         if lost:
             t = [float(m["first_loss_time"]) for m in lost]
             near = [_nearest_corner(m["first_loss_position"], corners) for m in lost]
-            at = {j: sum(k == j for k, _ in near) for j in sorted({k for k, _ in near})}
             causes = {c: sum(c in m["first_loss_causes"] for m in lost) for c in _SIGHT_CAUSES}
             dur = [float(m["first_loss_duration"]) for m in lost]
             cells = [
                 f"{np.median(t):.2f} ({min(t):.2f}–{max(t):.2f})",
-                ", ".join(f"{_corner(j, corners)}: {k}" for j, k in at.items()),
+                _corner_counts([m["first_loss_position"] for m in lost], corners),
                 f"{max(d for _, d in near):.2f}",
                 ", ".join(f"{c} {k}" for c, k in causes.items() if k) or "none",
+                _corner_counts([p for m in lost for p in m["loss_positions"]], corners),
             ]
             regain = f"{np.median(dur):.2f} / {max(dur):.2f}"
         else:
@@ -409,12 +421,13 @@ def fig15_findings(
             else f"; the follower reached the last-seen point still blind in {sum(blind)} of them"
         )
         intervals = sum(int(m["break_intervals"]) for m in ms)
+        every = _corner_counts([p for m in lost for p in m["loss_positions"]], corners)
         items.append(
             f"- **{policy}**: sight lost in {len(lost)} of {n} episodes, first at "
             f"t = {min(t):.1f}–{max(t):.1f} s, nearest corner 1 {_xy(corners[0])} (the first "
             f"sharp corner) in {first} of them; the first loss regained in {regained} of "
             f"{len(lost)}{reached}; {intervals} interval(s) of lost sight in all "
-            f"({intervals / n:.1f} per episode); "
+            f"({intervals / n:.1f} per episode; nearest corner, intervals: {every}); "
             f"{sum(bool(m['ends_blind']) for m in ms)} episode(s) end without sight; {tail}"
         )
     return "\n".join(items)
