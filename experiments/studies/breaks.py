@@ -68,10 +68,9 @@ from typing import Any
 import numpy as np
 
 from experiments.axes import profile_overrides
-from experiments.cli import add_grid_options, count, new_parser, open_store
-from experiments.grid import Cell, resolve_cells, run_grid, store_file, store_path
-from experiments.report import format_value, provenance_markdown, write_csv, write_csv_stamp
-from experiments.stamp import metadata_stamp, png_metadata
+from experiments.cli import add_grid_options, new_parser
+from experiments.grid import Cell, store_file, store_path
+from experiments.stamp import png_metadata
 from experiments.studies import frontiers
 from experiments.studies.frontiers import CONTROLLERS, Point, episode_overrides
 from experiments.suites import STUDIES
@@ -788,12 +787,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--figures", type=Path, default=None, help="folder of the PNGs (default: OUT)"
     )
-    parser.add_argument("--study", action="append", choices=STUDIES, help="default: all three")
-    parser.add_argument(
-        "--controller",
-        action="append",
-        choices=sorted(CONTROLLERS),
-        help=f"default: all available ({', '.join(CONTROLLERS)})",
+    frontiers.add_study_options(
+        parser, quick_help=f"smoke run: {QUICK_SEEDS} seeds (unless --seeds)"
     )
     parser.add_argument(
         "--profile",
@@ -801,20 +796,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         choices=[p for p in list_profiles() if p != "ideal"],
         help=f"the sensor profile taken apart (default {DEFAULT_PROFILE})",
     )
-    parser.add_argument(
-        "--quick", action="store_true", help=f"smoke run: {QUICK_SEEDS} seeds (unless --seeds)"
-    )
-    parser.add_argument(
-        "--max-episode-steps",
-        type=count(1, "steps"),
-        default=None,
-        help="override every study's episode limit (for smoke tests; default: the study's)",
-    )
     args = parser.parse_args(argv)
-    if args.seeds is None:
-        args.seeds = QUICK_SEEDS if args.quick else DEFAULT_SEEDS
-    args.study = list(dict.fromkeys(args.study or STUDIES))
-    args.controller = list(dict.fromkeys(args.controller or CONTROLLERS))
+    frontiers.finish_study_args(args, seeds=DEFAULT_SEEDS, quick_seeds=QUICK_SEEDS)
     args.store = store_path(args.out) if args.store is None else store_file(args.store)
     args.figures = args.out if args.figures is None else args.figures
     return args
@@ -834,28 +817,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     for note in notes:
         print(f"note: {note}")
-    resolved = resolve_cells([cell for _, cell in grid], unique=False)
-    unique = list({rc.key: rc for rc in resolved}.values())
-    print(
-        f"{args.store}: {len(grid)} rows in the grid, {len(unique)} distinct episodes, "
-        f"on {args.workers} worker(s)"
+    run = frontiers.run_and_export(
+        _TOOL,
+        grid,
+        args.store,
+        args,
+        argv,
+        out / "breaks.csv",
+        key_columns=KEY_COLUMNS,
+        columns=CSV_COLUMNS,
     )
-    stamp = metadata_stamp(_TOOL, {k: str(v) for k, v in vars(args).items()}, argv)
-    out.mkdir(parents=True, exist_ok=True)
-    with open_store(_TOOL, args.store) as store:
-        result = run_grid(store, unique, tool=_TOOL, stamp=stamp, workers=args.workers)
-        print(f"{result.ran} episode(s) run, {result.reused} already in the store")
-        if result.interrupted:
-            print(f"\ninterrupted: finished episodes are in {store.path}; re-run to resume")
-            return 130
-        provenance = provenance_markdown(store, result.records.values(), result.run_id)
-        raw = frontiers.rows_of(
-            grid, resolved, result, key_columns=KEY_COLUMNS, columns=CSV_COLUMNS
-        )
-        rows = [{k: format_value(v) for k, v in r.items()} for r in raw]
-        write_csv(out / "breaks.csv", CSV_COLUMNS, rows)
-        write_csv_stamp(out / "breaks.csv", store, result.records.values(), result.run_id)
-    meta = png_metadata(stamp)
+    if run is None:
+        return 130
+    result, rows = run.result, run.rows
+    meta = png_metadata(run.stamp)
     paths = [
         plot_map(
             rows, s, args.controller, args.figures / f"breaks_{s}.png",
@@ -883,7 +858,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{result.wall_time:.0f} s ({result.ran} episodes run, {result.reused} reused). "
         f"Figures: {', '.join(f'`{p.name}`' for p in paths)}.\n\n"
         + "".join(f"- note: {n}\n" for n in notes)
-        + provenance
+        + run.provenance
         + "\n"
     )
     (out / "breaks.md").write_text(header + body + "\n")

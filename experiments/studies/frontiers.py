@@ -710,11 +710,11 @@ def plot_study(
 _TOOL = "python -m experiments.studies.frontiers"
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = new_parser(_TOOL, __doc__, out=Path("results/frontiers"))
-    add_grid_options(
-        parser, seeds=None, seeds_help=f"seeds per point (default {DEFAULT_SEEDS})", store=None
-    )
+def add_study_options(parser: argparse.ArgumentParser, *, quick_help: str) -> None:
+    """``--study``, ``--controller``, ``--quick`` (its help ``quick_help``) and
+    ``--max-episode-steps``: the options of the drivers that run the analytic controllers on
+    the paper's studies (this one and :mod:`experiments.studies.breaks`);
+    :func:`finish_study_args` fills their defaults after parsing."""
     parser.add_argument("--study", action="append", choices=STUDIES, help="default: all three")
     parser.add_argument(
         "--controller",
@@ -722,23 +722,85 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         choices=sorted(CONTROLLERS),
         help=f"default: all available ({', '.join(CONTROLLERS)})",
     )
-    parser.add_argument("--axis", action="append", choices=list(AXES), help="default: all")
-    parser.add_argument(
-        "--quick",
-        action="store_true",
-        help=f"smoke run: {QUICK_SEEDS} seeds (unless --seeds) and two levels per axis",
-    )
+    parser.add_argument("--quick", action="store_true", help=quick_help)
     parser.add_argument(
         "--max-episode-steps",
         type=count(1, "steps"),
         default=None,
         help="override every study's episode limit (for smoke tests; default: the study's)",
     )
-    args = parser.parse_args(argv)
+
+
+def finish_study_args(args: argparse.Namespace, *, seeds: int, quick_seeds: int) -> None:
+    """The defaults of :func:`add_study_options`' options: ``--seeds`` ``quick_seeds`` with
+    ``--quick``, else ``seeds`` (the driver's defaults); every study and controller, each
+    named once."""
     if args.seeds is None:
-        args.seeds = QUICK_SEEDS if args.quick else DEFAULT_SEEDS
+        args.seeds = quick_seeds if args.quick else seeds
     args.study = list(dict.fromkeys(args.study or STUDIES))
     args.controller = list(dict.fromkeys(args.controller or CONTROLLERS))
+
+
+@dataclass
+class GridRun:
+    """What :func:`run_and_export` ran: the grid runner's result, the CSV rows (formatted), the
+    provenance markdown of the run and its stamp (for the figures' metadata)."""
+
+    result: GridResult
+    rows: list[dict[str, str]]
+    provenance: str
+    stamp: dict[str, Any]
+
+
+def run_and_export(
+    tool: str,
+    grid: Sequence[tuple[tuple[str, ...], Cell]],
+    store_file: Path,
+    args: argparse.Namespace,
+    argv: Sequence[str] | None,
+    csv_path: Path,
+    *,
+    key_columns: Sequence[str] = KEY_COLUMNS,
+    columns: Sequence[str] = CSV_COLUMNS,
+) -> GridRun | None:
+    """Run ``grid``'s distinct episodes in ``store_file`` (resuming; ``args.workers``
+    workers, stamped with ``tool`` and ``args``), then write its rows (:func:`rows_of`) to
+    ``csv_path`` with the store's stamp beside it. None when interrupted (the finished
+    episodes stay in the store; the message is printed)."""
+    resolved = resolve_cells([cell for _, cell in grid], unique=False)
+    unique = list({rc.key: rc for rc in resolved}.values())
+    print(
+        f"{store_file}: {len(grid)} rows in the grid, {len(unique)} distinct episodes, "
+        f"on {args.workers} worker(s)"
+    )
+    stamp = metadata_stamp(tool, {k: str(v) for k, v in vars(args).items()}, argv)
+    csv_path.parent.mkdir(parents=True, exist_ok=True)
+    with open_store(tool, store_file) as store:
+        result = run_grid(store, unique, tool=tool, stamp=stamp, workers=args.workers)
+        print(f"{result.ran} episode(s) run, {result.reused} already in the store")
+        if result.interrupted:
+            print(f"\ninterrupted: finished episodes are in {store.path}; re-run to resume")
+            return None
+        provenance = provenance_markdown(store, result.records.values(), result.run_id)
+        raw = rows_of(grid, resolved, result, key_columns=key_columns, columns=columns)
+        rows = [{k: format_value(v) for k, v in r.items()} for r in raw]
+        write_csv(csv_path, columns, rows)
+        write_csv_stamp(csv_path, store, result.records.values(), result.run_id)
+    return GridRun(result, rows, provenance, stamp)
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = new_parser(_TOOL, __doc__, out=Path("results/frontiers"))
+    add_grid_options(
+        parser, seeds=None, seeds_help=f"seeds per point (default {DEFAULT_SEEDS})", store=None
+    )
+    add_study_options(
+        parser,
+        quick_help=f"smoke run: {QUICK_SEEDS} seeds (unless --seeds) and two levels per axis",
+    )
+    parser.add_argument("--axis", action="append", choices=list(AXES), help="default: all")
+    args = parser.parse_args(argv)
+    finish_study_args(args, seeds=DEFAULT_SEEDS, quick_seeds=QUICK_SEEDS)
     args.axis = list(dict.fromkeys(args.axis or AXES))
     return args
 
@@ -764,24 +826,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             notes.append(f"profile {name}: the shipped profile's blocks {blocks}")
     for note in notes:
         print(f"note: {note}")
-    resolved = resolve_cells([cell for _, cell in grid], unique=False)
-    unique = list({rc.key: rc for rc in resolved}.values())
-    print(
-        f"{store_path(out)}: {len(grid)} rows in the grid, {len(unique)} distinct episodes, "
-        f"on {args.workers} worker(s)"
-    )
     keys = [k for k, _ in grid]
-    stamp = metadata_stamp(_TOOL, {k: str(v) for k, v in vars(args).items()}, argv)
-    with open_store(_TOOL, store_path(out)) as store:
-        result = run_grid(store, unique, tool=_TOOL, stamp=stamp, workers=args.workers)
-        print(f"{result.ran} episode(s) run, {result.reused} already in the store")
-        if result.interrupted:
-            print(f"\ninterrupted: finished episodes are in {store.path}; re-run to resume")
-            return 130
-        provenance = provenance_markdown(store, result.records.values(), result.run_id)
-        rows = [{k: format_value(v) for k, v in r.items()} for r in rows_of(grid, resolved, result)]
-        write_csv(out / "frontiers.csv", CSV_COLUMNS, rows)
-        write_csv_stamp(out / "frontiers.csv", store, result.records.values(), result.run_id)
+    run = run_and_export(_TOOL, grid, store_path(out), args, argv, out / "frontiers.csv")
+    if run is None:
+        return 130
+    result, rows, provenance = run.result, run.rows, run.provenance
     table = summarise(rows, keys, args.study, args.controller, args.axis, quick=args.quick)
     header = (
         "# Robustness frontiers\n\n"
@@ -806,7 +855,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.axis,
             out / f"frontier_{s}.png",
             quick=args.quick,
-            metadata=png_metadata(stamp),
+            metadata=png_metadata(run.stamp),
         )
         for s in args.study
     ]
