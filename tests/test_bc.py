@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from tiny_runs import TINY
 
 from baselines.ppc import PPCPolicy
 from platoon_env.batched import BatchedPlatoon
@@ -34,18 +35,14 @@ from training.train import bc_config, fast_config, main, parse_args
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
-#: Four copies of study C at a period the PPC law holds (0.05 s is beyond it, DESIGN.md §4).
+#: The tiny run at a period the PPC law holds (0.05 s is beyond it, DESIGN.md §4), in rollouts
+#: of 16 steps (128 transitions), 256 timesteps in all.
 PPO: dict[str, Any] = {
-    "scenario": "study_c",
-    "n_envs": 4,
+    **TINY,
     "control_period": 0.02,
     "n_steps": 16,
-    "batch_size": 64,
-    "n_epochs": 2,
     "timesteps": 256,
     "log_every": 128,
-    "checkpoint_every": 0,
-    "progress_bar": False,
 }
 BC: dict[str, Any] = {"iterations": 2, "steps_per_iteration": 40, "epochs": 30, "batch_size": 64}
 

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from tiny_runs import TINY
 
 import platoon_env
 from training.curves import read_progress
@@ -18,19 +19,6 @@ from training.fast_ppo import ActorCritic, FastPPOConfig, _gae, make_core, train
 from training.policies import LearnedPolicy
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-
-#: A tiny run: 4 copies of study C (8 follower slots), rollouts of 32 steps (256 transitions).
-TINY: dict[str, Any] = {
-    "scenario": "study_c",
-    "n_envs": 4,
-    "n_steps": 32,
-    "batch_size": 64,
-    "n_epochs": 2,
-    "timesteps": 1024,
-    "log_every": 256,
-    "checkpoint_every": 0,
-    "progress_bar": False,
-}
 
 
 def tiny(**changes: Any) -> FastPPOConfig:
