@@ -14,6 +14,7 @@ from functools import cache
 
 import numpy as np
 import pytest
+from layouts import same_layout
 from shapely.geometry import LineString, box
 from test_studies_maps import cw
 
@@ -57,12 +58,6 @@ def _sample(tier: str, kind: str) -> tuple[Scenario, ...]:
 @cache
 def _properties(tier: str, kind: str) -> tuple[cw.LayoutProperties, ...]:
     return tuple(cw.layout_properties(sc) for sc in _sample(tier, kind))
-
-
-def _same_layout(a: Scenario, b: Scenario) -> bool:
-    return np.array_equal(a.workspace.edges, b.workspace.edges) and np.array_equal(
-        a.leader_path, b.leader_path
-    )
 
 
 def test_the_new_tiers_follow_the_three_others() -> None:
@@ -176,10 +171,10 @@ def test_seeds_and_determinism(tier: str) -> None:
             assert max(block.start, test.start) >= min(block.stop, test.stop)
     a = generate_scenario(_template(tier), 123)
     b = generate_scenario(load_config(f"procedural_{tier}_test"), 123)
-    assert _same_layout(a, b) and a.config.leader == b.config.leader
+    assert same_layout(a, b) and a.config.leader == b.config.leader
     np.testing.assert_array_equal(a.initial_poses, b.initial_poses)
-    assert not _same_layout(a, generate_scenario(_template(tier), 124))
-    assert not _same_layout(a, generate_scenario(_template(tier, split="train"), 123))
+    assert not same_layout(a, generate_scenario(_template(tier), 124))
+    assert not same_layout(a, generate_scenario(_template(tier, split="train"), 123))
 
 
 @pytest.mark.parametrize(
@@ -225,5 +220,5 @@ def test_shipped_files_and_gym_ids(tier: str, split: str) -> None:
     assert platoon_env.GYM_IDS[f"{stem}-v0"] == {"scenario": name}
     env = platoon_env.make(name)
     env.reset(seed=1)
-    assert _same_layout(env.scenario, generate_scenario(cfg, env.layout_index))
+    assert same_layout(env.scenario, generate_scenario(cfg, env.layout_index))
     env.close()

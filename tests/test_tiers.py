@@ -13,6 +13,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from layouts import same_layout
 from shapely.geometry import LineString, box
 from workspaces import path_headings
 
@@ -56,12 +57,6 @@ PAIRS = [(tier, split) for tier in (None, *GENERATOR_TIERS) for split in GENERAT
 
 def _template(tier: str | None, kind: str = "mixed", split: str = "test") -> ScenarioConfig:
     return dataclasses.replace(BASE, generator=GeneratorConfig(kind=kind, split=split, tier=tier))
-
-
-def _same_layout(a: Scenario, b: Scenario) -> bool:
-    return np.array_equal(a.workspace.edges, b.workspace.edges) and np.array_equal(
-        a.leader_path, b.leader_path
-    )
 
 
 @cache
@@ -267,7 +262,7 @@ def test_untiered_mapping_is_unchanged() -> None:
 def test_determinism() -> None:
     a = generate_scenario(_template("hard"), 321)
     b = generate_scenario(load_config("procedural_hard_test"), 321)
-    assert _same_layout(a, b)
+    assert same_layout(a, b)
     np.testing.assert_array_equal(a.initial_poses, b.initial_poses)
     # Another index, split or tier is another layout (and so is the untiered one).
     others = [
@@ -276,12 +271,12 @@ def test_determinism() -> None:
         generate_scenario(_template("medium"), 321),
         generate_scenario(_template(None), 321),
     ]
-    assert not any(_same_layout(a, o) for o in others)
+    assert not any(same_layout(a, o) for o in others)
     env = platoon_env.make("procedural_medium_test")
     env.reset(seed=7)
     index, edges = env.layout_index, env.scenario.workspace.edges.copy()
     assert index is not None
-    assert _same_layout(env.scenario, generate_scenario(_template("medium"), index))
+    assert same_layout(env.scenario, generate_scenario(_template("medium"), index))
     env.reset(seed=8)
     env.reset(seed=7)
     assert env.layout_index == index
@@ -349,7 +344,7 @@ def test_gym_make_and_check_env(env_id: str, tier: str, split: str) -> None:
     assert inner.n_followers == 1 and template.followers == 1
     assert template.generator == GeneratorConfig(kind="mixed", split=split, tier=tier)
     # The layout is one of the tier's family, sized for the one follower.
-    assert _same_layout(inner.scenario, generate_scenario(template, inner.layout_index))
+    assert same_layout(inner.scenario, generate_scenario(template, inner.layout_index))
     env.close()
 
 
