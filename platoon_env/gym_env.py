@@ -32,9 +32,10 @@ from platoon_env.action_range import (
     normalised_action_space,
     physical_actions,
 )
-from platoon_env.env import PlatoonParallelEnv
+from platoon_env.env import ENV_OPTIONS, PlatoonParallelEnv
 from platoon_env.observation import ACT_SIZE
 from platoon_env.scenarios.loader import load_config
+from platoon_env.scenarios.options import OVERRIDE_OPTIONS, unexpected_keyword
 from platoon_env.scenarios.schema import GENERATOR_SPLITS, GENERATOR_TIERS, ScenarioConfig
 from platoon_env.scenarios.source import FixedSource, ProceduralSource, SourceLike
 
@@ -52,6 +53,11 @@ GYM_SCENARIOS: tuple[str, ...] = (
         for split in GENERATOR_SPLITS
     ),
 )
+
+
+#: The keywords of :class:`SingleFollowerEnv` (``gymnasium.make(id, ...)``) that configure the
+#: env rather than its scenario: :func:`platoon_env.make`'s, then the normalised actions'.
+GYM_OPTIONS: tuple[str, ...] = (*ENV_OPTIONS, "normalize_actions", "action_range")
 
 
 def _camel(name: str) -> str:
@@ -124,7 +130,9 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
             its fields) that ``[-1, 1]^2`` covers; None: ``ActionRange()`` (u in
             [-0.5, 1.5] m/s, omega in +-2 rad/s). It must lie within the actuator Box.
         **overrides: as :func:`platoon_env.make` (``render_mode``, ``diagnostics``, the
-            scenario options); ``followers`` is forced to 1.
+            scenario options); ``followers`` is forced to 1. Any other keyword is a
+            ``TypeError`` worded as Python words it, listing the valid ones (with
+            :data:`GYM_OPTIONS`).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
@@ -137,6 +145,11 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
         action_range: ActionRange | Mapping[str, float] | None = None,
         **overrides: Any,
     ) -> None:
+        # make()'s check, listing this env's keywords too (make() knows only its own).
+        known = (*OVERRIDE_OPTIONS, *ENV_OPTIONS)
+        unknown = [k for k, v in overrides.items() if v is not None and k not in known]
+        if unknown:
+            raise unexpected_keyword("make()", unknown, (*OVERRIDE_OPTIONS, *GYM_OPTIONS))
         self.parallel = PlatoonParallelEnv(scenario, **single_follower(overrides, scenario))
         self.agent = self.parallel.possible_agents[0]
         self.observation_space = self.parallel.observation_space(self.agent)

@@ -27,16 +27,21 @@ from platoon_env.action_range import (
     physical_actions,
 )
 from platoon_env.batched import BatchedPlatoon
-from platoon_env.env import _check_seed
+from platoon_env.env import INFO_VIEWS, _check_seed
 from platoon_env.geometry.sensing import SENSE_NAMES, SENSE_VISIBLE
-from platoon_env.gym_env import single_follower
+from platoon_env.gym_env import GYM_OPTIONS, single_follower
 from platoon_env.observation import ACT_SIZE
 from platoon_env.reward import REWARD_TERMS
-from platoon_env.scenarios.options import check_bool
+from platoon_env.scenarios.options import OVERRIDE_OPTIONS, check_bool, unexpected_keyword
+from platoon_env.scenarios.schema import ScenarioError
 from platoon_env.scenarios.source import SourceLike
-from platoon_env.violations import VIOLATION_INFO, first_cause
+from platoon_env.violations import VIOLATION_INFO, VIOLATION_NUMERIC_INFO, first_cause
 
-__all__ = ["SingleFollowerVectorEnv", "sub_env_seeds"]
+__all__ = ["VECTOR_OPTIONS", "SingleFollowerVectorEnv", "sub_env_seeds"]
+
+#: The keywords of :class:`SingleFollowerVectorEnv` (``gymnasium.make_vec(id, ...)``) that
+#: configure the env rather than its scenario: the single env's, then the vector env's own.
+VECTOR_OPTIONS: tuple[str, ...] = (*GYM_OPTIONS, "n_threads")
 
 
 def _objects(values: Sequence[Any]) -> np.ndarray:
@@ -52,6 +57,8 @@ def _objects(values: Sequence[Any]) -> np.ndarray:
 _FIRST_CAUSE = _objects([first for first, _, _ in VIOLATION_INFO])
 _CAUSES = _objects([causes for _, causes, _ in VIOLATION_INFO])
 _COST = np.array([cost for _, _, cost in VIOLATION_INFO], dtype=np.int64)
+# ``info["violation"]`` of the numeric view: the first cause's code (VIOLATION_CODE_NAMES).
+_CODE = np.array([code for code, _, _ in VIOLATION_NUMERIC_INFO], dtype=np.int64)
 
 #: The sensing columns that the single env's info reports under their own names.
 _SENSE_INFO = ("d", "beta", "d_W_l", "d_W_r", "d_l", "d_r", "clearance")
@@ -80,7 +87,10 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
     ``terminated``, ``truncated`` ``(num_envs,) bool`` (the single env's episode rules) and
     ``infos``: the single env's info keys as arrays over the sub-envs, each with its ``_key``
     mask (``reward_terms`` a dict of arrays with its own masks), as Gymnasium's
-    ``SyncVectorEnv`` batches them.
+    ``SyncVectorEnv`` batches them. With ``info_view="numeric"`` the single env's numeric
+    view batched the same way: ``int64`` and ``float64`` arrays only (``violation`` the code,
+    ``violation_mask``, ``cost``, the diagnostics with ``visible`` as 0/1, ``reward_<term>``
+    flat and 0.0 at reset), the same keys at reset and at every step.
 
     **Autoreset**: ``AutoresetMode.SAME_STEP`` (``metadata["autoreset_mode"]``). A sub-env
     whose episode ends in a step is reset within that step, continuing its own RNG (no
@@ -109,12 +119,16 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         scenario: as :func:`platoon_env.make` (a shipped name, a YAML path, a dict, ...).
         render_mode: ``"rgb_array"`` or None.
         diagnostics: as the single env's (False: ``infos`` keeps only ``violation``,
-            ``violations`` and ``cost``).
+            ``violations`` and ``cost``; in the numeric view ``violation``,
+            ``violation_mask`` and ``cost``).
+        info_view: ``"rich"`` (the default) or ``"numeric"``, as :func:`platoon_env.make`'s
+            (:data:`~platoon_env.env.INFO_VIEWS`).
         normalize_actions, action_range: as :class:`~platoon_env.gym_env.SingleFollowerEnv`.
         n_threads: numba threads stepping the sub-envs (1: a serial loop); results do not
             depend on it.
         **overrides: the scenario options of :func:`platoon_env.make` (``followers`` is
-            forced to 1).
+            forced to 1). Any other keyword is a ``TypeError`` worded as Python words it
+            (``make_vec() got an unexpected keyword argument ...``), listing the valid ones.
     """
 
     metadata: dict[str, Any] = {
@@ -130,11 +144,24 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         *,
         render_mode: str | None = None,
         diagnostics: bool = True,
+        info_view: str = "rich",
         normalize_actions: bool = False,
         action_range: ActionRange | Mapping[str, float] | None = None,
         n_threads: int = 1,
         **overrides: Any,
     ) -> None:
+        # As make(): Python's wording for a keyword not taken, naming this env's own keywords
+        # beside the scenario's (None values are ignored, as apply_overrides ignores them).
+        unknown = [k for k, v in overrides.items() if v is not None and k not in OVERRIDE_OPTIONS]
+        if unknown:
+            raise unexpected_keyword("make_vec()", unknown, (*OVERRIDE_OPTIONS, *VECTOR_OPTIONS))
+        if info_view not in INFO_VIEWS:
+            raise ScenarioError(
+                f"make_vec(): info_view: expected one of {', '.join(map(repr, INFO_VIEWS))}, "
+                f"got {info_view!r}"
+            )
+        #: The view of ``infos``: ``"rich"`` or ``"numeric"`` (see the class doc).
+        self.info_view = info_view
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be 'rgb_array' or None, got {render_mode!r}")
         self.diagnostics = check_bool("diagnostics", diagnostics, "make_vec()")
@@ -305,6 +332,8 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         ``reward_terms``, a dict of them): ``masks`` their violation masks, ``terms`` their
         reward terms ``(num_envs, len(REWARD_TERMS))`` (None after a reset, whose info has
         empty ``reward_terms``); the sensing is the core's current one."""
+        if self.info_view == "numeric":
+            return self._numeric_info_values(masks, terms)
         values: dict[str, Any] = {
             "violation": _FIRST_CAUSE[masks],
             "violations": _CAUSES[masks],
@@ -319,6 +348,37 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
             values["visible"] = sensed[:, SENSE_VISIBLE] > 0.0
             values["reward_terms"] = (
                 {} if terms is None else {t: terms[:, k] for k, t in enumerate(REWARD_TERMS)}
+            )
+        return values
+
+    def _numeric_info_values(
+        self, masks: np.ndarray, terms: np.ndarray | None
+    ) -> dict[str, np.ndarray]:
+        """:meth:`_info_values` in the numeric view: the single env's numeric info
+        (``PlatoonParallelEnv._numeric_infos``, same keys in the same order) as ``int64`` and
+        ``float64`` arrays over the sub-envs; the reward terms 0.0 after a reset."""
+        masks = masks.astype(np.int64)
+        values: dict[str, np.ndarray] = {
+            "violation": _CODE[masks],
+            "violation_mask": masks.copy(),
+            "cost": _COST[masks],
+        }
+        if not self.diagnostics:
+            return values
+        sensed = self.batch.sensed[:, 0].astype(np.float64)
+        column = {name: sensed[:, SENSE_NAMES.index(name)] for name in _SENSE_INFO}
+        values.update(
+            d=column["d"],
+            beta=column["beta"],
+            e_d=column["d"] - self._d_des,
+            e_beta=column["beta"].copy(),
+        )
+        for name in _SENSE_INFO[2:]:
+            values[name] = column[name]
+        values["visible"] = (sensed[:, SENSE_VISIBLE] > 0.0).astype(np.int64)
+        for k, term in enumerate(REWARD_TERMS):
+            values[f"reward_{term}"] = (
+                np.zeros(self.num_envs) if terms is None else terms[:, k].astype(np.float64)
             )
         return values
 

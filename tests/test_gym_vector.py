@@ -23,8 +23,12 @@ from gymnasium.vector.utils import batch_space
 
 import platoon_env
 from platoon_env.action_range import ActionRange
-from platoon_env.gym_vector import SingleFollowerVectorEnv, sub_env_seeds
+from platoon_env.gym_env import GYM_OPTIONS
+from platoon_env.gym_vector import VECTOR_OPTIONS, SingleFollowerVectorEnv, sub_env_seeds
+from platoon_env.reward import REWARD_TERMS
 from platoon_env.scenarios import ScenarioError
+from platoon_env.scenarios.options import OVERRIDE_OPTIONS
+from platoon_env.violations import VIOLATION_CODE_NAMES, mask_to_causes
 
 STUDY_C = "platoon_env/SingleFollower-StudyC-v0"
 #: A procedural tier with the aruco profile: layouts and sensor noise drawn from each env's RNG.
@@ -359,3 +363,148 @@ def test_render_matches_single_env() -> None:
     plain.reset(seed=0)
     with pytest.warns(UserWarning, match="render_mode"):
         assert plain.render() is None
+
+
+# ------------------------------------------------------------------------------------------
+# info_view="numeric" and unknown keywords (issue 25)
+# ------------------------------------------------------------------------------------------
+
+#: Sub-env 0 spins in place (out_of_fov ends its episodes after about 20 steps on study_c, 50
+#: on the procedural tier), sub-env 1 drives randomly.
+_SPIN = np.array([0.0, 2.0], dtype=np.float32)
+
+
+def _spin_and_random(space: gym.spaces.Box, steps: int) -> list[np.ndarray]:
+    space.seed(11)
+    actions = [space.sample() for _ in range(steps)]
+    for action in actions:
+        action[0] = _SPIN
+    return actions
+
+
+def _numeric_arrays(info: dict[str, Any], where: str) -> None:
+    """Every entry of a batched numeric-view info is an int64 or float64 array over the
+    sub-envs (its ``_key`` mask bool); ``final_info`` likewise. ``final_obs`` is Gymnasium's
+    own object array of observations (None for sub-envs that did not end), not an info value."""
+    for key, value in info.items():
+        if key in ("final_obs", "_final_obs"):
+            continue
+        if key == "final_info":
+            _numeric_arrays(value, f"{where} final_info")
+            continue
+        assert isinstance(value, np.ndarray), f"{where}: {key} is {type(value)}"
+        expected = np.bool_ if key.startswith("_") else (np.int64, np.float64)
+        assert value.dtype in np.atleast_1d(expected), f"{where}: {key} has dtype {value.dtype}"
+
+
+@pytest.mark.parametrize("env_id", [STUDY_C, PROCEDURAL_ARUCO])
+@pytest.mark.parametrize("diagnostics", [True, False])
+def test_numeric_info_view_equals_single_envs(env_id: str, diagnostics: bool) -> None:
+    """make_vec(..., info_view="numeric") through "vector_entry_point": every return, infos and
+    final infos included, equals Gymnasium's SyncVectorEnv of the numeric single envs (bit and
+    dtype), the infos hold only int64/float64 arrays, with the same keys at reset and every
+    step."""
+    kwargs = {"max_episode_steps": 60, "diagnostics": diagnostics, "info_view": "numeric"}
+    envs = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", **kwargs)
+    assert isinstance(envs.unwrapped, SingleFollowerVectorEnv)
+    assert envs.unwrapped.info_view == "numeric"
+    _, reset_info = envs.reset(seed=[3, 4])
+    _numeric_arrays(reset_info, "reset")
+    keys = [k for k in reset_info if not k.startswith("_")]
+    if diagnostics:
+        assert keys[:3] == ["violation", "violation_mask", "cost"]
+        assert [f"reward_{t}" for t in REWARD_TERMS] == keys[-len(REWARD_TERMS) :]
+        assert all(reset_info[f"reward_{t}"].tolist() == [0.0, 0.0] for t in REWARD_TERMS)
+    else:
+        assert keys == ["violation", "violation_mask", "cost"]
+    actions = _spin_and_random(envs.action_space, 130)
+    infos = run_against_single(env_id, [3, 4], actions, **kwargs)
+    for t, info in enumerate(infos):
+        _numeric_arrays(info, f"step {t}")
+        assert [k for k in info if not k.startswith(("_", "final_"))] == keys
+        if "final_info" in info:
+            assert [k for k in info["final_info"] if not k.startswith("_")] == keys
+    assert sum("final_info" in info for info in infos) >= 3  # autoresets were compared
+    # and nonzero codes (the step that ends an episode holds its violation in final_info)
+    assert any(info["final_info"]["violation"].any() for info in infos if "final_info" in info)
+
+
+def _rows(info: dict[str, Any], i: int) -> dict[str, Any]:
+    """Sub-env ``i``'s entries of a batched info (the keys its masks hold)."""
+    out = {}
+    for key, value in info.items():
+        if key.startswith("_") or key in ("final_obs", "final_info"):
+            continue
+        if isinstance(value, dict):
+            out[key] = _rows(value, i)
+        elif info[f"_{key}"][i]:
+            out[key] = value[i]
+    return out
+
+
+def _assert_same_content(rich: dict[str, Any], num: dict[str, Any], where: str) -> None:
+    """One sub-env's rich and numeric info hold the same values where both have them."""
+    assert VIOLATION_CODE_NAMES[num["violation"]] == (rich["violation"] or "none"), where
+    assert mask_to_causes(int(num["violation_mask"])) == rich["violations"], where
+    assert num["cost"] == rich["cost"], where
+    if "d" not in rich:
+        assert set(num) == {"violation", "violation_mask", "cost"}, where
+        return
+    for key in ("d", "beta", "e_d", "e_beta", "d_W_l", "d_W_r", "d_l", "d_r", "clearance"):
+        assert num[key] == rich[key], f"{where}: {key}"
+    assert num["visible"] == int(rich["visible"]), where
+    for term in REWARD_TERMS:
+        # A reset's rich info has no reward terms (masked out); the numeric view says 0.0.
+        assert num[f"reward_{term}"] == rich["reward_terms"].get(term, 0.0), f"{where}: {term}"
+
+
+@pytest.mark.parametrize("diagnostics", [True, False])
+def test_numeric_info_view_holds_the_rich_views_values(diagnostics: bool) -> None:
+    """The numeric vector env and the rich one, seeded and driven alike through autoresets:
+    the same sub-envs report, and each value is the rich one's as a number (the violation as
+    its VIOLATION_CODE_NAMES code, the causes as their bit mask, visible as 0/1, the reward
+    terms flat), in the step infos and the final infos."""
+    kwargs = {"num_envs": 2, "max_episode_steps": 30, "diagnostics": diagnostics}
+    rich = gym.make_vec(STUDY_C, **kwargs)
+    num = gym.make_vec(STUDY_C, info_view="numeric", **kwargs)
+    pairs = [(rich.reset(seed=[5, 6])[1], num.reset(seed=[5, 6])[1])]
+    codes = set()
+    for action in _spin_and_random(rich.action_space, 70):
+        pairs.append((rich.step(action)[4], num.step(action)[4]))
+    for t, (info_r, info_n) in enumerate(pairs):
+        for block in ("", "final_info"):
+            r, n = (info_r.get(block), info_n.get(block)) if block else (info_r, info_n)
+            assert (r is None) == (n is None), f"step {t}: {block}"
+            if r is None:
+                continue
+            assert r["_violation"].tolist() == n["_violation"].tolist()
+            for i in np.flatnonzero(r["_violation"]):
+                _assert_same_content(_rows(r, i), _rows(n, i), f"step {t} {block} env {i}")
+                codes.add(int(n["violation"][i]))
+    assert codes - {0}, "no violation was compared"
+
+
+def test_unknown_keyword_is_pythons_type_error() -> None:
+    """make_vec() and make() word an unknown keyword as Python does (the phrase TorchRL and
+    others match), listing the scenario options and each env's own keywords."""
+    for call, where, own in (
+        (gym.make_vec, "make_vec()", VECTOR_OPTIONS),
+        (gym.make, "make()", GYM_OPTIONS),
+    ):
+        with pytest.raises(TypeError) as exc:
+            call(STUDY_C, frameskip=4)
+        message = str(exc.value)  # gymnasium.make() appends where it was raised
+        assert message.startswith(f"{where} got an unexpected keyword argument 'frameskip' ")
+        listed = message.split("(valid keywords: ", 1)[1].split(")", 1)[0].split(", ")
+        assert listed == [*OVERRIDE_OPTIONS, *own]
+    assert VECTOR_OPTIONS == (*GYM_OPTIONS, "n_threads")
+    with pytest.raises(TypeError, match=r"'fps' \(and 'speed'\) \(valid keywords: "):
+        SingleFollowerVectorEnv(2, "study_c", fps=25, speed=1)
+    with pytest.raises(ScenarioError, match=r"^make_vec\(\): info_view: expected one of "):
+        gym.make_vec(STUDY_C, info_view="torchrl")
+    # Every listed keyword is taken (None: a scenario option left at its value).
+    envs = gym.make_vec(
+        STUDY_C, num_envs=1, info_view="rich", diagnostics=False, n_threads=1, u_max=None
+    )
+    keys = {"violation", "violations", "cost"}
+    assert set(envs.reset(seed=0)[1]) == keys | {f"_{k}" for k in keys}
