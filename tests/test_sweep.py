@@ -113,6 +113,7 @@ def test_configs_are_named_by_their_keys() -> None:
         "bc_ppo_sharp",
         "bc_ppo_formations_sf",
         "bc_ppo_mixed_anchor",
+        "bc_ppo_mixed_20ms",
     }
     for name, config in CONFIGS.items():
         assert config.name == name and config.summary
@@ -128,7 +129,7 @@ def test_every_config_parses_and_resolves(name: str) -> None:
     # the SB3 configurations train under aruco (30 Hz frames), the clones with ideal sensing
     assert cfg.sensor_profile == ("aruco" if cfg.engine == "sb3" else None)
     assert cfg.control_period <= 1 / 30
-    assert cfg.scale_free_observations == (name in {"bc_ppo_formations_sf", "bc_ppo_mixed_anchor"})
+    assert cfg.scale_free_observations == (name.startswith(("bc_ppo_formations", "bc_ppo_mixed")))
     assert (
         cfg.algo
         == {
@@ -137,6 +138,7 @@ def test_every_config_parses_and_resolves(name: str) -> None:
             "bc_ppo_sharp": "bc_ppo",
             "bc_ppo_formations_sf": "bc_ppo",
             "bc_ppo_mixed_anchor": "bc_ppo",
+            "bc_ppo_mixed_20ms": "bc_ppo",
         }[name]
     )
     assert cfg.timesteps >= 1

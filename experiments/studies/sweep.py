@@ -106,6 +106,20 @@ _BC_PPO = (
     "100000",
 )
 
+
+def _with(args: tuple[str, ...], **options: str) -> tuple[str, ...]:
+    """``args`` with each ``--option value`` of ``options`` (``control_period`` is
+    ``--control-period``) replaced, or appended if ``args`` lacks it."""
+    out = list(args)
+    for key, value in options.items():
+        flag = "--" + key.replace("_", "-")
+        if flag in out:
+            out[out.index(flag) + 1] = value
+        else:
+            out += [flag, value]
+    return tuple(out)
+
+
 #: The configurations trained by ``python -m experiments.studies.sweep`` and shipped in ``models/``.
 CONFIGS: dict[str, Config] = {
     c.name: c
@@ -149,6 +163,28 @@ CONFIGS: dict[str, Config] = {
                 "--anchor-coef",
                 "1.0",
                 *_BC_PPO,
+            ),
+        ),
+        Config(
+            "bc_ppo_mixed_20ms",
+            "fast engine: as bc_ppo_mixed_anchor at a 20 ms control period (PPC clipped to the "
+            "learner's action range fails study A at 30 ms, 2/10, and passes it at 20 ms, 10/10), "
+            "128-128 layers, 8 DAgger iterations of 2,000 steps",
+            _with(
+                (
+                    "--scenario",
+                    "procedural_formations_sharp_train+procedural_formations_paper_train",
+                    "--scale-free-observations",
+                    "--anchor-coef",
+                    "1.0",
+                    "--net-arch",
+                    "128",
+                    "128",
+                    *_BC_PPO,
+                ),
+                control_period="0.02",
+                bc_iterations="8",
+                bc_steps_per_iteration="2000",
             ),
         ),
     )
