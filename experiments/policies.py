@@ -356,6 +356,9 @@ def build_policy(spec: PolicySpec, env: Any, planned: str | None = None) -> Any:
         check = getattr(policy, "check_env", None)
         if check is not None:
             check(env)
+        bind = getattr(policy, "bind", None)
+        if bind is not None:  # a residual policy builds its law on the env
+            bind(env)
         return policy
     return _resolve(spec.factory)(env, **spec.kwargs)
 

@@ -114,6 +114,8 @@ def test_configs_are_named_by_their_keys() -> None:
         "bc_ppo_formations_sf",
         "bc_ppo_mixed_anchor",
         "bc_ppo_mixed_20ms",
+        "residual_ppc",
+        "residual_filtered_aruco",
     }
     for name, config in CONFIGS.items():
         assert config.name == name and config.summary
@@ -127,9 +129,14 @@ def test_every_config_parses_and_resolves(name: str) -> None:
     cfg = parse_args([*config.args, "--seed", "0", "--out", "x"])
     assert cfg.task_aware_observations is True
     # the SB3 configurations train under aruco (30 Hz frames), the clones with ideal sensing
-    assert cfg.sensor_profile == ("aruco" if cfg.engine == "sb3" else None)
+    aruco = cfg.engine == "sb3" or name.endswith("_aruco")
+    assert cfg.sensor_profile == ("aruco" if aruco else None)
+    residual = {"residual_filtered_aruco": "filtered_ppc"}.get(name, "ppc")
+    assert cfg.residual == (residual if name.startswith("residual") else None)
     assert cfg.control_period <= 1 / 30
-    assert cfg.scale_free_observations == (name.startswith(("bc_ppo_formations", "bc_ppo_mixed")))
+    assert cfg.scale_free_observations == (
+        name.startswith(("bc_ppo_formations", "bc_ppo_mixed", "residual"))
+    )
     assert (
         cfg.algo
         == {
@@ -139,6 +146,8 @@ def test_every_config_parses_and_resolves(name: str) -> None:
             "bc_ppo_formations_sf": "bc_ppo",
             "bc_ppo_mixed_anchor": "bc_ppo",
             "bc_ppo_mixed_20ms": "bc_ppo",
+            "residual_ppc": "ppo",
+            "residual_filtered_aruco": "ppo",
         }[name]
     )
     assert cfg.timesteps >= 1

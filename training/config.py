@@ -216,6 +216,13 @@ class TrainConfig:
         "fast: weight of the squared distance of the policy's mean action from the network it "
         "started from (--init-from; bc_*: the clone); 0: none (FastPPOConfig's default)",
     )
+    residual: str | None = _opt(
+        None,
+        "fast: a residual policy on this analytic law: the action's mean is the law's command "
+        "(normalised, clipped to the action range) plus the network's output, which starts at "
+        "zero (training.fast_ppo; ppo or ppo_lagrangian)",
+        choices=("ppc", "filtered_ppc"),
+    )
     # --- behaviour cloning (--algo bc_*; None: training.bc.BCConfig's default) ---
     bc_expert: str | None = _opt(
         None, "bc: the analytic law cloned (ppc)", choices=("ppc", "filtered_ppc")
@@ -378,6 +385,7 @@ FAST_ONLY = (
     "init_from",
     "value_warmup",
     "anchor_coef",
+    "residual",
 )
 #: Largest layer of --net-arch.
 MAX_LAYER = 65536
@@ -488,6 +496,8 @@ def check_config(cfg: TrainConfig) -> list[str]:
         for name in (f for f in BOUNDS if f.startswith("bc_")):
             if getattr(cfg, name) is not None:
                 bad(name, f"is an option of --algo bc_ppo / bc_ppo_lagrangian, got {cfg.algo}")
+    if cfg.residual is not None and cfg.algo.startswith("bc_"):
+        bad("residual", f"starts from the law itself, not from a clone (--algo {cfg.algo})")
     if cfg.init_from is not None and not str(cfg.init_from).endswith(".zip"):
         bad("init_from", f"must be the path of a model .zip, got {cfg.init_from!r}")
     if cfg.resume and cfg.force:

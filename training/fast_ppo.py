@@ -136,6 +136,7 @@ from training.config import (
 )
 from training.config import env_overrides as train_env_overrides
 from training.curves import PROGRESS_COLUMNS, PROGRESS_FILE, read_rows
+from training.experts import EXPERTS, BatchedExpert, to_normalised
 from training.lagrangian import LagrangeMultiplier
 from training.policies import adapter_metadata, save_model, zip_mismatch
 from training.run import git_commit, library_versions, segment_metadata, timing_metadata
@@ -213,7 +214,13 @@ class FastPPOConfig:
     (normalised, before clipping) from that of the frozen network it started from, over the
     minibatch: for Gaussians of one ``sigma`` this is ``2 sigma^2`` times their KL divergence.
     It keeps a fine-tuned clone near the law it copies, a behaviour-cloning regulariser as in
-    DAPG; 0: none).
+    DAPG; 0: none), ``residual`` (None, or an analytic law of :data:`training.experts.EXPERTS`:
+    a residual policy, as in residual reinforcement learning (Johannink et al., 2019; Silver
+    et al., 2018). The policy's mean is ``a_law(o) + mu_theta(o)``, the law's command for the
+    copy (:class:`~training.experts.BatchedExpert`, its own clock and state per episode)
+    normalised and clipped to ``[-1, 1]``, plus the network's output; the actor's last layer
+    starts at zero, so training starts from the clipped law. With ``anchor_coef`` and no
+    ``init_from``, the anchor pulls ``mu_theta`` towards zero, i.e. the policy towards the law).
 
     PPO-Lagrangian: ``cost_budget`` (``b``, expected cost per follower episode),
     ``lagrangian_lr`` (``η`` per rollout; a rollout here is tens of thousands of transitions,
@@ -263,6 +270,7 @@ class FastPPOConfig:
     init_from: str | None = None
     value_warmup: int = 0
     anchor_coef: float = 0.0
+    residual: str | None = None
     # --- PPO-Lagrangian ---
     cost_budget: float = _TRAIN.cost_budget
     lagrangian_lr: float = 0.5
@@ -295,7 +303,7 @@ class FastPPOConfig:
 
 #: The bounds of this learner's own options (the shared ones are :data:`training.config.BOUNDS`).
 FAST_BOUNDS: dict[str, Bound] = {
-    **{name: BOUNDS[name] for name in FAST_ONLY if name != "init_from"},
+    **{name: BOUNDS[name] for name in FAST_ONLY if name not in ("init_from", "residual")},
     "batch_size": Bound(2, 10**9),  # advantage standardisation needs two samples
 }
 #: The options of :class:`FastPPOConfig` checked against :data:`training.config.BOUNDS`.
@@ -381,6 +389,8 @@ def config_problems(cfg: FastPPOConfig) -> list[str]:
         isinstance(h, int) and 1 <= h <= MAX_LAYER for h in cfg.net_arch
     ):
         problems.append(f"net_arch must be layer sizes in [1, {MAX_LAYER}], got {cfg.net_arch}")
+    if cfg.residual is not None and cfg.residual not in EXPERTS:
+        problems.append(f"residual must be None or one of {tuple(EXPERTS)}, got {cfg.residual!r}")
     if isinstance(cfg.scenario, str) and not cfg.scenario.strip():
         problems.append("scenario must name a scenario or a YAML file")
     if cfg.init_from is not None and (
@@ -897,13 +907,22 @@ def _learn(
         initialised_from = stored.meta.get("initialised_from")
     # The frozen start the anchor term pulls the actor's mean towards (anchor_coef > 0).
     anchor: ActorCritic | None = None
-    if cfg.anchor_coef > 0:
+    if cfg.anchor_coef > 0 and (cfg.init_from is not None or cfg.residual is None):
         if cfg.init_from is None:
-            raise ValueError("anchor_coef: needs init_from (the network the policy is kept near)")
+            raise ValueError(
+                "anchor_coef: needs init_from (the network the policy is kept near) or residual "
+                "(then the policy is kept near the law)"
+            )
         anchor = ActorCritic(K, cfg.net_arch, cfg.log_std_init, cost_head=False).to(device)
         initial_weights(cfg.init_from, anchor)
         anchor.requires_grad_(False)
         anchor.eval()
+    # A residual policy starts as the clipped law: the actor's output layer is zero.
+    if cfg.residual is not None and stored is None and cfg.init_from is None:
+        with torch.no_grad():
+            net.action_net.weight.zero_()
+            net.action_net.bias.zero_()
+    expert = None if cfg.residual is None else BatchedExpert(core, cfg.residual)
     if stored is not None:
         net.load_state_dict(stored.state["network"])
         optimizer.load_state_dict(stored.state["optimizer"])
@@ -953,6 +972,7 @@ def _learn(
         meta: dict[str, Any] = {
             "algo": cfg.algo,
             "trainer": trainer,
+            **({"residual": cfg.residual} if cfg.residual is not None else {}),
             **({"initialised_from": initialised_from} if initialised_from else {}),
             **env_meta,
             **adapter_metadata(spec),
@@ -975,6 +995,15 @@ def _learn(
         return torch.zeros((T, *shape), dtype=torch.float32, device=device)
 
     obs_buf, act_buf, rew_buf, done_buf = zeros(S, K), zeros(S, 2), zeros(S), zeros(S)
+    # the law's normalised, clipped command of a residual policy (zeros otherwise)
+    base_buf = zeros(S, 2)
+    raw_obs = first_obs
+
+    def law_action(raw: NDArray[np.float32]) -> torch.Tensor:
+        assert expert is not None
+        base, _ = to_normalised(expert.act(raw), action_range)
+        return torch.as_tensor(base, device=device).reshape(S, 2)
+
     cost_buf = zeros(S) if lagrangian else None
     live_slots = live.reshape(-1)
     live_buf = torch.ones((T, S), dtype=torch.bool, device=device)  # the live samples
@@ -1002,6 +1031,9 @@ def _learn(
                 std = torch.exp(net.log_std)
                 for t in range(T):
                     mean = net.actor(next_obs)
+                    if expert is not None:
+                        base_buf[t] = law_action(raw_obs)
+                        mean = mean + base_buf[t]
                     action = mean + std * torch.randn(mean.shape, generator=gen, device=device)
                     obs_buf[t] = next_obs
                     act_buf[t] = action
@@ -1016,7 +1048,10 @@ def _learn(
                     episode_cost += cost
                     ended = terminated | truncated
                     slot_ended = np.repeat(ended, N)
+                    raw_obs = obs
                     if ended.any():
+                        if expert is not None:  # the laws of the copies that reset start over
+                            expert.restart(ended)
                         # A time limit is bootstrapped (r + γ V(o_T)): keep its final obs.
                         limit = np.repeat(truncated & ~terminated, N)
                         if limit.any():
@@ -1043,7 +1078,7 @@ def _learn(
                         bar.update(int(live_buf[t].sum()) if variable else n_live)
 
                 # ===== the behaviour policy's log π and values, the time-limit bootstraps =====
-                mean = net.actor(obs_buf.reshape(T * S, K))
+                mean = net.actor(obs_buf.reshape(T * S, K)) + base_buf.reshape(T * S, 2)
                 logp_buf = gaussian_log_prob(act_buf.reshape(T * S, 2), mean, net.log_std)
                 logp_buf = logp_buf.reshape(T, S)
                 values, cvalues = net.critics(obs_buf.reshape(T * S, K))
@@ -1084,6 +1119,7 @@ def _learn(
                 return x.reshape(-1, *x.shape[2:])
 
             b_obs, b_act, b_logp = flat(obs_buf), flat(act_buf), flat(logp_buf)
+            b_base = flat(base_buf)
             b_adv, b_ret = flat(advantages), flat(returns)
             b_cadv = b_cret = None
             if cost_adv is not None and cost_returns is not None:
@@ -1099,7 +1135,8 @@ def _learn(
                     idx = order[start : start + cfg.batch_size]
                     if len(idx) < 2:
                         continue  # no standardised advantage of one sample
-                    mean, value, cvalue = net(b_obs[idx])
+                    own, value, cvalue = net(b_obs[idx])
+                    mean = own + b_base[idx]  # b_base is zero unless residual
                     logp = gaussian_log_prob(b_act[idx], mean, net.log_std)
                     ratio = torch.exp(logp - b_logp[idx])
                     adv = b_adv[idx]
@@ -1114,10 +1151,13 @@ def _learn(
                         value_loss = value_loss + ((cvalue - b_cret[idx]) ** 2).mean()
                     entropy = (0.5 + _LOG_SQRT_2PI + net.log_std).sum()
                     loss = policy_loss - cfg.ent_coef * entropy + cfg.vf_coef * value_loss
-                    if anchor is not None:
-                        with torch.no_grad():
-                            anchored = anchor.actor(b_obs[idx])
-                        drift = ((mean - anchored) ** 2).sum(-1).mean()
+                    if cfg.anchor_coef > 0:
+                        # to the start network's output, or (residual, no start) to zero
+                        if anchor is not None:
+                            with torch.no_grad():
+                                target = anchor.actor(b_obs[idx])
+                            own = own - target
+                        drift = (own**2).sum(-1).mean()
                         loss = loss + cfg.anchor_coef * drift
                     if warmup:  # no gradient reaches the actor or log_std
                         loss = cfg.vf_coef * value_loss

@@ -88,6 +88,7 @@ from platoon_env.observation import (
     observation_names,
 )
 from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping, file_sha256
+from training.experts import EXPERTS, to_normalised
 from training.vec_env import ActionRange
 
 __all__ = [
@@ -503,10 +504,14 @@ def _family(mapping: Mapping[str, Any] | None, name: Any) -> str:
     return f"fixed workspace {name!r}"
 
 
-def _fast_actor(model: Any) -> Callable[[NDArray[np.float32]], NDArray[np.float32]] | None:
+def _fast_actor(
+    model: Any, clip: bool = True
+) -> Callable[[NDArray[np.float32]], NDArray[np.float32]] | None:
     """A function computing the deterministic action of an SB3 ``ActorCriticPolicy`` with a
     diagonal Gaussian head and a Box action space as ``predict`` does, or None for any other
-    model (SAC, an RLlib actor, a squashed or state-dependent head)."""
+    model (SAC, an RLlib actor, a squashed or state-dependent head). ``clip=False``: the mean
+    itself, not clipped to the action space (a residual policy adds it to its law's action
+    before clipping)."""
     import torch
     from stable_baselines3.common.distributions import DiagGaussianDistribution
     from stable_baselines3.common.policies import ActorCriticPolicy
@@ -528,7 +533,8 @@ def _fast_actor(model: Any) -> Callable[[NDArray[np.float32]], NDArray[np.float3
             features = policy.extract_features(t, policy.pi_features_extractor)
             assert isinstance(features, torch.Tensor)  # a shared extractor gives one tensor
             mean = policy.action_net(policy.mlp_extractor.forward_actor(features))
-        return np.clip(mean.cpu().numpy().reshape(len(obs), ACT_SIZE), low, high)
+        out = mean.cpu().numpy().reshape(len(obs), ACT_SIZE)
+        return np.clip(out, low, high) if clip else out
 
     return act
 
@@ -584,6 +590,16 @@ class LearnedPolicy:
                 observation_layout = OBSERVATION_LAYOUTS.get(size or len(OBS_NAMES), OBS_NAMES)
         #: The names of the observations the model reads, in order.
         self.observation_layout: tuple[str, ...] = tuple(observation_layout)
+        residual = self.metadata.get("residual")
+        if residual is not None and (residual not in EXPERTS or action_range is None):
+            raise ValueError(
+                f"residual must be one of {tuple(EXPERTS)} with an action range, got {residual!r}"
+            )
+        #: The analytic law a residual policy adds its output to (``model.json``'s
+        #: ``residual``; :mod:`training.experts`), or None for a plain policy.
+        self.residual: str | None = residual
+        self._env: Any = None
+        self._law: Any = None
         self._fast: Callable[[NDArray[np.float32]], NDArray[np.float32]] | None = None
         self._fast_checked = False
         n = len(self.observation_layout)
@@ -855,8 +871,28 @@ class LearnedPolicy:
             )
         return notes
 
+    def bind(self, env: Any) -> None:
+        """Give a residual policy (:attr:`residual`) the env it acts in: its law is built on
+        ``env`` (the law reads the followers, the control period and the scenario at
+        construction) and rebuilt at every :meth:`reset`, after ``env.reset``. A law refusing
+        the env raises its ``ValueError``. Nothing to do for a plain policy."""
+        if self.residual is None:
+            return
+        self._env = env
+        self._law = EXPERTS[self.residual](env)
+
     def reset(self, seed: int | None = None) -> None:
-        """Nothing to restore: the policy is stateless and acts deterministically."""
+        """A plain policy is stateless and acts deterministically: nothing to restore. A
+        residual policy's law starts over on its env's current scenario (call after
+        ``env.reset``)."""
+        if self.residual is None:
+            return
+        if self._env is None:
+            raise RuntimeError(
+                f"a residual policy on {self.residual!r} needs its env: call bind(env) first"
+            )
+        self._law = EXPERTS[self.residual](self._env)
+        self._law.reset(seed=seed)
 
     def _deterministic(self, obs: NDArray[np.float32]) -> NDArray[np.float32]:
         """The model's deterministic actions for a batch of (scaled) observations.
@@ -869,7 +905,10 @@ class LearnedPolicy:
         evaluation episode. Other models go through ``predict``.
         """
         if not self._fast_checked:
-            self._fast, self._fast_checked = _fast_actor(self.model), True
+            self._fast = _fast_actor(self.model, clip=self.residual is None)
+            self._fast_checked = True
+            if self._fast is None and self.residual is not None:
+                raise ValueError("a residual policy needs an SB3 PPO model with a Gaussian head")
         if self._fast is not None:
             return self._fast(obs)
         actions, _ = self.model.predict(obs, deterministic=True)
@@ -891,6 +930,15 @@ class LearnedPolicy:
         if self.obs_scale is not None:
             obs = obs / self.obs_scale
         actions = self._deterministic(obs)
+        if self.residual is not None:
+            if self._law is None:
+                raise RuntimeError(
+                    f"a residual policy on {self.residual!r} needs its env: call bind(env) first"
+                )
+            assert self.action_range is not None  # checked at construction
+            law = self._law.act(observations)
+            base, _ = to_normalised(np.stack([law[a] for a in agents]), self.action_range)
+            actions = np.clip(actions + base, -1.0, 1.0)
         if self.action_range is not None:
             actions = self.action_range.to_physical(actions)
         return {a: actions[i].copy() for i, a in enumerate(agents)}

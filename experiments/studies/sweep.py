@@ -120,6 +120,46 @@ def _with(args: tuple[str, ...], **options: str) -> tuple[str, ...]:
     return tuple(out)
 
 
+#: The residual configurations' options (``--residual ppc``, ``training/fast_ppo.py``): PPO on
+#: the batched core whose mean action is the PPC law's command (normalised, clipped to the
+#: action range) plus the network's output, which starts at zero; the sharp and paper tiers
+#: mixed with a formation per layout, scale-free observations, 25 ms (a whole number of periods
+#: in the aruco profile's 50 ms latency, so the policies can be evaluated under it; PPC
+#: clipped to the action range passes studies A, B and C at 25 ms, 10/10 each), exploration noise
+#: ``sigma = e^-1.5``, the critic warmed up for 3 rollouts, the residual kept small
+#: (``--anchor-coef 1``: the squared residual). Under ideal sensing the law alone completes the
+#: training episodes (the curve starts near its end), so that run is shorter.
+_RESIDUAL = (
+    "--engine",
+    "fast",
+    "--algo",
+    "ppo",
+    "--residual",
+    "ppc",
+    "--scenario",
+    "procedural_formations_sharp_train+procedural_formations_paper_train",
+    "--task-aware-observations",
+    "--scale-free-observations",
+    "--control-period",
+    "0.025",
+    "--layout-repeats",
+    "8",
+    "--n-envs",
+    "64",
+    "--learning-rate",
+    "3e-4",
+    "--log-std-init",
+    "-1.5",
+    "--value-warmup",
+    "3",
+    "--anchor-coef",
+    "1.0",
+    "--timesteps",
+    "1500000",
+    "--log-every",
+    "100000",
+)
+
 #: The configurations trained by ``python -m experiments.studies.sweep`` and shipped in ``models/``.
 CONFIGS: dict[str, Config] = {
     c.name: c
@@ -186,6 +226,21 @@ CONFIGS: dict[str, Config] = {
                 bc_iterations="8",
                 bc_steps_per_iteration="2000",
             ),
+        ),
+        Config(
+            "residual_ppc",
+            "fast engine: a residual policy on the PPC law (its clipped command plus a learned "
+            "correction that starts at zero), sharp and paper tiers mixed, formations drawn, "
+            "scale-free observations, ideal sensing, 25 ms, 5 M transitions",
+            _with(_RESIDUAL, timesteps="5000000"),
+        ),
+        Config(
+            "residual_filtered_aruco",
+            "fast engine: as residual_ppc on the filtered PPC law (the law on filtered, "
+            "latency-compensated estimates), trained under the aruco sensing profile (camera "
+            "noise, 30 Hz frames with 50 ms latency, drop-outs, LiDAR noise, acceleration limits) "
+            "for 10 M transitions",
+            _with(_RESIDUAL, sensor_profile="aruco", residual="filtered_ppc", timesteps="10000000"),
         ),
     )
 }
