@@ -416,3 +416,29 @@ def test_ship_compares_a_fast_run_with_the_learners_own_options(
     err = capsys.readouterr().err
     assert "skip bc_ppo_sharp s2: " in err and "n_envs: stored 32, given 64" in err
     assert "skip bc_ppo_sharp s3: " in err and "trainer: stored 'training.fast_ppo'" in err
+
+
+# ------------------------------------------------------------------------------------------------
+# Learning curves of a configuration's runs
+# ------------------------------------------------------------------------------------------------
+def test_curves_draws_the_runs_that_have_a_progress_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from PIL import Image
+
+    from training.curves import PROGRESS_COLUMNS
+
+    for seed in (0, 2):
+        run = run_dir(tmp_path / "runs", "residual_ppc", seed)
+        run.mkdir(parents=True)
+        rows = [",".join(PROGRESS_COLUMNS)]
+        for i in range(1, 6):
+            rows.append(f"{i * 1000},{i},{i},{10.0 * i},{0.2 * i},0.0,")
+        (run / "progress.csv").write_text("\n".join(rows) + "\n")
+    png = tmp_path / "curves.png"
+    argv = ["--config", "residual_ppc", "bc_ppo_sharp", "--runs", str(tmp_path / "runs")]
+    assert main([*argv, "--curves", str(png)]) == 0
+    assert "no progress.csv of bc_ppo_sharp" in capsys.readouterr().err
+    assert "platoon-sweep" in Image.open(png).info["Description"]
+    # no run of any configuration: nothing drawn, a failure
+    assert main(["--config", "bc_ppo_sharp", "--runs", str(tmp_path), "--curves", str(png)]) == 1

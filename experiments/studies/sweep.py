@@ -6,6 +6,7 @@ Usage::
     platoon-sweep --config ppo_ta_aruco --seeds 0 1 --jobs 1
     platoon-sweep --list               # the configurations and their options
     platoon-sweep --ship               # copy finished runs to models/<config>_s<seed>
+    platoon-sweep --config residual_ppc --curves docs/figures/x.png   # their learning curves
 
 A **configuration** (:data:`CONFIGS`) is a named set of ``platoon-train`` options; a run is a
 configuration and a seed, trained into ``RUNS/<config>/s<seed>`` (``--runs``, default
@@ -395,6 +396,31 @@ def _fast_differences(cfg: Any, meta: dict[str, Any], recorded: dict[str, Any]) 
     return out
 
 
+def curves(
+    runs: Path, configs: Sequence[str], seeds: Sequence[int], png: Path, argv: Sequence[str] | None
+) -> Path | None:
+    """Draw the learning curves of ``configs`` from their runs' ``progress.csv`` in ``runs``
+    (:func:`training.curves.plot_learning_curves`, stamped with the command and the code
+    version); a configuration without a run is named on stderr; None if no run has a curve."""
+    from experiments.stamp import metadata_stamp, png_metadata
+    from training.curves import plot_learning_curves
+
+    progress: dict[str, list[Path]] = {}
+    for name in configs:
+        files = [run_dir(runs, name, s) / "progress.csv" for s in seeds]
+        found = [f for f in files if f.is_file()]
+        if not found:
+            print(f"no progress.csv of {name} in {runs}", file=sys.stderr)
+            continue
+        progress[name] = found
+    if not progress:
+        return None
+    stamp = metadata_stamp("platoon-sweep", None, argv)
+    out = plot_learning_curves(progress, png, metadata=png_metadata(stamp))
+    print(f"wrote {out}")
+    return out
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="platoon-sweep", description=__doc__.split("\n\n")[0] if __doc__ else None
@@ -420,6 +446,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--models", default="models", help="where --ship copies the models")
     parser.add_argument("--ship", action="store_true", help="copy finished runs, train nothing")
     parser.add_argument("--list", action="store_true", help="print the configurations and exit")
+    parser.add_argument(
+        "--curves",
+        metavar="PNG",
+        help="draw the learning curves of --config's runs in --runs (mean over the seeds that "
+        "have a progress.csv, band from the lowest to the highest) to PNG; train nothing",
+    )
     return parser
 
 
@@ -435,6 +467,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{c.name}: {c.summary}\n    platoon-train {' '.join(c.args)}")
         return 0
     runs = Path(a.runs)
+    if a.curves:
+        return 0 if curves(runs, a.config, a.seeds, Path(a.curves), argv) else 1
     if a.ship:
         shipped = ship(runs, Path(a.models), a.config, a.seeds)
         for p in shipped:
