@@ -95,6 +95,22 @@ def _task_lines(board: Board, entry: Entry, run: int) -> list[str]:
     return lines
 
 
+def _observation_option(meta: Mapping[str, Any]) -> str:
+    """The ``observation=`` option of ``make`` for the layout the model reads."""
+    layout = meta.get("observation_layout") or []
+    if len(layout) == 15:
+        return '{"task_aware": True, "scale_free": True}'
+    return '{"task_aware": True}' if len(layout) == 13 else "{}"
+
+
+def _profile(meta: Mapping[str, Any]) -> str:
+    """The ``sensor_profile=`` value (Python source) of the profile the model was trained under:
+    its quoted name, or None (ideal sensing)."""
+    config = meta.get("config") or {}
+    profile = config.get("sensor_profile") if isinstance(config, Mapping) else None
+    return "None" if profile is None else f'"{profile}"'
+
+
 def card_markdown(board: Board, entry: Entry, run: int, summary: str = "") -> str:
     """The card of ``entry``'s run ``run``."""
     spec = entry.runs[run]
@@ -125,8 +141,14 @@ def card_markdown(board: Board, entry: Entry, run: int, summary: str = "") -> st
         "from training.policies import LearnedPolicy",
         f'policy = LearnedPolicy.load("models/{spec.name}/model.zip")',
         'env = platoon_env.make("study_c", control_period=policy.control_period,',
-        '                       observation={"task_aware": True}, sensor_profile="aruco")',
+        f"                       observation={_observation_option(meta)}, "
+        f"sensor_profile={_profile(meta)})",
         "policy.check_env(env)  # refuses another observation layout or control period",
+        *(
+            ["policy.bind(env)  # builds the law the residual policy adds to"]
+            if meta.get("residual")
+            else []
+        ),
         "```",
         "",
         "Loading `model.zip` unpickles code: load only model files you trust.",

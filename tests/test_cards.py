@@ -1,0 +1,28 @@
+"""The model cards' usage snippet (experiments/studies/cards.py) matches the model's env."""
+
+from __future__ import annotations
+
+import ast
+
+import pytest
+
+import platoon_env
+from experiments.studies.cards import _observation_option, _profile
+from platoon_env.observation import OBS_NAMES, OBS_NAMES_SCALE_FREE, OBS_NAMES_TASK
+
+
+@pytest.mark.parametrize(
+    ("layout", "profile", "size"),
+    [(OBS_NAMES_SCALE_FREE, None, 15), (OBS_NAMES_TASK, "aruco", 13), (OBS_NAMES, None, 7)],
+)
+def test_the_snippet_makes_the_env_the_model_reads(
+    layout: tuple[str, ...], profile: str | None, size: int
+) -> None:
+    meta = {"observation_layout": list(layout), "config": {"sensor_profile": profile}}
+    observation = ast.literal_eval(_observation_option(meta))
+    sensor_profile = ast.literal_eval(_profile(meta))
+    assert sensor_profile == profile
+    env = platoon_env.make(
+        "study_c", control_period=0.025, observation=observation, sensor_profile=sensor_profile
+    )
+    assert env.observation_space(env.possible_agents[0]).shape == (size,)
