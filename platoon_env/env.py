@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -71,6 +71,24 @@ _VIEW_NAMES = (
     "_step",
     "_d_des",
 )
+
+
+def check_env_keywords(
+    where: str, overrides: Mapping[str, Any], own: Sequence[str], info_view: Any
+) -> None:
+    """The checks ``make()`` and ``make_vec()`` share on their keywords: an override that is no
+    scenario option is Python's ``TypeError`` ("``where`` got an unexpected keyword argument
+    ..."), listing the scenario's options and the caller's ``own`` keywords (None values are
+    ignored, as ``apply_overrides``, which runs next, ignores them); an ``info_view`` that is
+    not one of :data:`INFO_VIEWS` is a ``ScenarioError``."""
+    unknown = [k for k, v in overrides.items() if v is not None and k not in OVERRIDE_OPTIONS]
+    if unknown:
+        raise unexpected_keyword(where, unknown, (*OVERRIDE_OPTIONS, *own))
+    if info_view not in INFO_VIEWS:
+        raise ScenarioError(
+            f"{where}: info_view: expected one of {', '.join(map(repr, INFO_VIEWS))}, "
+            f"got {info_view!r}"
+        )
 
 
 class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
@@ -136,16 +154,7 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         info_view: str = "rich",
         **overrides: Any,
     ) -> None:
-        # Python's wording for a keyword make() does not take, listing the env's own keywords
-        # beside the scenario's (apply_overrides, which runs next, knows only the latter).
-        unknown = [k for k, v in overrides.items() if v is not None and k not in OVERRIDE_OPTIONS]
-        if unknown:
-            raise unexpected_keyword("make()", unknown, (*OVERRIDE_OPTIONS, *ENV_OPTIONS))
-        if info_view not in INFO_VIEWS:
-            raise ScenarioError(
-                f"make(): info_view: expected one of {', '.join(map(repr, INFO_VIEWS))}, "
-                f"got {info_view!r}"
-            )
+        check_env_keywords("make()", overrides, ENV_OPTIONS, info_view)
         #: The view of ``info``: ``"rich"`` or ``"numeric"`` (see :data:`INFO_VIEWS`).
         self.info_view = info_view
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:

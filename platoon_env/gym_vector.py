@@ -27,13 +27,12 @@ from platoon_env.action_range import (
     physical_actions,
 )
 from platoon_env.batched import BatchedPlatoon
-from platoon_env.env import INFO_VIEWS, _check_seed
+from platoon_env.env import _check_seed, check_env_keywords
 from platoon_env.geometry.sensing import SENSE_NAMES, SENSE_VISIBLE
 from platoon_env.gym_env import GYM_OPTIONS, single_follower
 from platoon_env.observation import ACT_SIZE
 from platoon_env.reward import REWARD_TERMS
-from platoon_env.scenarios.options import OVERRIDE_OPTIONS, check_bool, unexpected_keyword
-from platoon_env.scenarios.schema import ScenarioError
+from platoon_env.scenarios.options import check_bool
 from platoon_env.scenarios.source import SourceLike
 from platoon_env.violations import VIOLATION_INFO, VIOLATION_NUMERIC_INFO, first_cause
 
@@ -150,16 +149,7 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         n_threads: int = 1,
         **overrides: Any,
     ) -> None:
-        # As make(): Python's wording for a keyword not taken, naming this env's own keywords
-        # beside the scenario's (None values are ignored, as apply_overrides ignores them).
-        unknown = [k for k, v in overrides.items() if v is not None and k not in OVERRIDE_OPTIONS]
-        if unknown:
-            raise unexpected_keyword("make_vec()", unknown, (*OVERRIDE_OPTIONS, *VECTOR_OPTIONS))
-        if info_view not in INFO_VIEWS:
-            raise ScenarioError(
-                f"make_vec(): info_view: expected one of {', '.join(map(repr, INFO_VIEWS))}, "
-                f"got {info_view!r}"
-            )
+        check_env_keywords("make_vec()", overrides, VECTOR_OPTIONS, info_view)  # as make()
         #: The view of ``infos``: ``"rich"`` or ``"numeric"`` (see the class doc).
         self.info_view = info_view
         if render_mode not in (None, *self.metadata["render_modes"]):

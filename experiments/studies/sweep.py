@@ -77,6 +77,10 @@ _COMMON = (
     "1500000",
 )
 
+#: The fast engine's env copies and step size in every configuration of it: 64 copies, each
+#: keeping a layout for 8 episodes, Adam at 3e-4.
+_FAST_COPIES = ("--layout-repeats", "8", "--n-envs", "64", "--learning-rate", "3e-4")
+
 #: The fast engine's cloning + fine-tuning options (``training/bc.py``, ``docs/training.md``): 30 ms
 #: control period (at 50 ms the PPC law itself fails the sharp tier), ideal sensing, task-aware
 #: observations, 64 env copies keeping a layout for 8 episodes, DAgger with 6 iterations of
@@ -89,12 +93,7 @@ _BC_PPO = (
     "--task-aware-observations",
     "--control-period",
     "0.03",
-    "--layout-repeats",
-    "8",
-    "--n-envs",
-    "64",
-    "--learning-rate",
-    "3e-4",
+    *_FAST_COPIES,
     "--timesteps",
     "1500000",
     "--bc-iterations",
@@ -143,12 +142,7 @@ _RESIDUAL = (
     "--scale-free-observations",
     "--control-period",
     "0.025",
-    "--layout-repeats",
-    "8",
-    "--n-envs",
-    "64",
-    "--learning-rate",
-    "3e-4",
+    *_FAST_COPIES,
     "--log-std-init",
     "-1.5",
     "--value-warmup",
