@@ -1,0 +1,192 @@
+"""The fast learner against Stable-Baselines3 at equal transitions (``python -m
+experiments.studies.parity``).
+
+Both engines train PPO with their own defaults (``platoon-train --engine sb3``: SB3's 4 env
+copies and 256-sample minibatches; ``--engine fast``: :class:`training.fast_ppo.FastPPOConfig`'s
+512 copies and 8,192-sample minibatches) on one training scenario, with the same observation,
+reward, control period and number of follower transitions, for the same training seeds. Each
+run is one ``platoon-train`` process into ``OUT/<engine>/s<seed>`` (resumed when it holds a
+model, as ``platoon-sweep`` does). The comparison is the team success rate of the training
+episodes in ``progress.csv`` (``training.curves``), averaged over each run's last ``--tail``
+logged windows: per engine the mean over seeds, the difference (fast - SB3) with Welch's t-test
+and its 95 % interval. "Within noise" means that interval contains 0.
+
+Outputs: ``OUT/parity.md`` (the table, the test and the command) and ``OUT/parity.png`` (the
+learning curves of both engines, mean over seeds with the band from the lowest to the highest
+seed), both stamped with the code version.
+
+Usage::
+
+    python -m experiments.studies.parity --out results/parity            # 5 seeds, 1 M each
+    python -m experiments.studies.parity --seeds 0 1 --timesteps 200000  # a smaller check
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments.cli import count
+from experiments.stamp import REPO_ROOT, metadata_stamp, png_metadata, stamp_markdown
+
+__all__ = ["ENGINES", "main", "tail_success", "train_args"]
+
+#: The engines compared, by ``platoon-train --engine`` name.
+ENGINES = ("sb3", "fast")
+
+
+def train_args(engine: str, scenario: str, timesteps: int, seed: int, out: Path) -> list[str]:
+    """The ``platoon-train`` arguments of one run (``--resume`` when ``out`` holds a model)."""
+    args = [
+        "--engine",
+        engine,
+        "--algo",
+        "ppo",
+        "--scenario",
+        scenario,
+        "--task-aware-observations",
+        "--timesteps",
+        str(timesteps),
+        "--seed",
+        str(seed),
+        "--out",
+        str(out),
+        "--log-every",
+        str(max(timesteps // 50, 1000)),
+        "--no-progress-bar",
+        "--torch-threads",
+        "1",
+    ]
+    if (out / "model.zip").exists() or (out / "checkpoint.zip").exists():
+        args.append("--resume")
+    return args
+
+
+def tail_success(progress: Path, tail: int) -> float:
+    """The mean team success rate over the last ``tail`` logged windows that had an episode."""
+    from training.curves import read_progress
+
+    rate = read_progress(progress)["success_rate"]
+    rate = rate[~np.isnan(rate)]
+    if rate.size == 0:
+        raise ValueError(f"{progress}: no logged window with a finished episode")
+    return float(np.mean(rate[-tail:]))
+
+
+def _train(engine: str, args: argparse.Namespace, seed: int) -> Path:
+    out = Path(args.out) / engine / f"s{seed}"
+    out.mkdir(parents=True, exist_ok=True)
+    cmd = [
+        sys.executable,
+        "-m",
+        "training.train",
+        *train_args(engine, args.scenario, args.timesteps, seed, out),
+    ]
+    with (out / "train.log").open("a") as log:
+        log.write("$ " + " ".join(cmd) + "\n")
+        log.flush()
+        rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT).returncode
+    if rc != 0:
+        raise RuntimeError(f"{engine} seed {seed} failed (exit {rc}); see {out / 'train.log'}")
+    print(f"{engine} s{seed}: done", flush=True)
+    return out / "progress.csv"
+
+
+def report(
+    rates: dict[str, list[float]], seeds: Sequence[int], args: argparse.Namespace, stamp: Any
+) -> str:
+    """The markdown of ``parity.md``."""
+    from scipy import stats
+
+    sb3, fast = np.array(rates["sb3"]), np.array(rates["fast"])
+    test = stats.ttest_ind(fast, sb3, equal_var=False)
+    interval = test.confidence_interval(0.95)
+    if np.isnan(test.pvalue):  # both engines' rates constant: no variance to test
+        verdict = "no variance to test (every run of each engine has the same rate)"
+    elif interval.low <= 0.0 <= interval.high:
+        verdict = "**within noise** (the interval contains 0)"
+    else:
+        verdict = "**not within noise**"
+    lines = [
+        "# The fast learner against SB3 at equal transitions",
+        "",
+        f"PPO on `{args.scenario}` (task-aware observations, ideal sensing), "
+        f"{args.timesteps:,} follower transitions per run, training seeds "
+        f"{', '.join(map(str, seeds))}; each engine with its own defaults. Team success rate of "
+        f"the training episodes over each run's last {args.tail} logged windows.",
+        "",
+        "| engine | " + " | ".join(f"seed {s}" for s in seeds) + " | mean |",
+        "|---|" + "---|" * (len(seeds) + 1),
+    ]
+    for engine in ENGINES:
+        values = rates[engine]
+        lines.append(
+            f"| {engine} | "
+            + " | ".join(f"{v:.3f}" for v in values)
+            + f" | {float(np.mean(values)):.3f} |"
+        )
+    lines += [
+        "",
+        f"Difference fast - SB3: {float(fast.mean() - sb3.mean()):+.3f}, Welch's t-test p = "
+        f"{float(test.pvalue):.3f}, 95 % interval [{interval.low:+.3f}, {interval.high:+.3f}]: "
+        f"{verdict}.",
+        "",
+        "![learning curves](parity.png)",
+        "",
+        stamp_markdown(stamp),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m experiments.studies.parity",
+        description=__doc__.split("\n\n")[0] if __doc__ else None,
+    )
+    parser.add_argument("--out", default="results/parity", help="output folder")
+    parser.add_argument("--scenario", default="procedural_medium_train", help="training scenario")
+    parser.add_argument(
+        "--timesteps", type=count(1, "timesteps"), default=1_000_000, help="per run"
+    )
+    parser.add_argument(
+        "--seeds", nargs="+", type=count(0, "seed"), default=[0, 1, 2, 3, 4], help="seeds"
+    )
+    parser.add_argument(
+        "--tail", type=count(1, "tail"), default=5, help="logged windows averaged at the end"
+    )
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if len(set(args.seeds)) != len(args.seeds) or len(args.seeds) < 2:
+        parser.error(f"--seeds must be at least two distinct seeds, got {args.seeds}")
+    from concurrent.futures import ThreadPoolExecutor
+
+    from training.curves import plot_learning_curves
+
+    # the two engines side by side, one core each
+    with ThreadPoolExecutor(2) as pool:
+        futures = {e: [pool.submit(_train, e, args, s) for s in args.seeds] for e in ENGINES}
+        progress = {e: [f.result() for f in fs] for e, fs in futures.items()}
+    rates = {e: [tail_success(p, args.tail) for p in files] for e, files in progress.items()}
+    stamp = metadata_stamp(
+        "python -m experiments.studies.parity", {k: str(v) for k, v in vars(args).items()}, argv
+    )
+    out = Path(args.out)
+    plot_learning_curves(progress, out / "parity.png", metadata=png_metadata(stamp))
+    (out / "parity.md").write_text(report(rates, args.seeds, args, stamp), encoding="utf-8")
+    print(f"wrote {out / 'parity.md'}, {out / 'parity.png'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
