@@ -38,6 +38,7 @@ from platoon_env.scenarios.schema import (
     ScenarioError,
 )
 from platoon_env.scenarios.source import MixtureSource
+from training.experts import EXPERTS
 from training.policies import ACTION_LAYOUT, scenario_differences
 from training.vec_env import ActionRange
 
@@ -221,12 +222,10 @@ class TrainConfig:
         "fast: a residual policy on this analytic law: the action's mean is the law's command "
         "(normalised, clipped to the action range) plus the network's output, which starts at "
         "zero (training.fast_ppo; ppo or ppo_lagrangian)",
-        choices=("ppc", "filtered_ppc"),
+        choices=tuple(EXPERTS),
     )
     # --- behaviour cloning (--algo bc_*; None: training.bc.BCConfig's default) ---
-    bc_expert: str | None = _opt(
-        None, "bc: the analytic law cloned (ppc)", choices=("ppc", "filtered_ppc")
-    )
+    bc_expert: str | None = _opt(None, "bc: the analytic law cloned (ppc)", choices=tuple(EXPERTS))
     bc_iterations: int | None = _opt(None, "bc: DAgger iterations (iteration 0: the expert's)")
     bc_steps_per_iteration: int | None = _opt(
         None, "bc: control steps of every env copy per DAgger iteration"

@@ -881,6 +881,11 @@ class LearnedPolicy:
         self._env = env
         self._law = EXPERTS[self.residual](env)
 
+    def _unbound(self) -> RuntimeError:
+        return RuntimeError(
+            f"a residual policy on {self.residual!r} needs its env: call bind(env) first"
+        )
+
     def reset(self, seed: int | None = None) -> None:
         """A plain policy is stateless and acts deterministically: nothing to restore. A
         residual policy's law starts over on its env's current scenario (call after
@@ -888,9 +893,7 @@ class LearnedPolicy:
         if self.residual is None:
             return
         if self._env is None:
-            raise RuntimeError(
-                f"a residual policy on {self.residual!r} needs its env: call bind(env) first"
-            )
+            raise self._unbound()
         self._law = EXPERTS[self.residual](self._env)
         self._law.reset(seed=seed)
 
@@ -932,9 +935,7 @@ class LearnedPolicy:
         actions = self._deterministic(obs)
         if self.residual is not None:
             if self._law is None:
-                raise RuntimeError(
-                    f"a residual policy on {self.residual!r} needs its env: call bind(env) first"
-                )
+                raise self._unbound()
             assert self.action_range is not None  # checked at construction
             law = self._law.act(observations)
             base, _ = to_normalised(np.stack([law[a] for a in agents]), self.action_range)

@@ -20,6 +20,7 @@ import numpy as np
 
 from experiments.studies.sweep import CONFIGS
 from experiments.suites import LEADERBOARD_SUITES as SUITES
+from platoon_env.observation import OBS_NAMES_SCALE_FREE, OBS_NAMES_TASK
 from training.curves import plot_learning_curves, read_progress
 
 if TYPE_CHECKING:
@@ -97,10 +98,10 @@ def _task_lines(board: Board, entry: Entry, run: int) -> list[str]:
 
 def _observation_option(meta: Mapping[str, Any]) -> str:
     """The ``observation=`` option of ``make`` for the layout the model reads."""
-    layout = meta.get("observation_layout") or []
-    if len(layout) == 15:
+    layout = tuple(meta.get("observation_layout") or ())
+    if layout == OBS_NAMES_SCALE_FREE:
         return '{"task_aware": True, "scale_free": True}'
-    return '{"task_aware": True}' if len(layout) == 13 else "{}"
+    return '{"task_aware": True}' if layout == OBS_NAMES_TASK else "{}"
 
 
 def _profile(meta: Mapping[str, Any]) -> str:

@@ -149,8 +149,6 @@ _RESIDUAL = (
     "3",
     "--anchor-coef",
     "1.0",
-    "--timesteps",
-    "1500000",
     "--log-every",
     "100000",
 )
