@@ -73,17 +73,26 @@ _VIEW_NAMES = (
 )
 
 
+def refuse_unknown_keywords(
+    where: str, overrides: Mapping[str, Any], own: Sequence[str], passed: Sequence[str] = ()
+) -> None:
+    """Raise Python's ``TypeError`` ("``where`` got an unexpected keyword argument ...") for an
+    override that is neither a scenario option nor one of ``passed`` (keywords handed on to
+    another env, which checks them), listing the scenario's options and the caller's ``own``
+    keywords. None values are ignored, as ``apply_overrides`` ignores them."""
+    known = (*OVERRIDE_OPTIONS, *passed)
+    unknown = [k for k, v in overrides.items() if v is not None and k not in known]
+    if unknown:
+        raise unexpected_keyword(where, unknown, (*OVERRIDE_OPTIONS, *own))
+
+
 def check_env_keywords(
     where: str, overrides: Mapping[str, Any], own: Sequence[str], info_view: Any
 ) -> None:
     """The checks ``make()`` and ``make_vec()`` share on their keywords: an override that is no
-    scenario option is Python's ``TypeError`` ("``where`` got an unexpected keyword argument
-    ..."), listing the scenario's options and the caller's ``own`` keywords (None values are
-    ignored, as ``apply_overrides``, which runs next, ignores them); an ``info_view`` that is
-    not one of :data:`INFO_VIEWS` is a ``ScenarioError``."""
-    unknown = [k for k, v in overrides.items() if v is not None and k not in OVERRIDE_OPTIONS]
-    if unknown:
-        raise unexpected_keyword(where, unknown, (*OVERRIDE_OPTIONS, *own))
+    scenario option (:func:`refuse_unknown_keywords`, listing the caller's ``own`` keywords);
+    an ``info_view`` that is not one of :data:`INFO_VIEWS` is a ``ScenarioError``."""
+    refuse_unknown_keywords(where, overrides, own)
     if info_view not in INFO_VIEWS:
         raise ScenarioError(
             f"{where}: info_view: expected one of {', '.join(map(repr, INFO_VIEWS))}, "

@@ -32,10 +32,9 @@ from platoon_env.action_range import (
     normalised_action_space,
     physical_actions,
 )
-from platoon_env.env import ENV_OPTIONS, PlatoonParallelEnv
+from platoon_env.env import ENV_OPTIONS, PlatoonParallelEnv, refuse_unknown_keywords
 from platoon_env.observation import ACT_SIZE
 from platoon_env.scenarios.loader import load_config
-from platoon_env.scenarios.options import OVERRIDE_OPTIONS, unexpected_keyword
 from platoon_env.scenarios.schema import GENERATOR_SPLITS, GENERATOR_TIERS, ScenarioConfig
 from platoon_env.scenarios.source import FixedSource, ProceduralSource, SourceLike
 
@@ -146,10 +145,7 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
         **overrides: Any,
     ) -> None:
         # make()'s check, listing this env's keywords too (make() knows only its own).
-        known = (*OVERRIDE_OPTIONS, *ENV_OPTIONS)
-        unknown = [k for k, v in overrides.items() if v is not None and k not in known]
-        if unknown:
-            raise unexpected_keyword("make()", unknown, (*OVERRIDE_OPTIONS, *GYM_OPTIONS))
+        refuse_unknown_keywords("make()", overrides, GYM_OPTIONS, passed=ENV_OPTIONS)
         self.parallel = PlatoonParallelEnv(scenario, **single_follower(overrides, scenario))
         self.agent = self.parallel.possible_agents[0]
         self.observation_space = self.parallel.observation_space(self.agent)
