@@ -73,15 +73,14 @@ MODEL_FINGERPRINTS: dict[str, str | None] = {
     **{f"{algo}_ta_aruco_s{seed}": _ARUCO_MEDIUM for algo in ("lag", "ppo") for seed in range(5)},
     "legacy/ppo_corridors_s0": "968215adc956401e25a3dfa186d9df24b798f4238b1f714ab99f8768c3714091",
     "legacy/ppo_procedural_s0": None,
-    # trained and evaluated, not shipped yet (models/candidates/README.md)
     **{
-        f"candidates/residual_ppc_s{seed}": (
+        f"residual_ppc_s{seed}": (
             "c336d5c9ff82a56b0df8e47ba59a6c6151e94239d0c5aae3af0702a6e3c7a278"
         )
         for seed in range(5)
     },
     **{
-        f"candidates/residual_filtered_aruco_s{seed}": (
+        f"residual_filtered_aruco_s{seed}": (
             "5185ad39c27476504406bd51231793ec358984dd5981e6bac951aa08799440aa"
         )
         for seed in range(5)
@@ -93,7 +92,6 @@ def _shipped_models() -> list[str]:
     found = [
         *MODELS.glob("*/model.json"),
         *MODELS.glob("legacy/*/model.json"),
-        *MODELS.glob("candidates/*/model.json"),
     ]
     return sorted(str(p.parent.relative_to(MODELS)) for p in found)
 

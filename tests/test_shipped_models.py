@@ -34,17 +34,25 @@ def test_a_shipped_run_loads_suits_its_env_and_has_its_files(run: Path) -> None:
     assert meta["timesteps"] >= meta["timesteps_requested"] and not meta["interrupted"]
     assert (run / "model.zip").stat().st_size < 1_000_000  # kept small
     policy = LearnedPolicy.load(run / "model.zip")
-    assert policy.task_aware and policy.observation_size == 13
     cfg = meta["config"]
+    scale_free = bool(cfg.get("scale_free_observations", False))
+    # the task-aware layout: 13 values, 15 scale-free (docs/observations.md)
+    assert policy.task_aware and policy.observation_size == (15 if scale_free else 13)
+    observation = {"task_aware": True, "scale_free": True} if scale_free else {"task_aware": True}
     env = platoon_env.make(
         meta["scenario"],
         control_period=policy.control_period,
         sensor_profile=cfg["sensor_profile"],
-        observation={"task_aware": True},
+        observation=observation,
     )
     notes = policy.check_env(env)
     assert all("not held out" in n for n in notes)  # the training env itself
     obs, _ = env.reset(seed=0)
+    if meta.get("residual"):
+        with pytest.raises(RuntimeError, match="bind"):
+            policy.act(obs)  # a residual policy acts on its law, which bind() builds
+        policy.bind(env)
+    policy.reset(seed=0)
     actions = policy.act(obs)
     assert set(actions) == set(env.agents)
     curve = read_progress(run / "progress.csv")
