@@ -134,6 +134,8 @@ class Report:
     values: dict[str, str] = field(default_factory=dict)
     failures: list[str] = field(default_factory=list)
     corners: list[Corner] = field(default_factory=list)
+    #: The numbers of the README's scenario table (:func:`summary_table`), by column.
+    numbers: dict[str, float] = field(default_factory=dict)
 
     def add(self, key: str, value: str) -> None:
         self.values[key] = value
@@ -435,6 +437,7 @@ def check(source: str, outdir: Path) -> Report:
     xmin, ymin, xmax, ymax = scenario.workspace.bounds
     report.add("free area", f"{free.area:.1f} m^2")
     report.add("boundary edges", str(len(scenario.workspace.edges)))
+    report.numbers["edges"] = len(scenario.workspace.edges)
     report.add("map size", f"{xmax - xmin:.1f} x {ymax - ymin:.1f} m")
 
     raw = np.asarray(scenario.leader_path, dtype=float)
@@ -566,6 +569,10 @@ def check(source: str, outdir: Path) -> Report:
     if run.arrival_time is None:
         report.failures.append("the env's leader did not reach the end of its path")
     driven = "did not arrive" if run.arrival_time is None else f"run {run.arrival_time:.1f} s"
+    report.numbers["path"] = float(scenario.path_s[-1] - scenario.initial_progress)
+    report.numbers["run"] = math.nan if run.arrival_time is None else float(run.arrival_time)
+    report.numbers["radius"] = float(tightest_turn(traj))
+    report.numbers["sharp"] = len(report.corners)
     report.add(
         "env leader",
         f"{driven} at {cfg.leader.speed} m/s, min clearance {lead_clear.min():.3f} m, "
@@ -867,6 +874,24 @@ def rewrite_block(doc: Path, command: str, text: str) -> None:
     doc.write_text(f"{head}{begin}\n{text}\n{end}{tail}")
 
 
+def summary_table(reports: list[Report]) -> str:
+    """The README's table of the checked scenarios: obstacle boundary edges, the leader path
+    ahead of the leader's start, the env leader's run time, its tightest turn radius as driven
+    and the path's sharp corners (turns of at least :data:`SHARP_CORNER_DEG`)."""
+    lines = [
+        "| scenario | boundary edges | leader path from its start [m] | leader's run time [s] | "
+        f"tightest turn radius as driven [m] | sharp corners (≥ {SHARP_CORNER_DEG:g}°) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for rep in reports:
+        n = rep.numbers
+        lines.append(
+            f"| `{rep.name}` | {int(n['edges'])} | {n['path']:.1f} | {n['run']:.1f} | "
+            f"{n['radius']:.2f} | {int(n['sharp'])} |"
+        )
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -891,6 +916,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--workers", type=int, default=2, help="episodes run at once for --tiers (default 2)"
     )
+    parser.add_argument(
+        "--table",
+        action="store_true",
+        help="print only the README's scenario table of the checked scenarios (edges, leader "
+        "path, run time, tightest turn, sharp corners); the exit status is still 1 if a "
+        "requirement fails",
+    )
     args = parser.parse_args(argv)
     if args.tiers:
         table = tiers_table(TIER_LAYOUTS, args.workers)
@@ -899,14 +931,23 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     files = args.files or [str(DATA_DIR / f"{name}.yaml") for name in STUDIES]
     failed = False
+    reports = []
     for f in files:
         report = check(f, args.outdir)
+        reports.append(report)
+        failed |= bool(report.failures)
+        if args.table:
+            continue
         print(f"== {report.name} ({f})")
         for key, value in report.values.items():
             print(f"   {key}: {value}")
         for message in report.failures:
             print(f"   FAIL: {message}")
-        failed |= bool(report.failures)
+    if args.table:
+        print(summary_table(reports))
+        for report in reports:
+            for message in report.failures:
+                print(f"{report.name}: FAIL: {message}", file=sys.stderr)
     return 1 if failed else 0
 
 

@@ -278,3 +278,17 @@ def test_planner_on_a_small_corridor() -> None:
     np.testing.assert_allclose(traj[-1, 1:3], (3.5, 3.5), atol=0.01)
     with pytest.raises(ValueError, match="clearance"):
         planner.global_path(corridor, 0.45, (0.5, 0.5), (3.5, 3.5), p)
+
+
+def test_the_readme_table_of_a_study_is_what_check_measures(tmp_path: Path) -> None:
+    """``check_workspaces.py --table``: one row per study from the report's own numbers."""
+    report = cw.check("study_b", tmp_path)
+    sc = load_scenario("study_b")
+    assert not report.failures
+    n = report.numbers
+    assert n["edges"] == len(sc.workspace.edges)
+    assert n["path"] == pytest.approx(sc.path_s[-1] - sc.initial_progress)
+    assert n["radius"] > 0 and math.isfinite(n["run"]) and n["run"] > 0  # it arrived
+    table = cw.summary_table([report]).splitlines()
+    assert len(table) == 3 and table[2].startswith(f"| `study_b` | {len(sc.workspace.edges)} | ")
+    assert f"{n['run']:.1f}" in table[2]
