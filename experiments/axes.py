@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from experiments.names import by_name
 from platoon_env.scenarios.options import PROFILE_OPTION
 from platoon_env.scenarios.profiles import load_profile
 
@@ -87,29 +88,24 @@ def profile_overrides(name: str) -> dict[str, Any]:
 
 
 #: The realism axes of the frontier, each run alone (:func:`build_grid`).
-AXES: dict[str, Axis] = {
-    a.name: a
-    for a in (
-        Axis(
-            "camera_noise",
-            "camera position noise sigma [cm]",
-            (0.0, 0.5, 1.0, 2.0, 5.0, 10.0),
-            (0.0, 5.0),
-            _noise,
-        ),
-        Axis("detection", "detection probability", (1.0, 0.95, 0.8, 0.5), (1.0, 0.5), _detection),
-        Axis(
-            "latency", "camera latency [ms]", (0.0, 10.0, 30.0, 50.0, 100.0), (0.0, 50.0), _latency
-        ),
-        Axis(
-            "frame_rate",
-            "camera frame rate [Hz]",
-            (None, 30.0, 15.0),
-            (None, 15.0),
-            _frame_rate,
-            none_label="every step",
-        ),
-        Axis("accel_max", "accel_max [m/s²]", (None, 2.0, 1.0, 0.5), (None, 0.5), _accel),
-        Axis("profile", "sensor profile", ("aruco",), ("aruco",), profile_overrides),
-    )
-}
+AXES: dict[str, Axis] = by_name(
+    Axis(
+        "camera_noise",
+        "camera position noise sigma [cm]",
+        (0.0, 0.5, 1.0, 2.0, 5.0, 10.0),
+        (0.0, 5.0),
+        _noise,
+    ),
+    Axis("detection", "detection probability", (1.0, 0.95, 0.8, 0.5), (1.0, 0.5), _detection),
+    Axis("latency", "camera latency [ms]", (0.0, 10.0, 30.0, 50.0, 100.0), (0.0, 50.0), _latency),
+    Axis(
+        "frame_rate",
+        "camera frame rate [Hz]",
+        (None, 30.0, 15.0),
+        (None, 15.0),
+        _frame_rate,
+        none_label="every step",
+    ),
+    Axis("accel_max", "accel_max [m/s²]", (None, 2.0, 1.0, 0.5), (None, 0.5), _accel),
+    Axis("profile", "sensor profile", ("aruco",), ("aruco",), profile_overrides),
+)

@@ -16,15 +16,19 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 from experiments.store import Store, StoreError
+
+if TYPE_CHECKING:
+    from experiments.grid import GridResult
 
 __all__ = [
     "add_grid_options",
     "add_models_option",
     "add_workers_option",
     "count",
+    "failed_episodes",
     "new_parser",
     "number",
     "open_store",
@@ -108,6 +112,15 @@ def add_grid_options(
             default=store,
             help=f"the evaluation store the episodes go to and resume from (default: {store})",
         )
+
+
+def failed_episodes(result: GridResult) -> int:
+    """A driver's exit code after its grid: 0, or 1 when episodes failed (one line on stderr
+    says how many; the next run of the same command retries them)."""
+    if not result.failed:
+        return 0
+    print(f"{len(result.failed)} episode(s) failed; re-run to retry them", file=sys.stderr)
+    return 1
 
 
 def _fail(tool: str, exc: StoreError, code: int) -> NoReturn:

@@ -24,6 +24,7 @@ from experiments.store import EpisodeRecord, Store
 __all__ = [
     "file_stem",
     "format_value",
+    "markdown_table",
     "mean_ci",
     "provenance_markdown",
     "seed_ranges",
@@ -68,6 +69,17 @@ def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
     centre = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
     return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def markdown_table(header: Sequence[str], rows: Iterable[Sequence[object]]) -> str:
+    """A Markdown table: the ``header`` row, its rule, then one line per row (each cell
+    ``str()``-ed); a row whose length differs from the header's is a ``ValueError``."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in rows:
+        if len(row) != len(header):
+            raise ValueError(f"a row of {len(row)} cells under a header of {len(header)}: {row}")
+        lines.append("| " + " | ".join(str(c) for c in row) + " |")
+    return "\n".join(lines)
 
 
 def mean_ci(values: Sequence[float], z: float = 1.96) -> str:

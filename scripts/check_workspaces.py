@@ -60,12 +60,9 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Point
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-import platoon_env  # noqa: E402
-from experiments.suites import STUDIES  # noqa: E402
-from platoon_env.geometry.sensing import (  # noqa: E402
+import platoon_env
+from experiments.suites import STUDIES
+from platoon_env.geometry.sensing import (
     SENSE_BETA,
     SENSE_CLEARANCE,
     SENSE_D_SIGHT_LEFT,
@@ -73,16 +70,18 @@ from platoon_env.geometry.sensing import (  # noqa: E402
     sense,
     sensing_params,
 )
-from platoon_env.geometry.workspace import LEADER_PATH_MARGIN, check_leader_path  # noqa: E402
-from platoon_env.scenarios.loader import load_config  # noqa: E402
-from platoon_env.scenarios.procedural import generate_scenario  # noqa: E402
-from platoon_env.scenarios.scenario import (  # noqa: E402
+from platoon_env.geometry.workspace import LEADER_PATH_MARGIN, check_leader_path
+from platoon_env.scenarios.loader import load_config
+from platoon_env.scenarios.procedural import generate_scenario
+from platoon_env.scenarios.scenario import (
     Scenario,
     build_scenario,
     initial_violations,
 )
-from platoon_env.scenarios.schema import ScenarioError  # noqa: E402
+from platoon_env.scenarios.schema import ScenarioError
 
+#: The checkout this script belongs to (the scenario data and docs it reads and writes).
+REPO = Path(__file__).resolve().parents[1]
 DATA_DIR = REPO / "platoon_env" / "scenarios" / "data"
 
 SAMPLE_STEP = 0.02  # [m] spacing of the dense samples along the path (measurement only)

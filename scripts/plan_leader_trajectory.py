@@ -56,24 +56,23 @@ from shapely.geometry import LineString, Point
 from shapely.geometry.base import BaseGeometry
 from shapely.ops import nearest_points
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from platoon_env.geometry.workspace import build_free_space  # noqa: E402
-from platoon_env.scenarios.leader_planner import (  # noqa: E402
+from platoon_env.geometry.workspace import build_free_space
+from platoon_env.scenarios.leader_planner import (
     Limits,
     PlannerParams,
     follow,
     sharp_vertices,
 )
-from platoon_env.scenarios.loader import load_config  # noqa: E402
-from platoon_env.scenarios.schema import ScenarioConfig  # noqa: E402
+from platoon_env.scenarios.loader import load_config
+from platoon_env.scenarios.schema import ScenarioConfig
 
 FloatArray = NDArray[np.float64]
 
 #: The local planner's names, used here and by the tests through this script.
 __all__ = ["Limits", "PlannerParams", "follow", "sharp_vertices"]
 
+#: The checkout this script belongs to (the scenario data and docs it reads and writes).
+REPO = Path(__file__).resolve().parents[1]
 DATA_DIR = REPO / "platoon_env" / "scenarios" / "data"
 DEFAULT_SCENARIO = DATA_DIR / "study_b.yaml"
 #: Not in ``DATA_DIR`` itself: every ``*.yaml`` there is listed as a shipped scenario

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import copy
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import matplotlib
@@ -54,3 +54,17 @@ def one_torch_thread() -> Iterator[None]:
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
+
+
+@pytest.fixture
+def usage_error(capsys: pytest.CaptureFixture[str]) -> Callable[..., str]:
+    """``usage_error(parse, argv)``: calls ``parse(argv)``, requires argparse's usage error
+    (``SystemExit`` with code 2) and returns what it wrote to stderr."""
+
+    def run(parse: Callable[[list[str]], object], argv: list[str]) -> str:
+        with pytest.raises(SystemExit) as exit_info:
+            parse(argv)
+        assert exit_info.value.code == 2
+        return capsys.readouterr().err
+
+    return run

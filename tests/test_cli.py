@@ -100,3 +100,14 @@ def test_drivers_refuse_a_foreign_store_before_any_work(
     assert hashlib.sha256(store.read_bytes()).hexdigest() == before
     written = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*") if p.is_file())
     assert written == [store.relative_to(tmp_path)]  # nothing but the refused file
+
+
+def test_a_driver_exits_1_naming_its_failed_episodes(capsys: pytest.CaptureFixture[str]) -> None:
+    from types import SimpleNamespace
+
+    from experiments.cli import failed_episodes
+
+    assert failed_episodes(SimpleNamespace(failed=[])) == 0  # type: ignore[arg-type]
+    assert capsys.readouterr().err == ""
+    assert failed_episodes(SimpleNamespace(failed=[object(), object()])) == 1  # type: ignore[arg-type]
+    assert capsys.readouterr().err == "2 episode(s) failed; re-run to retry them\n"

@@ -19,6 +19,13 @@ from shapely.geometry import LineString, box
 from test_studies_maps import cw
 
 import platoon_env
+from platoon_env.config import (
+    GENERATOR_SPLITS,
+    GENERATOR_TIERS,
+    GeneratorConfig,
+    ScenarioConfig,
+    ScenarioError,
+)
 from platoon_env.scenarios.leader_planner import sharp_vertices
 from platoon_env.scenarios.loader import load_config
 from platoon_env.scenarios.procedural import (
@@ -29,13 +36,6 @@ from platoon_env.scenarios.procedural import (
     seed_range,
 )
 from platoon_env.scenarios.scenario import Scenario, initial_violations
-from platoon_env.scenarios.schema import (
-    GENERATOR_SPLITS,
-    GENERATOR_TIERS,
-    GeneratorConfig,
-    ScenarioConfig,
-    ScenarioError,
-)
 from platoon_env.scenarios.sharp_layouts import DOOR_TURN_BASE
 
 #: Layouts per tier and kind in the property samples.

@@ -57,7 +57,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -68,8 +67,9 @@ from typing import Any
 import numpy as np
 
 from experiments.axes import profile_overrides
-from experiments.cli import add_grid_options, new_parser
+from experiments.cli import add_grid_options, failed_episodes, new_parser
 from experiments.grid import Cell, store_file, store_path
+from experiments.names import by_name
 from experiments.stamp import png_metadata
 from experiments.studies import frontiers
 from experiments.studies.frontiers import CONTROLLERS, Point, episode_overrides
@@ -115,34 +115,31 @@ class ProfileAxis:
 
 #: The axes a sensor profile is taken apart into; together they hold every realism field a
 #: profile may set (:func:`axis_values` refuses a profile field no axis holds).
-PROFILE_AXES: dict[str, ProfileAxis] = {
-    a.name: a
-    for a in (
-        ProfileAxis(
-            "camera_noise",
-            "camera position and bearing noise",
-            (
-                ("camera", "noise", "position"),
-                ("camera", "noise", "position_per_m"),
-                ("camera", "noise", "bearing"),
-            ),
+PROFILE_AXES: dict[str, ProfileAxis] = by_name(
+    ProfileAxis(
+        "camera_noise",
+        "camera position and bearing noise",
+        (
+            ("camera", "noise", "position"),
+            ("camera", "noise", "position_per_m"),
+            ("camera", "noise", "bearing"),
         ),
-        ProfileAxis(
-            "detection",
-            "detection probability and its loss towards the image edge",
-            (("camera", "detection"), ("camera", "detection_edge")),
-        ),
-        ProfileAxis("frame_rate", "camera frame rate", (("camera", "frame_rate"),)),
-        ProfileAxis("latency", "camera latency", (("camera", "latency"),)),
-        ProfileAxis("proximity_noise", "proximity (LiDAR) noise", (("proximity", "noise"),)),
-        ProfileAxis(
-            "accel_limits",
-            "bounds on the change of the applied u and omega",
-            (("robot", "accel_max"), ("robot", "alpha_max")),
-        ),
-        ProfileAxis("actuator_lag", "first-order actuator lag", (("robot", "lag"),)),
-    )
-}
+    ),
+    ProfileAxis(
+        "detection",
+        "detection probability and its loss towards the image edge",
+        (("camera", "detection"), ("camera", "detection_edge")),
+    ),
+    ProfileAxis("frame_rate", "camera frame rate", (("camera", "frame_rate"),)),
+    ProfileAxis("latency", "camera latency", (("camera", "latency"),)),
+    ProfileAxis("proximity_noise", "proximity (LiDAR) noise", (("proximity", "noise"),)),
+    ProfileAxis(
+        "accel_limits",
+        "bounds on the change of the applied u and omega",
+        (("robot", "accel_max"), ("robot", "alpha_max")),
+    ),
+    ProfileAxis("actuator_lag", "first-order actuator lag", (("robot", "lag"),)),
+)
 
 #: The kinds of condition, in table order: the study as shipped, the whole profile, the
 #: profile with one axis ideal, one axis of the profile alone.
@@ -864,10 +861,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     (out / "breaks.md").write_text(header + body + "\n")
     print(body)
     print(f"wrote {out / 'breaks.csv'}, {out / 'breaks.md'}, " + ", ".join(map(str, paths)))
-    if result.failed:
-        print(f"{len(result.failed)} episode(s) failed; re-run to retry them", file=sys.stderr)
-        return 1
-    return 0
+    return failed_episodes(result)
 
 
 if __name__ == "__main__":

@@ -49,7 +49,6 @@ of the last-seen controller, the leader path's corners numbered. The two-followe
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -58,7 +57,7 @@ import numpy as np
 from tqdm import tqdm
 
 import platoon_env
-from experiments.cli import add_grid_options, new_parser, open_store
+from experiments.cli import add_grid_options, failed_episodes, new_parser, open_store
 from experiments.grid import Cell, GridResult, run_grid
 from experiments.policies import PolicySpec, analytic_policies, build_policy
 from experiments.report import mean_ci, provenance_markdown, wilson
@@ -728,8 +727,7 @@ def main(argv: Sequence[str] | None = None) -> str:
     table = comparison_table(_groups(result))
     (out / "comparison.md").write_text(header + table + "\n")
     print(table)
-    if result.failed:
-        print(f"{len(result.failed)} episode(s) failed; re-run to retry them", file=sys.stderr)
+    if failed_episodes(result):
         raise SystemExit(1)
     return table
 
@@ -773,8 +771,7 @@ def _fig15(
     (out / FIG15_FILE).write_text(text)
     tqdm.write(f"wrote {out / FIG15_FILE}")
     print(text, end="")
-    if result.failed:
-        print(f"{len(result.failed)} episode(s) failed; re-run to retry them", file=sys.stderr)
+    if failed_episodes(result):
         raise SystemExit(1)
     return text
 

@@ -49,7 +49,6 @@ import argparse
 import json
 import math
 import statistics
-import sys
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -60,7 +59,7 @@ import numpy as np
 
 from baselines.ppc import EPS_MAX
 from experiments.axes import AXES, Axis, level_key
-from experiments.cli import add_grid_options, count, new_parser, open_store
+from experiments.cli import add_grid_options, count, failed_episodes, new_parser, open_store
 from experiments.grid import Cell, GridResult, ResolvedCell, resolve_cells, run_grid, store_path
 from experiments.policies import PolicySpec, analytic_policies
 from experiments.report import (
@@ -861,10 +860,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ]
     print(table)
     print(f"wrote {out / 'frontiers.csv'}, {out / 'frontiers.md'}, " + ", ".join(map(str, paths)))
-    if result.failed:
-        print(f"{len(result.failed)} episode(s) failed; re-run to retry them", file=sys.stderr)
-        return 1
-    return 0
+    return failed_episodes(result)
 
 
 if __name__ == "__main__":

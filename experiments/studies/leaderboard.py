@@ -68,7 +68,7 @@ import numpy as np
 from experiments.cli import add_models_option, add_workers_option, count
 from experiments.grid import run_grid, store_file
 from experiments.policies import default_models_dir
-from experiments.report import provenance_markdown
+from experiments.report import markdown_table, provenance_markdown
 from experiments.significance import Comparison, compare, mean_success, task_rate
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.stats import (
@@ -352,14 +352,19 @@ def comparisons_markdown(found: Sequence[Comparison], tasks_: Sequence[Task]) ->
         "",
     ]
     if sig:
-        lines += ["| task | A | B | success A − B [95 % CI] | p (Fisher) | p (Holm) |"]
-        lines += ["|---|---|---|---|---|---|"]
-        for c in sig:
-            lines.append(
-                f"| {c.task} | {c.a} | {c.b} | {c.difference.value:+.2f} "
-                f"[{c.difference.low:+.2f}, {c.difference.high:+.2f}] | {c.p_value:.2g} | "
-                f"{c.p_holm:.2g} |"
+        header = ["task", "A", "B", "success A − B [95 % CI]", "p (Fisher)", "p (Holm)"]
+        rows = [
+            (
+                c.task,
+                c.a,
+                c.b,
+                f"{c.difference.value:+.2f} [{c.difference.low:+.2f}, {c.difference.high:+.2f}]",
+                f"{c.p_value:.2g}",
+                f"{c.p_holm:.2g}",
             )
+            for c in sig
+        ]
+        lines.append(markdown_table(header, rows))
     return "\n".join(lines) + "\n"
 
 
@@ -504,18 +509,24 @@ def improvement_markdown(board: Board) -> str:
 
 
 def goal_markdown(goals: Sequence[Mapping[str, Any]]) -> str:
-    lines = [
-        f"| configuration | runs with A, B, C ideal ≥ {GOAL_IDEAL_RATE:.0%} each | paper tasks "
-        f"won under aruco vs {GOAL_REFERENCE} (Holm) | lost | goal met |",
-        "|---|---|---|---|---|",
+    header = [
+        "configuration",
+        f"runs with A, B, C ideal ≥ {GOAL_IDEAL_RATE:.0%} each",
+        f"paper tasks won under aruco vs {GOAL_REFERENCE} (Holm)",
+        "lost",
+        "goal met",
     ]
-    for g in goals:
-        lines.append(
-            f"| {g['policy']} | {g['ideal_runs']} of {len(g['runs'])} | "
-            f"{', '.join(g['wins']) or 'none'} | {', '.join(g['losses']) or 'none'} | "
-            f"{'yes' if g['met'] else 'no'} |"
+    rows = [
+        (
+            g["policy"],
+            f"{g['ideal_runs']} of {len(g['runs'])}",
+            ", ".join(g["wins"]) or "none",
+            ", ".join(g["losses"]) or "none",
+            "yes" if g["met"] else "no",
         )
-    return "\n".join(lines) + "\n"
+        for g in goals
+    ]
+    return markdown_table(header, rows) + "\n"
 
 
 def splice_readme(readme: Path, text: str) -> None:

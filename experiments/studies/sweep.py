@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from experiments.cli import count
+from experiments.names import by_name
 from experiments.report import file_stem
 from experiments.stamp import REPO_ROOT
 
@@ -154,89 +155,86 @@ _RESIDUAL = (
 )
 
 #: The configurations trained by ``python -m experiments.studies.sweep`` and shipped in ``models/``.
-CONFIGS: dict[str, Config] = {
-    c.name: c
-    for c in (
-        Config(
-            "ppo_ta_aruco",
-            "SB3 PPO on the env's reward, aruco profile, task-aware observations",
-            ("--algo", "ppo", *_COMMON),
+CONFIGS: dict[str, Config] = by_name(
+    Config(
+        "ppo_ta_aruco",
+        "SB3 PPO on the env's reward, aruco profile, task-aware observations",
+        ("--algo", "ppo", *_COMMON),
+    ),
+    Config(
+        "lag_ta_aruco",
+        "PPO-Lagrangian (cost budget 0.05 per follower episode), aruco profile, task-aware "
+        "observations",
+        ("--algo", "ppo_lagrangian", "--cost-budget", "0.05", *_COMMON),
+    ),
+    Config(
+        "bc_ppo_sharp",
+        "fast engine: the PPC law cloned with DAgger (6 iterations), then PPO fine-tuning, on "
+        "the sharp tier (study C's formation), ideal sensing, task-aware observations, 30 ms",
+        ("--scenario", "procedural_sharp_train", *_BC_PPO),
+    ),
+    Config(
+        "bc_ppo_formations_sf",
+        "fast engine: as bc_ppo_sharp, on the sharp tier with a formation drawn per layout "
+        "(1-7 followers, the three studies' ranges), scale-free observations",
+        (
+            "--scenario",
+            "procedural_formations_sharp_train",
+            "--scale-free-observations",
+            *_BC_PPO,
         ),
-        Config(
-            "lag_ta_aruco",
-            "PPO-Lagrangian (cost budget 0.05 per follower episode), aruco profile, task-aware "
-            "observations",
-            ("--algo", "ppo_lagrangian", "--cost-budget", "0.05", *_COMMON),
+    ),
+    Config(
+        "bc_ppo_mixed_anchor",
+        "fast engine: as bc_ppo_formations_sf, on the sharp and paper tiers mixed (a family "
+        "drawn per episode), the fine-tuning anchored to the clone (--anchor-coef 1)",
+        (
+            "--scenario",
+            "procedural_formations_sharp_train+procedural_formations_paper_train",
+            "--scale-free-observations",
+            "--anchor-coef",
+            "1.0",
+            *_BC_PPO,
         ),
-        Config(
-            "bc_ppo_sharp",
-            "fast engine: the PPC law cloned with DAgger (6 iterations), then PPO fine-tuning, on "
-            "the sharp tier (study C's formation), ideal sensing, task-aware observations, 30 ms",
-            ("--scenario", "procedural_sharp_train", *_BC_PPO),
-        ),
-        Config(
-            "bc_ppo_formations_sf",
-            "fast engine: as bc_ppo_sharp, on the sharp tier with a formation drawn per layout "
-            "(1-7 followers, the three studies' ranges), scale-free observations",
-            (
-                "--scenario",
-                "procedural_formations_sharp_train",
-                "--scale-free-observations",
-                *_BC_PPO,
-            ),
-        ),
-        Config(
-            "bc_ppo_mixed_anchor",
-            "fast engine: as bc_ppo_formations_sf, on the sharp and paper tiers mixed (a family "
-            "drawn per episode), the fine-tuning anchored to the clone (--anchor-coef 1)",
+    ),
+    Config(
+        "bc_ppo_mixed_20ms",
+        "fast engine: as bc_ppo_mixed_anchor at a 20 ms control period (PPC clipped to the "
+        "learner's action range fails study A at 30 ms, 2/10, and passes it at 20 ms, 10/10), "
+        "128-128 layers, 8 DAgger iterations of 2,000 steps",
+        _with(
             (
                 "--scenario",
                 "procedural_formations_sharp_train+procedural_formations_paper_train",
                 "--scale-free-observations",
                 "--anchor-coef",
                 "1.0",
+                "--net-arch",
+                "128",
+                "128",
                 *_BC_PPO,
             ),
+            control_period="0.02",
+            bc_iterations="8",
+            bc_steps_per_iteration="2000",
         ),
-        Config(
-            "bc_ppo_mixed_20ms",
-            "fast engine: as bc_ppo_mixed_anchor at a 20 ms control period (PPC clipped to the "
-            "learner's action range fails study A at 30 ms, 2/10, and passes it at 20 ms, 10/10), "
-            "128-128 layers, 8 DAgger iterations of 2,000 steps",
-            _with(
-                (
-                    "--scenario",
-                    "procedural_formations_sharp_train+procedural_formations_paper_train",
-                    "--scale-free-observations",
-                    "--anchor-coef",
-                    "1.0",
-                    "--net-arch",
-                    "128",
-                    "128",
-                    *_BC_PPO,
-                ),
-                control_period="0.02",
-                bc_iterations="8",
-                bc_steps_per_iteration="2000",
-            ),
-        ),
-        Config(
-            "residual_ppc",
-            "fast engine: a residual policy on the PPC law (its clipped command plus a learned "
-            "correction that starts at zero), sharp and paper tiers mixed, formations drawn, "
-            "scale-free observations, ideal sensing, 25 ms, 5 M transitions",
-            _with(_RESIDUAL, timesteps="5000000"),
-        ),
-        Config(
-            "residual_filtered_aruco",
-            "fast engine: as residual_ppc on the filtered PPC law (the law on filtered, "
-            "latency-compensated estimates), trained under the aruco sensing profile (camera "
-            "noise, 30 Hz frames with 50 ms latency, drop-outs, LiDAR noise, acceleration limits) "
-            "for 10 M transitions",
-            _with(_RESIDUAL, sensor_profile="aruco", residual="filtered_ppc", timesteps="10000000"),
-        ),
-    )
-}
+    ),
+    Config(
+        "residual_ppc",
+        "fast engine: a residual policy on the PPC law (its clipped command plus a learned "
+        "correction that starts at zero), sharp and paper tiers mixed, formations drawn, "
+        "scale-free observations, ideal sensing, 25 ms, 5 M transitions",
+        _with(_RESIDUAL, timesteps="5000000"),
+    ),
+    Config(
+        "residual_filtered_aruco",
+        "fast engine: as residual_ppc on the filtered PPC law (the law on filtered, "
+        "latency-compensated estimates), trained under the aruco sensing profile (camera "
+        "noise, 30 Hz frames with 50 ms latency, drop-outs, LiDAR noise, acceleration limits) "
+        "for 10 M transitions",
+        _with(_RESIDUAL, sensor_profile="aruco", residual="filtered_ppc", timesteps="10000000"),
+    ),
+)
 
 #: The configurations whose runs are in ``models/`` (five seeds each, with the cards the
 #: leaderboard writes once it has evaluated a run on every task,
