@@ -7,7 +7,7 @@ import ast
 import pytest
 
 import platoon_env
-from experiments.studies.cards import _observation_option, _profile
+from experiments.studies.cards import _observation_option, _profile, _training_summary
 from platoon_env.observation import OBS_NAMES, OBS_NAMES_SCALE_FREE, OBS_NAMES_TASK
 
 
@@ -26,3 +26,14 @@ def test_the_snippet_makes_the_env_the_model_reads(
         "study_c", control_period=0.025, observation=observation, sensor_profile=sensor_profile
     )
     assert env.observation_space(env.possible_agents[0]).shape == (size,)
+
+
+def test_the_training_lines_name_the_trainer_and_the_residual_law() -> None:
+    base = {"algo": "ppo", "versions": {"stable_baselines3": "2.9.2"}, "timesteps": 10}
+    sb3 = _training_summary({**base, "config": {"n_envs": 4}})
+    assert sb3[0] == "- algorithm: `ppo` (Stable-Baselines3 2.9.2)" and "4 env copies" in sb3[2]
+    fast = _training_summary(
+        {**base, "trainer": "training.fast_ppo", "residual": "ppc", "config": {"n_envs": 64}}
+    )
+    assert "trained by `training.fast_ppo`" in fast[0] and "residual on the `ppc` law" in fast[0]
+    assert "64 env copies" in fast[2]

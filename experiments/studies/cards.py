@@ -35,8 +35,20 @@ def _training_summary(meta: Mapping[str, Any]) -> list[str]:
     wall = float(meta.get("wall_time_s") or math.nan)
     sb3 = meta.get("versions", {}).get("stable_baselines3", "?")
     net = cfg.get("net_arch") or [64, 64]
+    trainer = meta.get("trainer")
+    residual = meta.get("residual")
     return [
-        f"- algorithm: `{meta.get('algo')}` (Stable-Baselines3 {sb3})"
+        f"- algorithm: `{meta.get('algo')}` "
+        + (
+            f"(trained by `{trainer}`, saved in Stable-Baselines3 {sb3}'s format)"
+            if trainer
+            else f"(Stable-Baselines3 {sb3})"
+        )
+        + (
+            f", a residual on the `{residual}` law (`LearnedPolicy.bind(env)` builds the law)"
+            if residual
+            else ""
+        )
         + (
             f", cost budget {cfg.get('cost_budget')} per follower episode, multiplier step "
             f"{cfg.get('lagrangian_lr')}"
@@ -48,8 +60,8 @@ def _training_summary(meta: Mapping[str, Any]) -> list[str]:
         f"{len(layout)}-value observation"
         + (" (task-aware)" if cfg.get("task_aware_observations") else ""),
         f"- seed {meta.get('seed')}; {meta.get('timesteps'):,} follower transitions in "
-        f"{wall / 60:.1f} min ({meta.get('timesteps_per_s', math.nan):.0f} transitions/s, one "
-        "core); code "
+        f"{wall / 60:.1f} min ({meta.get('timesteps_per_s', math.nan):.0f} transitions/s, "
+        f"{cfg.get('n_envs', '?')} env copies); code "
         f"`{str(meta.get('git_commit') or '?')[:12]}`"
         + (" (dirty)" if meta.get("git_dirty") else ""),
         f"- network: {net} MLP; learning rate {cfg.get('learning_rate')}, "
