@@ -239,7 +239,8 @@ CONFIGS: dict[str, Config] = by_name(
 #: The configurations whose runs are in ``models/`` (five seeds each, with the cards the
 #: leaderboard writes once it has evaluated a run on every task,
 #: ``experiments.studies.leaderboard``). The behaviour-cloning configurations are defined and
-#: trained here but not shipped: none completes the paper's studies (README, "Learning").
+#: trained here but not shipped: none completes the paper's studies (README, "Learned policies
+#: against PPC").
 SHIPPED: tuple[str, ...] = (
     "ppo_ta_aruco",
     "lag_ta_aruco",
