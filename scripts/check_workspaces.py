@@ -884,6 +884,9 @@ def summary_table(reports: list[Report]) -> str:
     ]
     for rep in reports:
         n = rep.numbers
+        if not {"edges", "path", "run", "radius", "sharp"} <= n.keys():
+            lines.append(f"| `{rep.name}` | – | – | – | – | – |")  # rejected: see stderr
+            continue
         lines.append(
             f"| `{rep.name}` | {int(n['edges'])} | {n['path']:.1f} | {n['run']:.1f} | "
             f"{n['radius']:.2f} | {int(n['sharp'])} |"

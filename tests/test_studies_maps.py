@@ -292,3 +292,5 @@ def test_the_readme_table_of_a_study_is_what_check_measures(tmp_path: Path) -> N
     table = cw.summary_table([report]).splitlines()
     assert len(table) == 3 and table[2].startswith(f"| `study_b` | {len(sc.workspace.edges)} | ")
     assert f"{n['run']:.1f}" in table[2]
+    rejected = cw.Report("broken", failures=["scenario rejected by the loader: ..."])
+    assert cw.summary_table([rejected]).splitlines()[2] == "| `broken` | – | – | – | – | – |"
