@@ -61,6 +61,7 @@ import shapely
 from shapely.geometry import LineString, Point
 
 import platoon_env
+from experiments.report import markdown_table
 from experiments.suites import STUDIES
 from platoon_env.geometry.sensing import (
     SENSE_BETA,
@@ -571,7 +572,6 @@ def check(source: str, outdir: Path) -> Report:
     report.numbers["path"] = float(scenario.path_s[-1] - scenario.initial_progress)
     report.numbers["run"] = math.nan if run.arrival_time is None else float(run.arrival_time)
     report.numbers["radius"] = float(tightest_turn(traj))
-    report.numbers["sharp"] = len(report.corners)
     report.add(
         "env leader",
         f"{driven} at {cfg.leader.speed} m/s, min clearance {lead_clear.min():.3f} m, "
@@ -877,21 +877,31 @@ def summary_table(reports: list[Report]) -> str:
     """The README's table of the checked scenarios: obstacle boundary edges, the leader path
     ahead of the leader's start, the env leader's run time, its tightest turn radius as driven
     and the path's sharp corners (turns of at least :data:`SHARP_CORNER_DEG`)."""
-    lines = [
-        "| scenario | boundary edges | leader path from its start [m] | leader's run time [s] | "
-        f"tightest turn radius as driven [m] | sharp corners (≥ {SHARP_CORNER_DEG:g}°) |",
-        "|---|---|---|---|---|---|",
+    header = [
+        "scenario",
+        "boundary edges",
+        "leader path from its start [m]",
+        "leader's run time [s]",
+        "tightest turn radius as driven [m]",
+        f"sharp corners (≥ {SHARP_CORNER_DEG:g}°)",
     ]
+    rows = []
     for rep in reports:
         n = rep.numbers
-        if not {"edges", "path", "run", "radius", "sharp"} <= n.keys():
-            lines.append(f"| `{rep.name}` | – | – | – | – | – |")  # rejected: see stderr
+        if not {"edges", "path", "run", "radius"} <= n.keys():
+            rows.append((f"`{rep.name}`", "–", "–", "–", "–", "–"))  # rejected: see stderr
             continue
-        lines.append(
-            f"| `{rep.name}` | {int(n['edges'])} | {n['path']:.1f} | {n['run']:.1f} | "
-            f"{n['radius']:.2f} | {int(n['sharp'])} |"
+        rows.append(
+            (
+                f"`{rep.name}`",
+                int(n["edges"]),
+                f"{n['path']:.1f}",
+                f"{n['run']:.1f}",
+                f"{n['radius']:.2f}",
+                len(rep.corners),
+            )
         )
-    return "\n".join(lines)
+    return markdown_table(header, rows)
 
 
 def main(argv: list[str] | None = None) -> int:

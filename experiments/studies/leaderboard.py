@@ -208,16 +208,14 @@ def goal(board: Board, entry: Entry, found: Sequence[Comparison]) -> dict[str, A
     each paper study under ideal sensing in at least :data:`GOAL_IDEAL_RATE` of its episodes,
     and under aruco the configuration beats :data:`GOAL_REFERENCE` on at least one paper task
     and loses on none, by the board's Holm-adjusted comparisons ``found``."""
+    ideal = [t for t in board.suite_tasks("paper") if t.condition.label == "ideal"]
+    # (runs, tasks) success rates; a task a run has no episode of (NaN) counts as 0
+    matrix = np.nan_to_num(board.success_matrix(entry.name, ideal), nan=0.0)
     per_run = []
-    for i, run in enumerate(board.metrics[entry.name]):
-        rates: dict[str, float] = {}
-        for t in board.suite_tasks("paper"):
-            if t.condition.label != "ideal":
-                continue
-            eps = run.get(t, [])
-            rates[t.scenario] = float(np.mean([bool(m["success"]) for m in eps])) if eps else 0.0
+    for spec, row in zip(entry.runs, matrix, strict=True):
+        rates = {t.scenario: float(r) for t, r in zip(ideal, row, strict=True)}
         ok = bool(rates) and all(r >= GOAL_IDEAL_RATE for r in rates.values())
-        per_run.append({"run": entry.runs[i].name, "ideal_rates": rates, "ideal": ok})
+        per_run.append({"run": spec.name, "ideal_rates": rates, "ideal": ok})
     aruco = {t.label for t in board.suite_tasks("paper") if t.condition.label == "aruco"}
     versus = [c for c in found if c.task in aruco and {c.a, c.b} == {entry.name, GOAL_REFERENCE}]
     wins = sorted(c.task for c in versus if c.verdict == entry.name)
@@ -336,13 +334,11 @@ def comparisons_markdown(found: Sequence[Comparison], tasks_: Sequence[Task]) ->
     by_pair: dict[tuple[str, str], dict[str, Comparison]] = {}
     for c in found:
         by_pair.setdefault((c.a, c.b), {})[c.task] = c
-    lines = [
-        "| A vs B | " + " | ".join(labels) + " |",
-        "|---|" + "---|" * len(labels),
+    matrix = [
+        (f"{a} vs {b}", *(per_task[t].verdict if t in per_task else "–" for t in labels))
+        for (a, b), per_task in by_pair.items()
     ]
-    for (a, b), per_task in by_pair.items():
-        cells_ = [per_task[t].verdict if t in per_task else "–" for t in labels]
-        lines.append(f"| {a} vs {b} | " + " | ".join(cells_) + " |")
+    lines = [markdown_table(["A vs B", *labels], matrix)]
     sig = [c for c in found if c.significant]
     tested = sum(1 for c in found if not c.tie)
     lines += [
