@@ -224,6 +224,12 @@ class TrainConfig:
         "zero (training.fast_ppo; ppo or ppo_lagrangian)",
         choices=tuple(EXPERTS),
     )
+    previous_command: bool = _opt(
+        False,
+        "fast: the policy also reads its own previous command (normalised, as sent; the "
+        "standstill at an episode's start): proprioception for actuators that lag the command "
+        "(recorded in model.json as previous_command)",
+    )
     # --- behaviour cloning (--algo bc_*; None: training.bc.BCConfig's default) ---
     bc_expert: str | None = _opt(None, "bc: the analytic law cloned (ppc)", choices=tuple(EXPERTS))
     bc_iterations: int | None = _opt(None, "bc: DAgger iterations (iteration 0: the expert's)")
@@ -495,6 +501,10 @@ def check_config(cfg: TrainConfig) -> list[str]:
         for name in (f for f in BOUNDS if f.startswith("bc_")):
             if getattr(cfg, name) is not None:
                 bad(name, f"is an option of --algo bc_ppo / bc_ppo_lagrangian, got {cfg.algo}")
+    if cfg.previous_command and cfg.engine != "fast":
+        bad("previous_command", f"is an option of --engine fast, got --engine {cfg.engine}")
+    if cfg.previous_command and cfg.algo.startswith("bc_"):
+        bad("previous_command", f"the clone reads the observation only (--algo {cfg.algo})")
     if cfg.residual is not None and cfg.algo.startswith("bc_"):
         bad("residual", f"starts from the law itself, not from a clone (--algo {cfg.algo})")
     if cfg.init_from is not None and not str(cfg.init_from).endswith(".zip"):

@@ -222,6 +222,12 @@ class FastPPOConfig:
     starts at zero, so training starts from the clipped law. With ``anchor_coef`` and no
     ``init_from``, the anchor pulls ``mu_theta`` towards zero, i.e. the policy towards the law).
 
+    Input: ``previous_command`` (the policy reads, after the observation, its own previous
+    command ``a_{t-1}`` as it was sent: normalised and clipped to ``[-1, 1]^2``; at an
+    episode's start the normalised standstill ``[0 m/s, 0 rad/s]``. Proprioception, not
+    sensing: under acceleration limits and latency the applied velocity lags the command, and
+    a memoryless policy cannot tell how far; ``model.json`` records ``previous_command``).
+
     PPO-Lagrangian: ``cost_budget`` (``b``, expected cost per follower episode),
     ``lagrangian_lr`` (``η`` per rollout; a rollout here is tens of thousands of transitions,
     so larger than ``platoon-train``'s 0.05 per 4096), ``lagrangian_init`` (``λ`` at the
@@ -271,6 +277,8 @@ class FastPPOConfig:
     value_warmup: int = 0
     anchor_coef: float = 0.0
     residual: str | None = None
+    # --- input ---
+    previous_command: bool = _TRAIN.previous_command
     # --- PPO-Lagrangian ---
     cost_budget: float = _TRAIN.cost_budget
     lagrangian_lr: float = 0.5
@@ -359,7 +367,12 @@ def config_problems(cfg: FastPPOConfig) -> list[str]:
             problems.append(f"{name} must be finite, got {value!r}")
         elif value not in bound:
             problems.append(f"{name} must be {bound}, got {value!r}")
-    for name in ("task_aware_observations", "normalize_observations", "progress_bar"):
+    for name in (
+        "task_aware_observations",
+        "normalize_observations",
+        "progress_bar",
+        "previous_command",
+    ):
         if not isinstance(getattr(cfg, name), bool):
             problems.append(f"{name} must be True or False, got {getattr(cfg, name)!r}")
     if cfg.scale_free_observations is not False and not (
@@ -495,13 +508,22 @@ class SlotSpec:
     @classmethod
     def of(cls, cfg: FastPPOConfig, core: BatchedPlatoon) -> SlotSpec:
         """The adapters' rule (:func:`training.vec_env.slot_spaces`) for ``core``'s slots;
-        ``ValueError`` for an action range beyond the scenario's actuator limits."""
+        ``ValueError`` for an action range beyond the scenario's actuator limits. With
+        ``cfg.previous_command`` the policy's input is the observation and the previous
+        normalised command (two more entries in ``[-1, 1]``)."""
         scale, obs_space, act_space = slot_spaces(
             core.single_observation_space,
             {"the scenario": core.single_action_space},
             normalize_observations=cfg.normalize_observations,
             action_range=cfg.action_range,
         )
+        if cfg.previous_command:
+            ones = np.ones(2, dtype=np.float32)
+            obs_space = spaces.Box(
+                np.concatenate([obs_space.low, -ones]),
+                np.concatenate([obs_space.high, ones]),
+                dtype=np.float32,
+            )
         return cls(scale, cfg.action_range, obs_space, act_space)
 
 
@@ -689,10 +711,12 @@ def _resume_point(cfg: FastPPOConfig, out: Path) -> _Stored:
     best = max(points, key=lambda p: (p.timesteps, p.name == "model"))
     stored = best.meta.get("config", {})
     given = json_config(cfg)
+    # an option added after a run was made is missing from its record: it had its default
+    defaults = {f.name: f.default for f in dataclasses.fields(FastPPOConfig)}
     diffs = [
-        f"{k}: stored {stored.get(k)!r}, given {v!r}"
+        f"{k}: stored {stored.get(k, defaults[k])!r}, given {v!r}"
         for k, v in given.items()
-        if k not in RESUMABLE_CHANGES and stored.get(k) != v
+        if k not in RESUMABLE_CHANGES and stored.get(k, defaults[k]) != v
     ]
     if diffs:
         raise ValueError(
@@ -885,8 +909,9 @@ def _learn(
     lagrangian = cfg.lagrangian
 
     # --- network, optimiser, multiplier (restored when resuming) -----------------------------
-    K = int(core.single_observation_space.shape[0])
-    net = ActorCritic(K, cfg.net_arch, cfg.log_std_init, cost_head=lagrangian).to(device)
+    K = int(core.single_observation_space.shape[0])  # the env's observation
+    n_in = int(spec.observation_space.shape[0])  # the policy's input (K, or K + 2)
+    net = ActorCritic(n_in, cfg.net_arch, cfg.log_std_init, cost_head=lagrangian).to(device)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.learning_rate, eps=1e-5)
     multiplier = (
         LagrangeMultiplier(
@@ -913,7 +938,7 @@ def _learn(
                 "anchor_coef: needs init_from (the network the policy is kept near) or residual "
                 "(then the policy is kept near the law)"
             )
-        anchor = ActorCritic(K, cfg.net_arch, cfg.log_std_init, cost_head=False).to(device)
+        anchor = ActorCritic(n_in, cfg.net_arch, cfg.log_std_init, cost_head=False).to(device)
         initial_weights(cfg.init_from, anchor)
         anchor.requires_grad_(False)
         anchor.eval()
@@ -973,6 +998,7 @@ def _learn(
             "algo": cfg.algo,
             "trainer": trainer,
             **({"residual": cfg.residual} if cfg.residual is not None else {}),
+            **({"previous_command": True} if cfg.previous_command else {}),
             **({"initialised_from": initialised_from} if initialised_from else {}),
             **env_meta,
             **adapter_metadata(spec),
@@ -994,7 +1020,7 @@ def _learn(
     def zeros(*shape: int) -> torch.Tensor:
         return torch.zeros((T, *shape), dtype=torch.float32, device=device)
 
-    obs_buf, act_buf, rew_buf, done_buf = zeros(S, K), zeros(S, 2), zeros(S), zeros(S)
+    obs_buf, act_buf, rew_buf, done_buf = zeros(S, n_in), zeros(S, 2), zeros(S), zeros(S)
     # the law's normalised, clipped command of a residual policy (zeros otherwise)
     base_buf = zeros(S, 2)
     raw_obs = first_obs
@@ -1009,7 +1035,16 @@ def _learn(
     live_buf = torch.ones((T, S), dtype=torch.bool, device=device)  # the live samples
     episode_return = np.zeros(S)
     episode_cost = np.zeros(S)
-    next_obs = torch.as_tensor(first_obs, device=device).reshape(S, K) / scale
+    # previous_command: each slot's last command as sent (normalised, clipped), the standstill
+    # at an episode's start; the policy reads [o_t / scale, a_{t-1}]
+    standstill = torch.as_tensor(to_normalised(np.zeros(2), action_range)[0], device=device)
+    sent = standstill.repeat(S, 1)
+
+    def policy_input(obs: NDArray[np.float32], previous: torch.Tensor) -> torch.Tensor:
+        scaled = torch.as_tensor(obs, device=device).reshape(-1, K) / scale
+        return torch.cat([scaled, previous], dim=1) if cfg.previous_command else scaled
+
+    next_obs = policy_input(first_obs, sent)
 
     def lam_now() -> float | None:
         return None if multiplier is None else multiplier.value
@@ -1025,7 +1060,7 @@ def _learn(
             # Only the actor runs per step; the values and log-probabilities of the behaviour
             # policy (unchanged during the rollout) are computed after it in one large batch.
             rollout_costs: list[NDArray[np.float64]] = []
-            finals: list[tuple[int, NDArray[np.int64], NDArray[np.float32]]] = []
+            finals: list[tuple[int, NDArray[np.int64], torch.Tensor]] = []
             net.eval()
             with torch.no_grad():
                 std = torch.exp(net.log_std)
@@ -1040,7 +1075,8 @@ def _learn(
                     if variable:
                         live_buf[t] = torch.as_tensor(live_slots, device=device)
                     # SB3 clips the sample to the action Box before the adapter maps it.
-                    physical = action_range.to_physical(action.clamp(-1.0, 1.0).cpu().numpy())
+                    sent = action.clamp(-1.0, 1.0)
+                    physical = action_range.to_physical(sent.cpu().numpy())
                     obs, reward, terminated, truncated, info = core.step(physical.reshape(B, N, 2))
                     reward = reward.reshape(S)
                     cost = COST_OF_MASK[info["violations"]].reshape(S)
@@ -1055,8 +1091,12 @@ def _learn(
                         # A time limit is bootstrapped (r + γ V(o_T)): keep its final obs.
                         limit = np.repeat(truncated & ~terminated, N)
                         if limit.any():
+                            index = np.flatnonzero(limit)
                             final = info["final_observation"].reshape(S, K)[limit]
-                            finals.append((t, np.flatnonzero(limit), final))
+                            where = torch.as_tensor(index, device=device)
+                            finals.append((t, index, policy_input(final, sent[where])))
+                        # the slots that start over have sent nothing yet
+                        sent[torch.as_tensor(slot_ended, device=device)] = standstill
                         done = slot_ended & live_slots
                         costs = episode_cost[done].copy()
                         team = (episode_cost.reshape(B, N) == 0) | ~live
@@ -1068,7 +1108,7 @@ def _learn(
                     done_buf[t] = torch.as_tensor(slot_ended, device=device)
                     if cost_buf is not None:
                         cost_buf[t] = torch.as_tensor(cost, device=device)
-                    next_obs = torch.as_tensor(obs, device=device).reshape(S, K) / scale
+                    next_obs = policy_input(obs, sent)
                     timesteps += int(live_slots.sum()) if variable else n_live
                     if variable:  # the envs that reset drew new formations
                         live = core.live
@@ -1078,18 +1118,16 @@ def _learn(
                         bar.update(int(live_buf[t].sum()) if variable else n_live)
 
                 # ===== the behaviour policy's log π and values, the time-limit bootstraps =====
-                mean = net.actor(obs_buf.reshape(T * S, K)) + base_buf.reshape(T * S, 2)
+                mean = net.actor(obs_buf.reshape(T * S, n_in)) + base_buf.reshape(T * S, 2)
                 logp_buf = gaussian_log_prob(act_buf.reshape(T * S, 2), mean, net.log_std)
                 logp_buf = logp_buf.reshape(T, S)
-                values, cvalues = net.critics(obs_buf.reshape(T * S, K))
+                values, cvalues = net.critics(obs_buf.reshape(T * S, n_in))
                 val_buf = values.reshape(T, S)
                 cval_buf = None if cvalues is None else cvalues.reshape(T, S)
                 next_value, next_cvalue = net.critics(next_obs)
                 if finals:
-                    final_obs = torch.as_tensor(
-                        np.concatenate([f for _, _, f in finals]), device=device
-                    )
-                    v_final, c_final = net.critics(final_obs / scale)
+                    final_obs = torch.cat([f for _, _, f in finals])
+                    v_final, c_final = net.critics(final_obs)
                     at = 0
                     for t, index, _ in finals:
                         rows = slice(at, at + len(index))

@@ -42,7 +42,10 @@ the reason):
 * ``action_range``, ``observation_normalization`` and ``control_period`` must be present and
   well-formed; the model must map 7 observations (13 with task-aware observations,
   ``observation: {task_aware: true}``: :data:`OBSERVATION_LAYOUTS`) to 2 actions, and the
-  recorded ``observation_layout`` and normalisation must have that length.
+  recorded ``observation_layout`` and normalisation must have that length. A model with
+  ``"previous_command": true`` (``platoon-train --engine fast --previous-command``) reads two
+  more values after the observation, its own previous command: its input is the layout's
+  length plus 2.
 
 :meth:`LearnedPolicy.check_env` then compares the model with the env it is about to act in:
 which differences make a result meaningless (refused) and which are experiments (allowed, and
@@ -277,6 +280,10 @@ def _check_metadata(metadata: Mapping[str, Any], where: str) -> None:
     )
     if missing:
         raise ValueError(f"{where}: metadata lacks {sorted(missing)}")
+    if not isinstance(metadata.get("previous_command", False), bool):
+        raise ValueError(
+            f"{where}: previous_command must be true or false, got {metadata['previous_command']!r}"
+        )
     parse_action_range(metadata["action_range"], where)
     layout = _parse_layout(metadata.get("observation_layout"), where)
     _parse_normalization(
@@ -544,7 +551,11 @@ class LearnedPolicy:
 
     ``act`` stacks the followers' observations, applies the training normalisation, calls the
     model's deterministic ``predict`` once for the batch and maps the actions back to physical
-    ``[u, omega]``. The policy is stateless (an MLP), so :meth:`reset` does nothing.
+    ``[u, omega]``. A plain policy is stateless (an MLP). Two kinds keep state over an episode,
+    so call :meth:`reset` at every episode start (after ``env.reset``), as for every policy: a
+    residual policy (its law), and one that reads its own previous command
+    (:attr:`previous_command`; each follower's last normalised command, the standstill after
+    :meth:`reset`).
 
     Evaluate it at :attr:`control_period` (the period it was trained at), e.g.
     ``platoon_env.make(scenario, control_period=policy.control_period)``, unless you mean to
@@ -587,6 +598,9 @@ class LearnedPolicy:
                 observation_layout = tuple(recorded)
             else:
                 size = _input_size(model) if self.obs_scale is None else self.obs_scale.shape[0]
+                if size is not None and self.obs_scale is None:
+                    # the input less a previous command's two values
+                    size -= ACT_SIZE if self.metadata.get("previous_command") is True else 0
                 observation_layout = OBSERVATION_LAYOUTS.get(size or len(OBS_NAMES), OBS_NAMES)
         #: The names of the observations the model reads, in order.
         self.observation_layout: tuple[str, ...] = tuple(observation_layout)
@@ -598,6 +612,18 @@ class LearnedPolicy:
         #: The analytic law a residual policy adds its output to (``model.json``'s
         #: ``residual``; :mod:`training.experts`), or None for a plain policy.
         self.residual: str | None = residual
+        previous = self.metadata.get("previous_command", False)
+        if not isinstance(previous, bool) or (previous and action_range is None):
+            raise ValueError(
+                f"previous_command must be true (with an action range) or false, got {previous!r}"
+            )
+        #: Whether the model reads, after the observation, each follower's previous command
+        #: (normalised, clipped to ``[-1, 1]``; ``model.json``'s ``previous_command``).
+        self.previous_command: bool = previous
+        self._standstill: NDArray[np.float32] | None = (
+            None if action_range is None else to_normalised(np.zeros(2), action_range)[0]
+        )
+        self._sent: dict[str, NDArray[np.float32]] = {}
         self._env: Any = None
         self._law: Any = None
         self._fast: Callable[[NDArray[np.float32]], NDArray[np.float32]] | None = None
@@ -611,8 +637,15 @@ class LearnedPolicy:
 
     @property
     def observation_size(self) -> int:
-        """The length of the observation the model reads (7, or 13 task-aware)."""
+        """The length of the env observation the model reads (7; task-aware 13, scale-free
+        15)."""
         return len(self.observation_layout)
+
+    @property
+    def input_size(self) -> int:
+        """The length of the model's input: :attr:`observation_size`, plus 2 with
+        :attr:`previous_command`."""
+        return self.observation_size + (ACT_SIZE if self.previous_command else 0)
 
     @property
     def task_aware(self) -> bool:
@@ -717,24 +750,28 @@ class LearnedPolicy:
             dims = (obs_shape[0], act_shape[0])
         else:
             raise ValueError(f"{meta_file}: unknown engine {engine!r}, expected one of {ENGINES}")
-        if dims[0] not in OBSERVATION_LAYOUTS or dims[1] != ACT_SIZE:
+        # the env observation's length: the input less a previous command's two values
+        extra = ACT_SIZE if meta.get("previous_command", False) else 0
+        n_obs = None if dims[0] is None else dims[0] - extra
+        if n_obs not in OBSERVATION_LAYOUTS or dims[1] != ACT_SIZE:
+            read = f"{dims[0]} ({n_obs} observations, 2 of the command)" if extra else dims[0]
             raise ValueError(
-                f"{meta_file}: the model maps {dims[0]} -> {dims[1]}, expected "
-                f"{_sizes_text(None)} -> {ACT_SIZE}"
+                f"{meta_file}: the model maps {read} -> {dims[1]}, expected "
+                f"{_sizes_text(None)}{' + 2' if extra else ''} -> {ACT_SIZE}"
             )
         layout = _parse_layout(meta.get("observation_layout"), where)
-        if layout is not None and len(layout) != dims[0]:
+        if layout is not None and len(layout) != n_obs:
             raise ValueError(
                 f"{meta_file}: observation_layout has {len(layout)} names, the model reads "
-                f"{dims[0]} observations"
+                f"{n_obs} observations"
             )
         return cls(
             model,
             action_range=parse_action_range(meta["action_range"], where),
-            obs_scale=_parse_normalization(meta["observation_normalization"], where, dims[0]),
+            obs_scale=_parse_normalization(meta["observation_normalization"], where, n_obs),
             control_period=_parse_control_period(meta["control_period"], where),
             metadata=meta,
-            observation_layout=layout or OBSERVATION_LAYOUTS[dims[0]],
+            observation_layout=layout or OBSERVATION_LAYOUTS[n_obs],
         )
 
     def check_env(self, env: Any, *, allow_control_period: bool = False) -> list[str]:
@@ -887,9 +924,11 @@ class LearnedPolicy:
         )
 
     def reset(self, seed: int | None = None) -> None:
-        """A plain policy is stateless and acts deterministically: nothing to restore. A
-        residual policy's law starts over on its env's current scenario (call after
-        ``env.reset``)."""
+        """Start an episode (call after ``env.reset``). A plain policy acts deterministically
+        and has nothing to restore; with :attr:`previous_command` every follower's previous
+        command is the standstill again; a residual policy's law starts over on its env's
+        current scenario."""
+        self._sent = {}
         if self.residual is None:
             return
         if self._env is None:
@@ -932,6 +971,10 @@ class LearnedPolicy:
             )
         if self.obs_scale is not None:
             obs = obs / self.obs_scale
+        if self.previous_command:
+            assert self._standstill is not None  # checked at construction
+            sent = [self._sent.get(a, self._standstill) for a in agents]
+            obs = np.concatenate([obs, np.stack(sent)], axis=1, dtype=np.float32)
         actions = self._deterministic(obs)
         if self.residual is not None:
             if self._law is None:
@@ -940,6 +983,8 @@ class LearnedPolicy:
             law = self._law.act(observations)
             base, _ = to_normalised(np.stack([law[a] for a in agents]), self.action_range)
             actions = np.clip(actions + base, -1.0, 1.0)
+        if self.previous_command:
+            self._sent = {a: actions[i].copy() for i, a in enumerate(agents)}
         if self.action_range is not None:
             actions = self.action_range.to_physical(actions)
         return {a: actions[i].copy() for i, a in enumerate(agents)}

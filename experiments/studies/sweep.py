@@ -234,6 +234,18 @@ CONFIGS: dict[str, Config] = by_name(
         "for 10 M transitions",
         _with(_RESIDUAL, sensor_profile="aruco", residual="filtered_ppc", timesteps="10000000"),
     ),
+    Config(
+        "residual_filtered_aruco_cmd",
+        "fast engine: as residual_filtered_aruco, the policy also reading its own previous "
+        "command (--previous-command: under the aruco profile's acceleration limits the applied "
+        "velocity lags the command)",
+        (
+            *_with(
+                _RESIDUAL, sensor_profile="aruco", residual="filtered_ppc", timesteps="10000000"
+            ),
+            "--previous-command",
+        ),
+    ),
 )
 
 #: The configurations whose runs are in ``models/`` (five seeds each, with the cards the
