@@ -754,7 +754,7 @@ class LearnedPolicy:
         extra = ACT_SIZE if meta.get("previous_command", False) else 0
         n_obs = None if dims[0] is None else dims[0] - extra
         if n_obs not in OBSERVATION_LAYOUTS or dims[1] != ACT_SIZE:
-            read = f"{dims[0]} ({n_obs} observations, 2 of the command)" if extra else dims[0]
+            read = f"{dims[0]} ({n_obs} + the previous command)" if extra else dims[0]
             raise ValueError(
                 f"{meta_file}: the model maps {read} -> {dims[1]}, expected "
                 f"{_sizes_text(None)}{' + 2' if extra else ''} -> {ACT_SIZE}"
