@@ -24,6 +24,7 @@ if TYPE_CHECKING:
     from experiments.grid import GridResult
 
 __all__ = [
+    "add_batch_option",
     "add_grid_options",
     "add_models_option",
     "add_workers_option",
@@ -84,6 +85,21 @@ def add_workers_option(
     """Add ``--workers`` (default 2): how many processes run the episodes at once; ``text`` is
     its help."""
     parser.add_argument("--workers", type=count(1, "workers"), default=2, help=text)
+
+
+def add_batch_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--batch N`` (default 0): run each policy's episodes on one task as chunks of up to
+    ``N`` copies of one batched core (``run_grid(batch=N)``, :mod:`experiments.batched_eval`;
+    the same metrics, to the bit); 0 or 1: one episode at a time."""
+    parser.add_argument(
+        "--batch",
+        type=count(0, "batch"),
+        metavar="N",
+        default=0,
+        help="run each policy's episodes on one task as chunks of up to N copies of one "
+        "batched core, a chunk per worker job (the same results, to the bit; faster); "
+        "0 or 1: one episode per job (default: 0)",
+    )
 
 
 def add_models_option(parser: argparse.ArgumentParser, use: str) -> None:

@@ -10,6 +10,9 @@ the comparison, the paper figures, the frontiers, ...) describes what it wants a
 2. claims the unfinished cells (others may be running in another evaluator), runs them in
    ``workers`` spawned processes, and writes each outcome in its own transaction as it
    arrives (a failing cell is recorded as ``failed`` with its traceback, and the rest go on);
+   with ``batch`` > 1, the claimed episodes of one policy on one task (differing in seed) run
+   as chunks of up to ``batch`` copies of one batched core, a chunk per job
+   (:mod:`experiments.batched_eval`; the same metrics, to the bit);
 3. waits for the cells another live run holds, and takes over those of a run that died; a
    wait with no progress is bounded (``claim_timeout``): then a
    :class:`~experiments.store.ClaimTimeout` names the holders and how to release them;
@@ -195,7 +198,8 @@ class CellResult:
     episode: Any = None
 
 
-def _resolve(dotted: str) -> Callable[..., Any]:
+def measure_of(dotted: str) -> Callable[..., Any]:
+    """The function a cell's ``measure`` names (``"module:function"``)."""
     module, _, attr = dotted.partition(":")
     fn: Callable[..., Any] = getattr(importlib.import_module(module), attr)
     return fn
@@ -209,6 +213,25 @@ def _plain(value: Any) -> Any:
         return [_plain(v) for v in value]
     item = getattr(value, "tolist", None)
     return item() if callable(item) else value
+
+
+def plain_metrics(measured: Any) -> dict[str, Any]:
+    """A measure's result as the store keeps it: a dict of JSON-able Python values (numpy
+    scalars and arrays converted); a value JSON cannot hold raises here, not in the store."""
+    metrics: dict[str, Any] = _plain(dict(measured))
+    canonical_json(metrics)
+    return metrics
+
+
+def check_planned_scenario(resolved: ResolvedCell, config: Any) -> None:
+    """A ``RuntimeError`` unless ``config`` (the env's resolved scenario config) has the
+    fingerprint the cell was planned (and is keyed) with."""
+    actual = config_fingerprint(config)
+    if actual != resolved.key.scenario:
+        raise RuntimeError(
+            f"the env's resolved scenario ({actual[:12]}) is not the planned one "
+            f"({resolved.key.scenario[:12]}): did {resolved.cell.scenario!r} change on disk?"
+        )
 
 
 def run_cell(resolved: ResolvedCell, keep: bool = False) -> CellResult:
@@ -228,12 +251,7 @@ def run_cell(resolved: ResolvedCell, keep: bool = False) -> CellResult:
 
             torch.set_num_threads(1)
         env = platoon_env.make(cell.scenario, **cell.make_kwargs())
-        actual = config_fingerprint(env.source.config)
-        if actual != resolved.key.scenario:
-            raise RuntimeError(
-                f"the env's resolved scenario ({actual[:12]}) is not the planned one "
-                f"({resolved.key.scenario[:12]}): did {cell.scenario!r} change on disk?"
-            )
+        check_planned_scenario(resolved, env.source.config)
         try:
             # the model's files are checked against the fingerprint the row is keyed by
             policy = build_policy(cell.policy, env, planned=resolved.key.policy)
@@ -242,8 +260,7 @@ def run_cell(resolved: ResolvedCell, keep: bool = False) -> CellResult:
                 "refused", {}, f"{type(exc).__name__}: {exc}", time.perf_counter() - start
             )
         ep = run_episode(env, policy, seed=cell.seed, record_signals=cell.record_signals or keep)
-        metrics = _plain(dict(_resolve(cell.measure)(ep)))
-        canonical_json(metrics)  # JSON-able, or a failure here rather than in the store
+        metrics = plain_metrics(measure_of(cell.measure)(ep))
     except Exception:
         return CellResult("failed", {}, traceback.format_exc(limit=20), time.perf_counter() - start)
     return CellResult("done", metrics, "", time.perf_counter() - start, ep if keep else None)
@@ -327,6 +344,7 @@ def run_grid(
     progress: bool = True,
     poll: float = 1.0,
     claim_timeout: float = DEFAULT_CLAIM_TIMEOUT,
+    batch: int = 0,
 ) -> GridResult:
     """Run every unfinished cell of ``cells`` into ``store``; see the module docstring.
 
@@ -336,7 +354,15 @@ def run_grid(
     live run are waited for, polling every ``poll`` s, until ``claim_timeout`` s pass without
     one of them finishing: then :class:`~experiments.store.ClaimTimeout` (after every other
     cell is done and stored), naming the holders and how to release their claims.
+
+    ``batch`` > 1 runs the claimed cells that can share a batched core (one policy, scenario,
+    overrides and measure, differing in seed; :func:`experiments.batched_eval.chunk_cells`)
+    as chunks of at most ``batch`` episodes, a chunk one job
+    (:func:`experiments.batched_eval.run_cells`: the same metrics as :func:`run_cell`, to the
+    bit); each cell's result is still stored in its own transaction. 0 or 1: a job per cell.
     """
+    from experiments.batched_eval import chunk_cells, run_cells
+
     own = not isinstance(store, Store)
     db = Store(store) if not isinstance(store, Store) else store
     resolved: list[ResolvedCell] = [c for c in cells if isinstance(c, ResolvedCell)]
@@ -370,28 +396,37 @@ def run_grid(
     )
     pool: ProcessPoolExecutor | None = None
     restarts = 0
-    pending: dict[Future[CellResult], ResolvedCell] = {}
+    # a job: one cell (run_cell) or a chunk of cells sharing a batched core (run_cells)
+    pending: dict[Future[Any], list[ResolvedCell]] = {}
     try:
         queue = [rc.key for rc in resolved]
         busy: list[EpisodeKey] = []
         waiting_since: float | None = None  # since when busy cells made no progress
-        # Claim a few cells at a time, so that evaluators sharing the store share the work.
+        # Claim a few jobs' cells at a time, so that evaluators sharing the store share the work.
         capacity = max(1, workers)
+        per_job = max(1, batch)
         while queue or pending or busy:
             while queue and len(pending) < capacity:
-                chunk, queue = queue[: capacity - len(pending)], queue[capacity - len(pending) :]
+                take = (capacity - len(pending)) * per_job
+                chunk, queue = queue[:take], queue[take:]
                 claim = db.claim(chunk, run_id, names)
                 if claim.mine or claim.finished:
                     waiting_since = None
                 reused += len(claim.finished)
                 bar.update(len(claim.finished))
                 busy.extend(claim.busy)
-                for key in claim.mine:
-                    rc = by_key[key]
+                mine = [by_key[key] for key in claim.mine]
+                jobs = chunk_cells(mine, per_job, keep) if per_job > 1 else [[rc] for rc in mine]
+                for job in jobs:
                     if workers <= 1:
-                        _store_result(db, run_id, rc, run_cell(rc, keep(rc.cell)), kept)
-                        ran += 1
-                        bar.update()
+                        if len(job) == 1:
+                            results = [run_cell(job[0], keep(job[0].cell))]
+                        else:
+                            results = run_cells(job)
+                        for rc, result in zip(job, results, strict=True):
+                            _store_result(db, run_id, rc, result, kept)
+                            ran += 1
+                            bar.update()
                         continue
                     if pool is not None and getattr(pool, "_broken", False):
                         # a worker died (killed, out of memory): its cells were recorded as
@@ -401,11 +436,12 @@ def run_grid(
                         restarts += 1
                     if pool is None:
                         if restarts > MAX_POOL_RESTARTS:
-                            result = CellResult(
-                                "failed", {}, f"worker pool broke {restarts} times", 0.0
-                            )
-                            _store_result(db, run_id, rc, result, kept)
-                            bar.update()
+                            for rc in job:
+                                result = CellResult(
+                                    "failed", {}, f"worker pool broke {restarts} times", 0.0
+                                )
+                                _store_result(db, run_id, rc, result, kept)
+                                bar.update()
                             continue
                         pool = ProcessPoolExecutor(
                             max_workers=workers,
@@ -413,20 +449,28 @@ def run_grid(
                             initializer=_init_worker,
                             initargs=(os.getpid(),),
                         )
-                    pending[pool.submit(run_cell, rc, keep(rc.cell))] = rc
+                    if len(job) == 1:
+                        pending[pool.submit(run_cell, job[0], keep(job[0].cell))] = job
+                    else:
+                        pending[pool.submit(run_cells, job)] = job
             if pending:
                 done, _ = wait(pending, timeout=poll, return_when=FIRST_COMPLETED)
                 for fut in done:
-                    rc = pending.pop(fut)
+                    job = pending.pop(fut)
                     try:
-                        result = fut.result()
+                        outcome = fut.result()
+                        results = outcome if isinstance(outcome, list) else [outcome]
                     except Exception as exc:  # the worker died (a broken pool)
-                        result = CellResult(
-                            "failed", {}, f"worker died: {type(exc).__name__}: {exc}", 0.0
-                        )
-                    _store_result(db, run_id, rc, result, kept)
-                    ran += 1
-                    bar.update()
+                        results = [
+                            CellResult(
+                                "failed", {}, f"worker died: {type(exc).__name__}: {exc}", 0.0
+                            )
+                            for _ in job
+                        ]
+                    for rc, result in zip(job, results, strict=True):
+                        _store_result(db, run_id, rc, result, kept)
+                        ran += 1
+                        bar.update()
             elif busy and not queue:
                 now = time.monotonic()
                 waiting_since = now if waiting_since is None else waiting_since

@@ -347,12 +347,18 @@ def load_model(spec: PolicySpec, planned: str | None = None) -> Any:
             raise RuntimeError(f"{spec.path}: cannot be loaded: {message}") from None
 
 
-def build_policy(spec: PolicySpec, env: Any, planned: str | None = None) -> Any:
+def build_policy(
+    spec: PolicySpec, env: Any, planned: str | None = None, *, loaded: Any = None
+) -> Any:
     """The policy of ``spec`` for ``env`` (in the process that runs the episode). A model is
-    loaded by :func:`load_model` (its files checked against ``planned``); a ``ValueError`` from
-    here is the policy refusing the configuration (``check_env``, a law's constructor)."""
+    loaded by :func:`load_model` (its files checked against ``planned``), unless ``loaded``
+    gives it: a fresh policy of :func:`load_model` for this spec and ``planned``, never bound
+    nor acted (e.g. a copy of one loaded once for a batch of episodes,
+    :mod:`experiments.batched_eval`); then checked and bound to ``env`` here. A
+    ``ValueError`` from here is the policy refusing the configuration (``check_env``, a
+    law's constructor)."""
     if spec.kind == MODEL:
-        policy = load_model(spec, planned)
+        policy = load_model(spec, planned) if loaded is None else loaded
         check = getattr(policy, "check_env", None)
         if check is not None:
             check(env)

@@ -31,7 +31,10 @@ With ``auto_reset=True`` an env whose episode ended is reset within the same :me
 row of the returned observations is the first observation of the next episode, and
 ``info["final_observation"]`` (present when some env ended) holds the last one of the ended
 episode (rows of other envs are unspecified); ``info["reset"]`` marks those envs. Its RNG
-continues (no reseeding).
+continues (no reseeding). Without it, an ended env must be reset before it is stepped again,
+or left out of the step: ``step(actions, envs=...)`` steps only the envs given and leaves the
+others exactly as they are (e.g. a batch of evaluation episodes of different lengths, each env
+stepped until its own episode ends; :mod:`experiments.batched_eval`).
 """
 
 from __future__ import annotations
@@ -69,7 +72,7 @@ class BatchedPlatoon:
             ``omega_max``); ``render_mode`` is not supported.
 
     Raises:
-        ValueError: for a procedural scenario, a non-positive batch size or thread count.
+        ValueError: for a non-positive batch size or thread count.
     """
 
     def __init__(
@@ -131,6 +134,13 @@ class BatchedPlatoon:
     def max_episode_steps(self) -> int:
         """Env 0's step limit (a procedural layout sets its own)."""
         return int(self._core.params[0]["max_episode_steps"])
+
+    @property
+    def step_limits(self) -> np.ndarray:
+        """``(B,)`` int64: each env's step limit of its current episode (``max_episode_steps``;
+        a procedural layout sets its own, drawn at reset): the env truncates its episode when
+        it has taken that many steps. A copy."""
+        return self._core.params["max_episode_steps"].astype(np.int64)
 
     # ----------------------------------------------------------------------------------------
     # State (copies)
@@ -242,20 +252,27 @@ class BatchedPlatoon:
         return self._core.obs.copy()
 
     def step(
-        self, actions: np.ndarray
+        self, actions: np.ndarray, *, envs: Sequence[int] | np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-        """Advance every env by one control period.
+        """Advance every env (or the ``envs`` given) by one control period.
 
         Args:
             actions: ``(B, N, 2)`` ``[u, omega]``; clipped to the action Box. NaN or inf raise
-                ``ValueError`` (naming env and agent) before any state changes.
+                ``ValueError`` (naming env and agent) before any state changes. Only the rows
+                of the stepped envs are read.
+            envs: the envs to step, a ``(B,)`` bool mask or indices (default: all). The others
+                are left exactly as they are (state, RNG, step count; an env whose episode
+                ended may stay unstepped without a reset): their rows of the returned arrays
+                are their values after their own last step (or reset), ``terminated`` and
+                ``truncated`` included. With ``auto_reset``, only stepped envs are reset.
 
         Returns:
             ``(observations (B, N, K), rewards (B, N), terminated (B,), truncated (B,), info)``
             (fresh arrays), ``info`` as in the module docstring.
 
         Raises:
-            RuntimeError: an env's episode ended and it was not reset (without ``auto_reset``).
+            RuntimeError: a stepped env's episode ended and it was not reset (without
+                ``auto_reset``).
         """
         core = self._core
         act = np.asarray(actions)
@@ -263,17 +280,23 @@ class BatchedPlatoon:
             raise ValueError(
                 f"actions must have shape {core.actions.shape} (B, N, [u, omega]), got {act.shape}"
             )
+        active = None if envs is None else self._env_mask(envs)
         if self._needs_reset:
-            bad = np.flatnonzero(self._finished)
-            raise RuntimeError(
-                f"env(s) {bad[:10].tolist()} finished their episode; call reset() first "
-                "(or construct with auto_reset=True)"
-            )
+            stale = self._finished if active is None else self._finished & active
+            bad = np.flatnonzero(stale)
+            if bad.size:
+                raise RuntimeError(
+                    f"env(s) {bad[:10].tolist()} finished their episode; call reset() first "
+                    "(or construct with auto_reset=True)"
+                )
         if not np.issubdtype(act.dtype, np.number) or np.iscomplexobj(act):
             raise TypeError(f"actions must be real numbers, got dtype {act.dtype}")
         previous = core.actions.copy()
-        np.copyto(core.actions, act)
-        n_ended = core.run(None, self.physics_substeps)
+        if active is None:
+            np.copyto(core.actions, act)
+        else:
+            np.copyto(core.actions, act, where=active[:, None, None])
+        n_ended = core.run(active, self.physics_substeps)
         if n_ended < 0:
             np.copyto(core.actions, previous)
             b, i = divmod(-1 - n_ended, self.n_followers)
@@ -291,6 +314,8 @@ class BatchedPlatoon:
         rewards = core.rewards.copy()
         if n_ended:
             ended = terminated | truncated
+            if active is not None:
+                ended &= active
             if self.auto_reset:
                 info["final_observation"] = core.obs.copy()
                 idx = np.flatnonzero(ended)
@@ -300,11 +325,31 @@ class BatchedPlatoon:
                 self._needs_reset = True
         if self.auto_reset:
             info["reset"] = terminated | truncated
+            if active is not None:
+                info["reset"] &= active
         return core.obs.copy(), rewards, terminated, truncated, info
 
     # ----------------------------------------------------------------------------------------
     # Internals
     # ----------------------------------------------------------------------------------------
+    def _env_mask(self, envs: Sequence[int] | np.ndarray) -> np.ndarray:
+        """``envs`` (a ``(B,)`` bool mask or indices) as a fresh ``(B,)`` bool mask."""
+        given = np.asarray(envs)
+        if given.dtype == bool:
+            if given.shape != (self.batch_size,):
+                raise ValueError(
+                    f"an envs mask must have shape ({self.batch_size},), got {given.shape}"
+                )
+            return given.copy()
+        if given.size and not np.issubdtype(given.dtype, np.integer):
+            raise ValueError(f"envs must be a bool mask or indices, got {envs}")
+        idx = given.astype(np.int64)
+        if idx.ndim != 1 or np.any(idx < 0) or np.any(idx >= self.batch_size):
+            raise ValueError(f"envs must be indices in [0, {self.batch_size}), got {envs}")
+        mask = np.zeros(self.batch_size, dtype=bool)
+        mask[idx] = True
+        return mask
+
     def _reset_envs(self, idx: np.ndarray, seeds: list[int | None], perturb: bool | None) -> None:
         core = self._core
         for b, seed in zip(idx.tolist(), seeds, strict=True):

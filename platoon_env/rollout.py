@@ -9,6 +9,7 @@ sensing), never from what the policy saw.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -83,6 +84,121 @@ class Episode:
         return int(self.actions.shape[0])
 
 
+def first_violation(
+    step: int, mask: np.ndarray, first: tuple[int, str, int] | None
+) -> tuple[int, str, int] | None:
+    """The episode's first violation after ``step`` (0-based) with violation masks ``mask``
+    (N,): ``first`` if there was one already, else ``(step, cause, follower 1..N)`` of the
+    lowest follower violating now (its first cause, :func:`~platoon_env.safety.first_cause`),
+    else None."""
+    if first is None and mask.any():
+        k = int(np.flatnonzero(mask)[0])
+        return (step, str(first_cause(int(mask[k]))), k + 1)
+    return first
+
+
+class EpisodeRecorder:
+    """The step-by-step record of one episode, kept as :func:`run_episode` keeps it, and the
+    :class:`Episode` it becomes: whoever steps the env (:func:`run_episode`; the batched
+    evaluator :mod:`experiments.batched_eval`, one recorder per env copy) records through this.
+
+    Args:
+        agents: the env's followers (``possible_agents``), the order of the action rows.
+        act_low, act_high: the action Box's bounds (the recorded actions are clipped to them,
+            as the env applies them).
+        sim_time, poses, sensed: the env's state after its reset (``env.sim_time``,
+            ``env.poses``, ``env.sensed``).
+    """
+
+    def __init__(
+        self,
+        agents: Sequence[str],
+        act_low: np.ndarray,
+        act_high: np.ndarray,
+        sim_time: float,
+        poses: np.ndarray,
+        sensed: np.ndarray,
+    ) -> None:
+        self.agents = tuple(agents)
+        self._low = act_low
+        self._high = act_high
+        self.times: list[float] = [sim_time]
+        self.poses: list[np.ndarray] = [poses]
+        self.sensed: list[np.ndarray] = [sensed]
+        self.actions: list[np.ndarray] = []
+        self.masks: list[np.ndarray] = []
+        self.signals: dict[str, list[np.ndarray]] = {}
+        #: ``(step, cause, follower 1..N)`` of the first violation so far (None: none yet).
+        self.first: tuple[int, str, int] | None = None
+
+    @property
+    def steps(self) -> int:
+        """Steps recorded so far."""
+        return len(self.actions)
+
+    def record_signals(self, policy: Any) -> None:
+        """Keep a copy of ``policy.signals`` (a dict of arrays), if it has them (call after
+        its ``act``)."""
+        if hasattr(policy, "signals"):
+            for key, value in policy.signals.items():
+                self.signals.setdefault(key, []).append(np.asarray(value).copy())
+
+    def record_step(
+        self,
+        step: int,
+        cmd: Mapping[str, Any],
+        mask: np.ndarray,
+        sim_time: float,
+        poses: np.ndarray,
+        sensed: np.ndarray,
+    ) -> None:
+        """Record env step ``step`` (0-based): the commands ``cmd`` the policy gave (stored
+        clipped to the action Box, as applied), the violation masks ``mask`` (N,) and the
+        env's ``sim_time``, ``poses`` and ``sensed`` after it."""
+        applied = np.array([cmd[a] for a in self.agents], dtype=np.float64)
+        # np.clip's own rule (minimum of maximum; NaN propagates), without its wrapper's cost
+        self.actions.append(np.minimum(np.maximum(applied, self._low), self._high))
+        self.first = first_violation(step, mask, self.first)
+        self.masks.append(mask)
+        self.times.append(sim_time)
+        self.poses.append(poses)
+        self.sensed.append(sensed)
+
+    def episode(
+        self,
+        policy: Any,
+        *,
+        scenario: Any,
+        seed: int | None,
+        control_period: float,
+        terminated: bool,
+        truncated: bool,
+        leader_arrived: bool,
+    ) -> Episode:
+        """The recorded :class:`Episode` of ``policy`` (its ``funnel_exits``, if it counts
+        them) on ``scenario`` (the episode's :class:`~platoon_env.Scenario`: its name and
+        ``d_des``), from ``reset(seed)``, with the env's ``control_period`` and how it ended."""
+        n = len(self.agents)
+        funnel = getattr(policy, "funnel_exits", None)
+        return Episode(
+            scenario=scenario.name,
+            seed=seed,
+            control_period=control_period,
+            d_des=scenario.config.formation.d_des,
+            times=np.asarray(self.times),
+            poses=np.asarray(self.poses),
+            sensed=np.asarray(self.sensed),
+            actions=np.asarray(self.actions).reshape(-1, n, 2),
+            violations=np.asarray(self.masks).reshape(-1, n),
+            terminated=terminated,
+            truncated=truncated,
+            leader_arrived=leader_arrived,
+            first_violation=self.first,
+            signals={k: np.asarray(v) for k, v in self.signals.items()},
+            funnel_exits=int(np.sum(funnel)) if funnel is not None else 0,
+        )
+
+
 def run_episode(
     env: PlatoonParallelEnv,
     policy: PolicyLike,
@@ -101,55 +217,30 @@ def run_episode(
     """
     obs, _ = env.reset(seed=seed, options=options)
     policy.reset(seed=seed)
-    n = env.n_followers
-    times = [env.sim_time]
-    poses = [env.poses]
-    sensed = [env.sensed]
-    actions: list[np.ndarray] = []
-    masks: list[np.ndarray] = []
-    signals: dict[str, list[np.ndarray]] = {}
-    first: tuple[int, str, int] | None = None
+    space = env.action_space(env.possible_agents[0])
+    rec = EpisodeRecorder(
+        env.possible_agents, space.low, space.high, env.sim_time, env.poses, env.sensed
+    )
     terminated = truncated = False
     limit = max_steps if max_steps is not None else env.max_episode_steps
-    act_low = env.action_space(env.possible_agents[0]).low
-    act_high = env.action_space(env.possible_agents[0]).high
     for step in range(limit):
         cmd = policy.act(obs)
-        if record_signals and hasattr(policy, "signals"):
-            for key, value in policy.signals.items():
-                signals.setdefault(key, []).append(np.asarray(value).copy())
+        if record_signals:
+            rec.record_signals(policy)
         obs, _, terms, truncs, _infos = env.step(cmd)
-        applied = np.array([cmd[a] for a in env.possible_agents], dtype=np.float64)
-        actions.append(np.clip(applied, act_low, act_high))
-        mask = env.violation_masks
-        if first is None and np.any(mask):
-            k = int(np.flatnonzero(mask)[0])
-            first = (step, str(first_cause(int(mask[k]))), k + 1)
-        masks.append(mask)
-        times.append(env.sim_time)
-        poses.append(env.poses)
-        sensed.append(env.sensed)
+        rec.record_step(step, cmd, env.violation_masks, env.sim_time, env.poses, env.sensed)
         terminated = any(terms.values())
         truncated = any(truncs.values())
         if terminated or truncated:
             break
-    funnel = getattr(policy, "funnel_exits", None)
-    return Episode(
-        scenario=env.scenario.name,
+    return rec.episode(
+        policy,
+        scenario=env.scenario,
         seed=seed,
         control_period=env.control_period,
-        d_des=env.scenario.config.formation.d_des,
-        times=np.asarray(times),
-        poses=np.asarray(poses),
-        sensed=np.asarray(sensed),
-        actions=np.asarray(actions).reshape(-1, n, 2),
-        violations=np.asarray(masks).reshape(-1, n),
         terminated=terminated,
         truncated=truncated,
         leader_arrived=env.leader_arrived,
-        first_violation=first,
-        signals={k: np.asarray(v) for k, v in signals.items()},
-        funnel_exits=int(np.sum(funnel)) if funnel is not None else 0,
     )
 
 

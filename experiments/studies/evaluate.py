@@ -67,7 +67,14 @@ from typing import Any
 from tqdm import tqdm
 
 import platoon_env
-from experiments.cli import add_models_option, add_workers_option, count, new_parser, number
+from experiments.cli import (
+    add_batch_option,
+    add_models_option,
+    add_workers_option,
+    count,
+    new_parser,
+    number,
+)
 from experiments.grid import (
     DEFAULT_CLAIM_TIMEOUT,
     Cell,
@@ -593,6 +600,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=Path("results/benchmark"), help="output folder")
     add_models_option(parser, "the default policies include")
     add_workers_option(parser)
+    add_batch_option(parser)
     parser.add_argument("--no-plots", action="store_true", help="skip plots and GIFs")
     parser.add_argument(
         "--claim-timeout",
@@ -963,6 +971,7 @@ def _run(
             tool=_TOOL,
             stamp=stamp,
             workers=args.workers,
+            batch=args.batch,
             keep=keep,
             claim_timeout=args.claim_timeout,
         )

@@ -65,7 +65,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.cli import add_models_option, add_workers_option, count
+from experiments.cli import add_batch_option, add_models_option, add_workers_option, count
 from experiments.grid import run_grid, store_file
 from experiments.policies import default_models_dir
 from experiments.report import markdown_table, provenance_markdown
@@ -576,6 +576,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="layouts per held-out task (default: the suite's, 200)",
     )
     add_workers_option(p)
+    add_batch_option(p)
     p.add_argument(
         "--docs", type=Path, default=Path("docs"), help="where the tables go (default: ./docs)"
     )
@@ -631,6 +632,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             tool=_TOOL,
             stamp=stamp,
             workers=args.workers,
+            batch=args.batch,
             progress=not args.no_progress,
         )
         print(f"{store.path}: {result.ran} episode(s) run, {result.reused} already in the store")
