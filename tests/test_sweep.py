@@ -116,6 +116,7 @@ def test_configs_are_named_by_their_keys() -> None:
         "bc_ppo_mixed_20ms",
         "residual_ppc",
         "residual_filtered_aruco",
+        "residual_filtered_aruco_cmd",
     }
     for name, config in CONFIGS.items():
         assert config.name == name and config.summary
@@ -129,9 +130,9 @@ def test_every_config_parses_and_resolves(name: str) -> None:
     cfg = parse_args([*config.args, "--seed", "0", "--out", "x"])
     assert cfg.task_aware_observations is True
     # the SB3 configurations train under aruco (30 Hz frames), the clones with ideal sensing
-    aruco = cfg.engine == "sb3" or name.endswith("_aruco")
+    aruco = cfg.engine == "sb3" or name.endswith(("_aruco", "_aruco_cmd"))
     assert cfg.sensor_profile == ("aruco" if aruco else None)
-    residual = {"residual_filtered_aruco": "filtered_ppc"}.get(name, "ppc")
+    residual = "filtered_ppc" if name.startswith("residual_filtered") else "ppc"
     assert cfg.residual == (residual if name.startswith("residual") else None)
     assert cfg.control_period <= 1 / 30
     assert cfg.scale_free_observations == (
@@ -148,9 +149,11 @@ def test_every_config_parses_and_resolves(name: str) -> None:
             "bc_ppo_mixed_20ms": "bc_ppo",
             "residual_ppc": "ppo",
             "residual_filtered_aruco": "ppo",
+            "residual_filtered_aruco_cmd": "ppo",
         }[name]
     )
     assert cfg.timesteps >= 1
+    assert cfg.previous_command == name.endswith("_cmd")
     env = make_env(cfg)
     try:
         assert check_scenario(cfg, env) == []  # platoon-train would not refuse it

@@ -470,6 +470,13 @@ def test_check_env_refuses_meaningless_envs_and_notes_experiments(tmp_path: Path
     assert any("control period" in n for n in notes)
     notes = policy.check_env(platoon_env.make("study_c", control_period=0.05, followers=3))
     assert any("followers: trained with 2, the env has 3" in n for n in notes)
+    # a formation drawn per episode: a count in its range is no note, one outside it is
+    policy.metadata["scenario_config"] = {"generator": {"formation": {"followers": [1, 3]}}}
+    notes = policy.check_env(platoon_env.make("study_c", control_period=0.05, followers=3))
+    assert not any(n.startswith("followers") for n in notes)
+    notes = policy.check_env(platoon_env.make("study_c", control_period=0.05, followers=4))
+    assert any("followers: trained with 1-3 drawn per episode, the env has 4" in n for n in notes)
+    del policy.metadata["scenario_config"]
     notes = policy.check_env(platoon_env.make("study_a", control_period=0.05))
     assert any(n.startswith("scenario: trained on fixed workspace 'study_c'") for n in notes)
     policy.metadata["observation_layout"] = ["visible", "x_rel", "y_rel", "range"]

@@ -503,6 +503,17 @@ def scenario_differences(
     return out
 
 
+def _drawn_followers(mapping: Any) -> tuple[int, int] | None:
+    """The range ``(least, most)`` a training scenario drew each episode's followers from
+    (``generator.formation.followers``), or None for a fixed count."""
+    gen = mapping.get("generator") if isinstance(mapping, Mapping) else None
+    formation = gen.get("formation") if isinstance(gen, Mapping) else None
+    drawn = formation.get("followers") if isinstance(formation, Mapping) else None
+    if isinstance(drawn, list | tuple) and len(drawn) == 2:
+        return int(drawn[0]), int(drawn[1])
+    return None
+
+
 def _family(mapping: Mapping[str, Any] | None, name: Any) -> str:
     """``procedural corridor/train layouts`` or ``fixed workspace 'study_c'``."""
     gen = (mapping or {}).get("generator")
@@ -843,7 +854,13 @@ class LearnedPolicy:
                     "allow_control_period=True to test the policy at another period)"
                 )
         trained_n = meta.get("n_followers")
-        if trained_n is not None and int(trained_n) != len(agents):
+        drawn = _drawn_followers(meta.get("scenario_config"))
+        if drawn is not None and not drawn[0] <= len(agents) <= drawn[1]:
+            notes.append(
+                f"followers: trained with {drawn[0]}-{drawn[1]} drawn per episode, the env has "
+                f"{len(agents)} (allowed: one shared per-follower policy)"
+            )
+        elif drawn is None and trained_n is not None and int(trained_n) != len(agents):
             notes.append(
                 f"followers: trained with {trained_n}, the env has {len(agents)} (allowed: one "
                 "shared per-follower policy)"
@@ -959,9 +976,20 @@ class LearnedPolicy:
     def act(self, observations: Mapping[str, NDArray[Any]]) -> dict[str, NDArray[np.float32]]:
         """Map ``{agent: observation (7,) or, task-aware, (13,)}`` to ``{agent: float32 [u,
         omega]}`` in one batch."""
-        agents = list(observations)
+        agents, inputs = self._model_input(observations)
         if not agents:
             return {}
+        return self._commands(agents, observations, self._deterministic(inputs))
+
+    def _model_input(
+        self, observations: Mapping[str, NDArray[Any]]
+    ) -> tuple[list[str], NDArray[np.float32]]:
+        """The agents and the model's input rows: each observation checked, scaled by the
+        training normalisation, followed by the agent's previous command if the model reads
+        it."""
+        agents = list(observations)
+        if not agents:
+            return agents, np.zeros((0, self.input_size), dtype=np.float32)
         obs = np.stack([np.asarray(observations[a], dtype=np.float32) for a in agents])
         n = self.observation_size
         if obs.shape != (len(agents), n):
@@ -975,7 +1003,16 @@ class LearnedPolicy:
             assert self._standstill is not None  # checked at construction
             sent = [self._sent.get(a, self._standstill) for a in agents]
             obs = np.concatenate([obs, np.stack(sent)], axis=1, dtype=np.float32)
-        actions = self._deterministic(obs)
+        return agents, obs
+
+    def _commands(
+        self,
+        agents: list[str],
+        observations: Mapping[str, NDArray[Any]],
+        actions: NDArray[np.float32],
+    ) -> dict[str, NDArray[np.float32]]:
+        """The physical commands of the model's normalised ``actions`` (one row per agent):
+        a residual policy's law added, the previous commands kept."""
         if self.residual is not None:
             if self._law is None:
                 raise self._unbound()
