@@ -227,7 +227,7 @@ def test_default_benchmark_groups_seeds_and_notes(
     notes = [line for line in printed.splitlines() if line.startswith("note: ")]
     assert sorted(line.split(":")[1] for line in notes) == [" tiny on study_a", " tiny on study_c"]
     (on_a,) = (line for line in notes if "on study_a" in line)
-    assert "2 seeds trained on study_c; 2 followers in training, 7 here (allowed)" in on_a
+    assert "2 seeds trained on study_c; followers trained with 2, the env has 7 (allowed)" in on_a
     assert "wall time: " in printed.splitlines()[-1]
 
     rows = _rows(out / "results.csv")

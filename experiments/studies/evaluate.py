@@ -804,7 +804,6 @@ class ModelNotes:
     scenario: str
     policies: list[str]
     trained_on: list[str]
-    trained_followers: list[int]
     followers: int | None
     notes: dict[str, list[str]]  # note text -> the policies it holds for
 
@@ -812,9 +811,12 @@ class ModelNotes:
         """The one console line: the training scenario, the followers, the notes in short."""
         n = len(self.policies)
         parts = [f"{n} seed{'s' if n > 1 else ''} trained on {', '.join(self.trained_on) or '?'}"]
-        if self.followers is not None and set(self.trained_followers) - {self.followers}:
-            trained = ", ".join(str(k) for k in self.trained_followers)
-            parts.append(f"{trained} followers in training, {self.followers} here (allowed)")
+        # check_env's followers note decides (a formation drawn per episode that covers this
+        # scenario's count is no note); its words, shortened
+        said = [t for t in self.notes if t.startswith("followers:")]
+        if self.followers is not None and said:
+            shown = sorted({t.removeprefix("followers: ").split(" (allowed")[0] for t in said})
+            parts.append(f"followers {' / '.join(shown)} (allowed)")
         tags: dict[str, set[str]] = defaultdict(set)
         for text, policies in self.notes.items():
             tag = _note_tag(text)
@@ -869,14 +871,11 @@ def _model_notes(args: argparse.Namespace) -> list[ModelNotes]:
         meta = spec.model_metadata()
         for s in args.scenario:
             entry = by_pair.setdefault(
-                (configuration, s), ModelNotes(configuration, s, [], [], [], None, {})
+                (configuration, s), ModelNotes(configuration, s, [], [], None, {})
             )
             entry.policies.append(spec.name)
             if meta.get("scenario") and meta["scenario"] not in entry.trained_on:
                 entry.trained_on.append(str(meta["scenario"]))
-            trained_n = meta.get("n_followers")
-            if trained_n is not None and int(trained_n) not in entry.trained_followers:
-                entry.trained_followers.append(int(trained_n))
             texts = loaded
             if texts is None:
                 overrides = merge_overrides(spec, args.overrides)
