@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from experiments.significance import wilson as significance_wilson
 from experiments.stamp import stamp_markdown
 from experiments.store import EpisodeRecord, Store
 
@@ -57,18 +58,15 @@ def file_stem(name: str) -> str:
     return f"{stem[: MAX_STEM - 9] or 'x'}-{digest}"
 
 
-def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """The Wilson score interval of a proportion ``successes / n`` (95 % for ``z = 1.96``);
-    ``(nan, nan)`` for ``n = 0``."""
+def wilson(successes: int, n: int) -> tuple[float, float]:
+    """The 95 % Wilson score interval of a proportion ``successes / n``, the one rule of the
+    project (:func:`experiments.significance.wilson`, ``scipy.stats.binomtest``); ``(nan,
+    nan)`` for ``n = 0`` (a table cell with no episodes)."""
     if n == 0:
         return (math.nan, math.nan)
     if not 0 <= successes <= n:
         raise ValueError(f"successes must lie in [0, {n}], got {successes}")
-    p = successes / n
-    denom = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    return significance_wilson(successes, n)
 
 
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[object]]) -> str:

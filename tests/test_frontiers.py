@@ -21,18 +21,18 @@ from experiments.studies.frontiers import (
 
 
 def test_wilson_interval_hand_case() -> None:
-    # 8/10, z = 1.96 by hand: p = 0.8, z^2 = 3.8416, denom = 1 + 0.38416 = 1.38416,
-    # centre = (0.8 + 0.19208) / 1.38416 = 0.99208 / 1.38416 = 0.716739,
-    # half = 1.96 sqrt(0.016 + 0.009604) / 1.38416 = 1.96 * 0.160012 / 1.38416 = 0.226581,
-    # so [0.490158, 0.943320] (the tabulated Wilson interval of 8/10: 0.490, 0.943).
+    # 8/10, z = 1.959964 (the 97.5 % normal quantile) by hand: p = 0.8, z^2 = 3.841459,
+    # denom = 1 + 0.3841459 = 1.3841459, centre = (0.8 + 0.1920729) / 1.3841459 = 0.716740,
+    # half = 1.959964 sqrt(0.016 + 0.0096036) / 1.3841459 = 1.959964 * 0.160011 / 1.3841459
+    # = 0.226578, so [0.490162, 0.943318] (the tabulated Wilson interval of 8/10: 0.490, 0.943).
     lo, hi = wilson_interval(8, 10)
-    assert lo == pytest.approx(0.490158, abs=2e-6)
-    assert hi == pytest.approx(0.943320, abs=2e-6)
-    # 0/10: centre = 0.19208/1.38416 = half, so [0, 2 * 0.138771] = [0, 0.277541].
+    assert lo == pytest.approx(0.490162, abs=2e-6)
+    assert hi == pytest.approx(0.943318, abs=2e-6)
+    # 0/10: centre = 0.1920729/1.3841459 = half, so [0, 2 * 0.138766] = [0, 0.277533].
     lo, hi = wilson_interval(0, 10)
-    assert lo == 0.0 and hi == pytest.approx(0.277541, abs=1e-6)
+    assert lo == pytest.approx(0.0, abs=1e-12) and hi == pytest.approx(0.277533, abs=1e-6)
     lo, hi = wilson_interval(10, 10)
-    assert hi == 1.0 and lo == pytest.approx(1 - 0.277541, abs=1e-6)
+    assert hi == pytest.approx(1.0, abs=1e-12) and lo == pytest.approx(1 - 0.277533, abs=1e-6)
     assert all(math.isnan(v) for v in wilson_interval(0, 0))
     with pytest.raises(ValueError):
         wilson_interval(3, 2)

@@ -455,20 +455,20 @@ def _key(row: Mapping[str, Any]) -> tuple[str, ...]:
 # ----------------------------------------------------------------------------------------------
 
 
-def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion (95 % for ``z = 1.96``).
+def wilson_interval(successes: int, n: int) -> tuple[float, float]:
+    """The 95 % Wilson score interval of a binomial proportion.
 
-    With ``p = successes / n``::
+    With ``p = successes / n`` and ``z = Φ⁻¹(0.975) ≈ 1.95996``::
 
         centre = (p + z²/(2n)) / (1 + z²/n)
         half   = z sqrt(p (1 - p)/n + z²/(4n²)) / (1 + z²/n)
 
-    and the interval ``[centre - half, centre + half]`` (clipped to [0, 1] against rounding).
-    Unlike the normal approximation it stays inside [0, 1] and is not empty at 0/n or n/n:
-    ``wilson_interval(8, 10) ≈ (0.490, 0.943)``, ``wilson_interval(10, 10) ≈ (0.722, 1)``.
-    ``(nan, nan)`` for ``n = 0``. The one implementation is :func:`experiments.report.wilson`.
+    and the interval ``[centre - half, centre + half]``. Unlike the normal approximation it
+    stays inside [0, 1] and is not empty at 0/n or n/n: ``wilson_interval(8, 10) ≈ (0.490,
+    0.943)``, ``wilson_interval(10, 10) ≈ (0.722, 1)``. ``(nan, nan)`` for ``n = 0``. The one
+    implementation is :func:`experiments.report.wilson` (``scipy.stats.binomtest``).
     """
-    return wilson(successes, n, z)
+    return wilson(successes, n)
 
 
 @dataclass
