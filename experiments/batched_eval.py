@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.grid import (
+from experiments.cells import (
     CellResult,
     ResolvedCell,
     check_planned_scenario,
