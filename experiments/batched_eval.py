@@ -50,7 +50,7 @@ from __future__ import annotations
 import copy
 import time
 import traceback
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -64,6 +64,7 @@ from experiments.cells import (
     run_cell,
 )
 from experiments.policies import MODEL, build_policy, load_model
+from platoon_env.env import read_actions
 from platoon_env.rollout import EpisodeRecorder
 from platoon_env.scenarios.fingerprint import canonical_json
 from platoon_env.scenarios.options import OVERRIDE_OPTIONS
@@ -377,26 +378,6 @@ def _act(live: list[_Copy]) -> list[dict[str, Any] | None]:
     return out
 
 
-def _action_rows(cmd: Any, agents: tuple[str, ...]) -> np.ndarray:
-    """The ``(N, 2)`` actions of ``cmd`` as the env's ``step`` reads them (``{agent: [u,
-    omega]}`` of exactly its agents, real numbers); what the env refuses is refused here (a
-    ``KeyError``, ``TypeError`` or ``ValueError``; NaN and inf: :func:`_check_finite`)."""
-    try:  # the env's fast path
-        if len(cmd) != len(agents):
-            raise KeyError
-        rows = np.array([cmd[a] for a in agents])
-        if rows.shape == (len(agents), 2) and rows.dtype.kind in "fiu":
-            return rows
-    except (KeyError, TypeError, ValueError, IndexError):
-        pass
-    if not isinstance(cmd, Mapping):
-        raise TypeError(f"actions must be a dict agent -> [u, omega], got {type(cmd)}")
-    if len(cmd) != len(agents) or any(a not in cmd for a in agents):
-        raise KeyError(f"actions must be given for exactly {agents}, got {tuple(cmd)}")
-    rows = np.array([cmd[a] for a in agents], dtype=object)
-    raise ValueError(f"actions must be real numbers of shape (2,) [u, omega], got {rows!r}")
-
-
 def _check_finite(rows: np.ndarray, agents: tuple[str, ...]) -> None:
     """A ``ValueError`` (the env's) for NaN or inf in one copy's actions ``(N, 2)``."""
     finite = np.isfinite(rows).all(axis=1)
@@ -427,7 +408,7 @@ def _loop(
                 active[c.index] = False
                 continue
             try:
-                actions[c.index] = _action_rows(cmd, agents)
+                actions[c.index] = read_actions(cmd, agents)
             except Exception:
                 c.fail()
                 active[c.index] = False

@@ -100,6 +100,56 @@ def check_env_keywords(
         )
 
 
+def read_actions(actions: Mapping[str, Any], agents: Sequence[str]) -> np.ndarray:
+    """The live ``agents``' actions as an ``(N, 2)`` array of real numbers (what
+    :meth:`PlatoonParallelEnv.step` applies), or an error naming the misuse: not a dict
+    (``TypeError``), an unknown or missing agent (``KeyError``), not real numbers
+    (``TypeError``), another shape (``ValueError``). NaN and inf pass: the core rejects them.
+    The batched evaluator (:mod:`experiments.batched_eval`) reads each copy's actions with it.
+    """
+    # Fast path (every step): a dict holding exactly the live agents' well-shaped actions.
+    try:
+        if len(actions) != len(agents):
+            raise KeyError
+        act = np.array([actions[a] for a in agents])
+        # Real numbers only: numpy would read "0.3" as 0.3 and drop an imaginary part.
+        if act.shape == (len(agents), ACT_SIZE) and act.dtype.kind in "fiu":
+            return act
+    except (KeyError, TypeError, ValueError, IndexError):
+        pass
+    if not isinstance(actions, Mapping):
+        raise TypeError(f"actions must be a dict agent -> [u, omega], got {type(actions)}")
+    if len(actions) != len(agents) or any(a not in actions for a in agents):
+        for agent in actions:
+            if agent not in agents:
+                raise KeyError(
+                    f"unknown or finished agent {agent!r}; live agents: {', '.join(agents)}"
+                )
+        missing = [a for a in agents if a not in actions]
+        raise KeyError(f"missing action for agent {missing[0]!r}")
+    for agent in agents:
+        kind = np.asarray(actions[agent]).dtype.kind
+        if kind not in "fiu":
+            raise TypeError(
+                f"action of {agent!r} must be real numbers [u, omega], got "
+                f"{actions[agent]!r} ({np.asarray(actions[agent]).dtype})"
+            )
+    try:
+        out = np.array([actions[a] for a in agents], dtype=np.float64)
+    except (ValueError, TypeError):
+        out = np.empty(0)
+    if out.shape != (len(agents), ACT_SIZE):
+        for agent in agents:
+            shape = np.shape(actions[agent])
+            if shape != (ACT_SIZE,):
+                raise ValueError(
+                    f"action of {agent!r} must have shape ({ACT_SIZE},) [u, omega], "
+                    f"got shape {shape}"
+                )
+        raise ValueError("actions must be numeric arrays of shape (2,) [u, omega]")
+    return out
+
+
 class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     """A leader-follower platoon of unicycle robots in a cluttered 2D workspace.
 
@@ -391,19 +441,8 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         agents = self.agents
         if not agents:
             raise RuntimeError("step() called on a finished episode; call reset() first")
-        # The actions as a float64 (N, 2) array. Fast path (this runs every step, so it is
-        # inlined): a dict holding exactly the live agents' well-shaped actions; anything else
-        # goes through the checks of _read_actions, which name the misuse. The core clips
-        # the actions and rejects NaN or inf before any state changes.
-        try:
-            if len(actions) != len(agents):
-                raise KeyError
-            act = np.array([actions[a] for a in agents])
-            # Real numbers only: numpy would read "0.3" as 0.3 and drop an imaginary part.
-            if act.shape != self._actions.shape or act.dtype.kind not in "fiu":
-                raise ValueError
-        except (KeyError, TypeError, ValueError, IndexError):
-            act = self._read_actions(actions)
+        # The core clips the actions and rejects NaN or inf before any state changes.
+        act = read_actions(actions, agents)
         self._actions[:] = act
         # The compiled step through its entry (PlatoonCore.run's, without the type dispatch),
         # then the core's rule after it.
@@ -473,44 +512,6 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     # ----------------------------------------------------------------------------------------
     # Internals
     # ----------------------------------------------------------------------------------------
-    def _read_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
-        """The live agents' actions as a float64 (N, 2) array, or an error naming the misuse
-        (not a dict, unknown or missing agent, not real numbers, wrong shape). :meth:`step` inlines
-        the fast path
-        and calls this when it does not apply."""
-        if not isinstance(actions, Mapping):
-            raise TypeError(f"actions must be a dict agent -> [u, omega], got {type(actions)}")
-        if len(actions) != len(self.agents) or any(a not in actions for a in self.agents):
-            for agent in actions:
-                if agent not in self.agents:
-                    raise KeyError(
-                        f"unknown or finished agent {agent!r}; "
-                        f"live agents: {', '.join(self.agents)}"
-                    )
-            missing = [a for a in self.agents if a not in actions]
-            raise KeyError(f"missing action for agent {missing[0]!r}")
-        for agent in self.agents:
-            kind = np.asarray(actions[agent]).dtype.kind
-            if kind not in "fiu":
-                raise TypeError(
-                    f"action of {agent!r} must be real numbers [u, omega], got "
-                    f"{actions[agent]!r} ({np.asarray(actions[agent]).dtype})"
-                )
-        try:
-            out = np.array([actions[a] for a in self.agents], dtype=np.float64)
-        except (ValueError, TypeError):
-            out = np.empty(0)
-        if out.shape != (len(self.agents), ACT_SIZE):
-            for agent in self.agents:
-                shape = np.shape(actions[agent])
-                if shape != (ACT_SIZE,):
-                    raise ValueError(
-                        f"action of {agent!r} must have shape ({ACT_SIZE},) [u, omega], "
-                        f"got shape {shape}"
-                    )
-            raise ValueError("actions must be numeric arrays of shape (2,) [u, omega]")
-        return out
-
     def _infos(
         self, masks: list[int], terms: list[list[float]] | None
     ) -> dict[str, dict[str, Any]]:
