@@ -603,15 +603,22 @@ class LearnedPolicy:
         self.obs_scale = None if obs_scale is None else np.asarray(obs_scale, dtype=np.float32)
         self.control_period = float(control_period)
         self.metadata: dict[str, Any] = dict(metadata or {})
+        previous = self.metadata.get("previous_command", False)
+        if not isinstance(previous, bool) or (previous and action_range is None):
+            raise ValueError(
+                f"previous_command must be true (with an action range) or false, got {previous!r}"
+            )
+        #: Whether the model reads, after the observation, each follower's previous command
+        #: (normalised, clipped to ``[-1, 1]``; ``model.json``'s ``previous_command``).
+        self.previous_command: bool = previous
         if observation_layout is None:
             recorded = self.metadata.get("observation_layout")
             if isinstance(recorded, list | tuple):
                 observation_layout = tuple(recorded)
             else:
                 size = _input_size(model) if self.obs_scale is None else self.obs_scale.shape[0]
-                if size is not None and self.obs_scale is None:
-                    # the input less a previous command's two values
-                    size -= ACT_SIZE if self.metadata.get("previous_command") is True else 0
+                if size is not None and self.obs_scale is None and self.previous_command:
+                    size -= ACT_SIZE  # the input less the previous command's two values
                 observation_layout = OBSERVATION_LAYOUTS.get(size or len(OBS_NAMES), OBS_NAMES)
         #: The names of the observations the model reads, in order.
         self.observation_layout: tuple[str, ...] = tuple(observation_layout)
@@ -623,14 +630,6 @@ class LearnedPolicy:
         #: The analytic law a residual policy adds its output to (``model.json``'s
         #: ``residual``; :mod:`training.experts`), or None for a plain policy.
         self.residual: str | None = residual
-        previous = self.metadata.get("previous_command", False)
-        if not isinstance(previous, bool) or (previous and action_range is None):
-            raise ValueError(
-                f"previous_command must be true (with an action range) or false, got {previous!r}"
-            )
-        #: Whether the model reads, after the observation, each follower's previous command
-        #: (normalised, clipped to ``[-1, 1]``; ``model.json``'s ``previous_command``).
-        self.previous_command: bool = previous
         self._standstill: NDArray[np.float32] | None = (
             None if action_range is None else to_normalised(np.zeros(2), action_range)[0]
         )
