@@ -117,6 +117,16 @@ profile and ``accel_max = 1`` (5 seeds), ``tau = 0`` collided in 5 of 5 episodes
 ``tau = 0.05`` passed with 67 funnel exits in all, ``0.1`` and ``0.2`` passed (0.2 with more
 command chatter under the profile's own 2.5 m/s^2).
 
+``lookahead_predecessor`` (``phi``, default 1) is the fraction of ``tau`` over which the
+predecessor is moved on: ``p^ <- R(-A) (p^ + phi w^ tau - D)``. At ``phi = 1`` (the default
+above) the law sees where both robots will be; at ``phi = 0`` it sees where the *follower*
+will be, relative to where the predecessor is now: a predictor of the follower's own drive
+alone. A long ``tau`` with ``phi = 1`` extrapolates the predecessor in a straight line past
+the corners it is turning, and the follower cuts them; with ``phi = 0`` a long ``tau`` only
+damps the follower's own turn (``beta`` moves by about ``-omega_a tau``), which is what a
+rate-limited ``omega`` needs (:mod:`baselines.filtered_ppc_drive` chooses both values on
+training layouts).
+
 Constraint tightening
 ---------------------
 The law is designed to work *at* its constraints: in a narrow passage its activation terms
@@ -210,7 +220,7 @@ from platoon_env.observation import (
     OBS_Y_REL,
 )
 from platoon_env.perception import frame_due_at
-from platoon_env.scenarios.schema import ObservationConfig, ScenarioConfig
+from platoon_env.scenarios.schema import ObservationConfig, RobotConfig, ScenarioConfig
 
 __all__ = [
     "FILTER_KERNEL_DTYPE",
@@ -219,6 +229,7 @@ __all__ = [
     "FilterState",
     "FilteredPPCPolicy",
     "actuator_step",
+    "drive_limited",
     "frame_due",
     "kf_predict",
     "kf_update",
@@ -387,6 +398,13 @@ def propagate_mean(
 # ----------------------------------------------------------------------------------------------
 
 
+def drive_limited(robot: RobotConfig) -> bool:
+    """Whether the drive delays a command: a first-order lag or a rate limit on ``u`` or
+    ``omega`` (the scenario's ``robot.lag``, ``accel_max``, ``alpha_max``). Only such a drive
+    gets a lookahead by default."""
+    return robot.lag > 0 or robot.accel_max is not None or robot.alpha_max is not None
+
+
 @dataclass(frozen=True)
 class FilterParams:
     """The policy's model of its camera, proximity sensor and drive, and the filter's tuning.
@@ -416,6 +434,7 @@ class FilterParams:
     max_coast: float = 1.0  # [s] tell the law "not visible" after this long without an update
     clearance_tau: float = 0.0  # [s] time constant of the clearance low-pass; 0: none
     lookahead: float = 0.0  # [s] tau: the estimate is shown tau ahead (drive's response)
+    lookahead_predecessor: float = 1.0  # the predecessor is moved on for this fraction of tau
     margin_sigmas: float = 4.0  # kappa: margins = kappa x the camera's per-frame noise std
     d_col_margin: float = 0.0  # [m] inner law's d_col = d_col + this
     beta_margin: float = 0.0  # [rad] inner law's beta_con = beta_con - this
@@ -428,6 +447,7 @@ class FilterParams:
         "max_coast",
         "clearance_tau",
         "lookahead",
+        "lookahead_predecessor",
         "margin_sigmas",
         "d_col_margin",
         "beta_margin",
@@ -450,6 +470,11 @@ class FilterParams:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"filter parameter {name} must be finite and >= 0, got {value!r}")
+        if not 0.0 <= self.lookahead_predecessor <= 1.0:
+            raise ValueError(
+                "filter parameter lookahead_predecessor must be in [0, 1], got "
+                f"{self.lookahead_predecessor!r}"
+            )
         if self.latency_steps < 0:
             raise ValueError(f"latency_steps must be >= 0, got {self.latency_steps!r}")
 
@@ -491,8 +516,9 @@ class FilterParams:
             "range_margin", min(kappa * (s0 + s1 * d_con), 0.5 * (d_con - d_des - 2 * rho_d))
         )
         ov.setdefault("clearance_tau", cls.CLEARANCE_TAU if config.proximity.noise > 0 else 0.0)
-        limited = rob.lag > 0 or rob.accel_max is not None or rob.alpha_max is not None
-        ov.setdefault("lookahead", rob.lag + cls.LOOKAHEAD_RATE_LIMITED if limited else 0.0)
+        ov.setdefault(
+            "lookahead", rob.lag + cls.LOOKAHEAD_RATE_LIMITED if drive_limited(rob) else 0.0
+        )
         return cls(
             dt=dt,
             latency_steps=round(cam.latency / dt),
@@ -539,6 +565,7 @@ FILTER_KERNEL_DTYPE: np.dtype[np.void] = np.dtype(
         ("max_coast", np.float64),  # [s]
         ("clearance_gain", np.float64),  # 1 - exp(-dt / clearance_tau)
         ("lookahead", np.float64),  # [s] tau
+        ("lookahead_predecessor", np.float64),  # the predecessor moves on for this x tau
         ("u_max", np.float64),  # [m/s] action box
         ("omega_max", np.float64),  # [rad/s]
         ("lag_gain", np.float64),  # 1 - exp(-dt / lag)
@@ -732,7 +759,11 @@ def _filter_step(
             lagged = p.lag_gain < 1.0
             u_ahead = st.applied[i, ACT_U] if lagged or p.du_max < math.inf else 0.0
             w_ahead = st.applied[i, ACT_OMEGA] if lagged or p.dw_max < math.inf else 0.0
-            est = _propagate(est, body_arc(u_ahead, w_ahead, p.lookahead), p.lookahead)
+            est = _propagate(
+                est,
+                body_arc(u_ahead, w_ahead, p.lookahead),
+                p.lookahead * p.lookahead_predecessor,
+            )
         px, py, wx, wy = est
         coast = (k - st.last_update[i]) * dt if st.started[i] else math.inf
         tracked = st.started[i] and coast <= p.max_coast
@@ -816,11 +847,12 @@ class FilteredPPCPolicy:
 
     ``FilteredPPCPolicy(env, **options)``: ``options`` may hold the filter's tuning
     (:attr:`FilterParams.TUNABLE`: ``q_accel``, ``v0_std``, ``sigma_floor``, ``max_coast``,
-    ``clearance_tau``, ``lookahead``, ``margin_sigmas``, ``d_col_margin``, ``beta_margin``,
-    ``range_margin``) and any override of the inner law (:attr:`baselines.ppc.PPCParams.PPC_KEYS`,
-    passed to :class:`~baselines.ppc.PPCPolicy`). The sensor and drive model is read from
-    ``env.scenario.config`` (camera noise, frame rate and latency; action box, lag and rate
-    limits), never the ground truth. Followers are indexed by ``env.possible_agents``.
+    ``clearance_tau``, ``lookahead``, ``lookahead_predecessor``, ``margin_sigmas``,
+    ``d_col_margin``, ``beta_margin``, ``range_margin``) and any override of the inner law
+    (:attr:`baselines.ppc.PPCParams.PPC_KEYS`, passed to :class:`~baselines.ppc.PPCPolicy`).
+    The sensor and drive model is read from ``env.scenario.config`` (camera noise, frame rate
+    and latency; action box, lag and rate limits), never the ground truth. Followers are
+    indexed by ``env.possible_agents``.
 
     Each :meth:`act` call, for the given followers at once (two compiled loops and the law's):
 

@@ -304,11 +304,14 @@ def _run_chunk(copies: list[_Copy]) -> bool:
                 c.fail(error)
             return True
 
-    # Each copy's policy, built as run_cell builds it, on its view of the core.
+    # The episodes start (as run_cell: the env's reset, the policy built on the episode's own
+    # scenario, then the policy's reset), every copy the model did not refuse.
+    live = [c for c in copies if not c.status]
+    if not live:
+        return True
+    obs = core.reset([c.rc.cell.seed for c in live], envs=[c.index for c in live])
     env = platoon_env.make(first.cell.scenario, **kwargs)
-    for c in copies:
-        if c.status:
-            continue
+    for c in live:
         try:
             c.env = CopyEnv(env, core, c.index)
             loaded = None if template is None else copy.deepcopy(template)
@@ -318,11 +321,9 @@ def _run_chunk(copies: list[_Copy]) -> bool:
                 c.status, c.error = "refused", _refused(exc)
         except Exception:
             c.fail()
-    live = [c for c in copies if not c.status]
+    live = [c for c in live if not c.status]
     if not live:
         return True
-    # The episodes start (as run_episode: the env's reset, then the policy's).
-    obs = core.reset([c.rc.cell.seed for c in live], envs=[c.index for c in live])
     agents = tuple(core.possible_agents)
     sim_time, poses, sensed = core.sim_time, core.poses, core.sensed
     for c in live:

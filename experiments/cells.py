@@ -218,6 +218,10 @@ def run_cell(resolved: ResolvedCell, keep: bool = False) -> CellResult:
             torch.set_num_threads(1)
         env = platoon_env.make(cell.scenario, **cell.make_kwargs())
         check_planned_scenario(resolved, env.source.config)
+        # The policy is built on the episode's own scenario: a procedural source draws its
+        # layout (and may draw its formation: followers, d_des, ...) at reset. run_episode
+        # resets again with the same seed, to the same episode.
+        env.reset(seed=cell.seed)
         try:
             # the model's files are checked against the fingerprint the row is keyed by
             policy = build_policy(cell.policy, env, planned=resolved.key.policy)

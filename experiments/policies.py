@@ -95,6 +95,14 @@ REGISTRY: dict[str, PolicyKind] = {
         label="filtered PPC",
         studies=frozenset({"frontiers", "leaderboard"}),
     ),
+    "filtered_ppc_drive": PolicyKind(
+        "baselines.filtered_ppc_drive:DriveAwareFilteredPPCPolicy",
+        "the filtered PPC with a lookahead sized for a rate-limited drive, chosen on training "
+        "layouts under the aruco profile (Remark 3; baselines/data/filtered_ppc_drive.yaml)",
+        signals=True,
+        label="drive-aware filtered PPC",
+        studies=frozenset({"frontiers", "leaderboard"}),
+    ),
     "last_seen": PolicyKind(
         "baselines.last_seen:LastSeenPolicy",
         "ref. [32] as the paper describes it: saturated tracking, drive to where the "

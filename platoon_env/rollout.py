@@ -103,7 +103,8 @@ class EpisodeRecorder:
     evaluator :mod:`experiments.batched_eval`, one recorder per env copy) records through this.
 
     Args:
-        agents: the env's followers (``possible_agents``), the order of the action rows.
+        agents: the episode's followers (``env.agents`` after the reset: ``possible_agents``
+            unless a drawn formation has fewer), the order of the action rows.
         act_low, act_high: the action Box's bounds (the recorded actions are clipped to them,
             as the env applies them).
         sim_time, poses, sensed: the env's state after its reset (``env.sim_time``,
@@ -218,9 +219,8 @@ def run_episode(
     obs, _ = env.reset(seed=seed, options=options)
     policy.reset(seed=seed)
     space = env.action_space(env.possible_agents[0])
-    rec = EpisodeRecorder(
-        env.possible_agents, space.low, space.high, env.sim_time, env.poses, env.sensed
-    )
+    # the episode's own followers: a drawn formation may have fewer than possible_agents
+    rec = EpisodeRecorder(env.agents, space.low, space.high, env.sim_time, env.poses, env.sensed)
     terminated = truncated = False
     limit = max_steps if max_steps is not None else env.max_episode_steps
     for step in range(limit):

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from baselines.filtered_ppc import FilteredPPCPolicy
+from baselines.filtered_ppc_drive import DriveAwareFilteredPPCPolicy
 from baselines.policy import Policy
 from baselines.ppc import PPCPolicy
 from platoon_env.action_range import ActionRange
@@ -33,6 +34,7 @@ __all__ = ["EXPERTS", "BatchedExpert", "CopyEnv", "to_normalised"]
 EXPERTS: dict[str, Callable[..., Policy]] = {
     "ppc": PPCPolicy,
     "filtered_ppc": FilteredPPCPolicy,
+    "filtered_ppc_drive": DriveAwareFilteredPPCPolicy,
 }
 
 

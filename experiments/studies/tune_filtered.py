@@ -1,0 +1,208 @@
+r"""Choose the drive-aware filtered PPC's lookahead on training layouts (paper, Remark 3).
+
+Usage::
+
+    python -m experiments.studies.tune_filtered [--out results/tune_filtered] [--episodes 12]
+        [--workers 2] [--scenario NAME ...] [--tau-r 0.1 0.2 ...] [--phi 0 1]
+        [--table baselines/data/filtered_ppc_drive.yaml] [--quick]
+
+:class:`baselines.filtered_ppc_drive.DriveAwareFilteredPPCPolicy` shows the filtered PPC's
+inner law the predecessor ``tau = robot.lag + tau_r`` seconds ahead on a rate-limited drive,
+moving the predecessor on for ``phi tau`` (module docstring there). This driver runs every
+point of the grid ``--tau-r`` x ``--phi`` under the ``aruco`` sensor profile on the same
+episodes of each ``--scenario`` (seeds ``0..E-1``: common random numbers across the grid),
+through the evaluation store (:func:`experiments.grid.run_grid`: resumable, ``--workers``),
+and writes the best point to the table (``--table``, default the shipped
+:data:`baselines.filtered_ppc_drive.DEFAULT_TABLE`) with its provenance and every point's
+value.
+
+**Training layouts only.** Each scenario must be a procedural ``train`` split
+(:func:`experiments.studies.tune_ppc.check_training_scenario` refuses a study map or a test
+split). The defaults are the two tiers the residual configurations train on, whose layouts
+draw a formation each (1-7 followers, the three studies' geometry ranges): one setting for
+every formation, since the residual's base law must run on all of them.
+
+**Objective** (maximised; :func:`experiments.studies.tune_ppc.objective_value`): the fraction
+of episodes without a violation, plus ``0.1`` times the mean of
+``min(time_to_violation, T) / T`` over the episodes (``T`` the tier's episode length), pooled
+over the scenarios. Ties go to the smaller ``tau_r``, then to ``phi = 1`` (the filtered
+PPC's own rule), so the filtered PPC's point (``tau_r = 0.1``, ``phi = 1``) wins unless
+another is strictly better.
+
+Outputs: the table, and ``OUT/tune_filtered.md`` (the grid: successes per scenario and the
+objective per point).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+import platoon_env
+from baselines.filtered_ppc_drive import DEFAULT_TABLE, TABLE_KEYS, load_drive_table
+from experiments.cli import count
+from experiments.grid import Cell, run_grid, store_path
+from experiments.policies import PolicySpec
+from experiments.stamp import metadata_stamp
+from experiments.studies.tune_ppc import TIE_BREAK, check_training_scenario, objective_value
+
+__all__ = ["DEFAULT_SCENARIOS", "PROFILE", "best_point", "grid_cells", "main", "table_text"]
+
+#: The residual configurations' training tiers (a formation drawn per layout).
+DEFAULT_SCENARIOS: tuple[str, ...] = (
+    "procedural_formations_sharp_train",
+    "procedural_formations_paper_train",
+)
+#: The sensor profile the search runs under.
+PROFILE = "aruco"
+DEFAULT_TAU_R: tuple[float, ...] = (0.1, 0.2, 0.3, 0.5, 0.7, 1.0)
+DEFAULT_PHI: tuple[float, ...] = (0.0, 1.0)
+COMMAND = "python -m experiments.studies.tune_filtered"
+
+
+def _spec(tau_r: float, phi: float) -> PolicySpec:
+    return PolicySpec.of(
+        "filtered_ppc_drive",
+        f"tau_r={tau_r:g},phi={phi:g}",
+        lookahead_rate_limited=float(tau_r),
+        lookahead_predecessor=float(phi),
+    )
+
+
+def grid_cells(
+    scenarios: Sequence[str], tau_r: Sequence[float], phi: Sequence[float], episodes: int
+) -> list[Cell]:
+    """One cell per grid point, scenario and seed ``0..episodes-1``, under :data:`PROFILE`."""
+    return [
+        Cell.of(_spec(t, f), scenario, seed, {"sensor_profile": PROFILE})
+        for t in tau_r
+        for f in phi
+        for scenario in scenarios
+        for seed in range(episodes)
+    ]
+
+
+def _horizon(scenario: str) -> float:
+    """[s] the episode length of ``scenario`` under :data:`PROFILE`."""
+    env = platoon_env.make(scenario, sensor_profile=PROFILE)
+    return float(env.max_episode_steps * env.control_period)
+
+
+def best_point(values: dict[tuple[float, float], float]) -> tuple[float, float]:
+    """The grid point with the highest value; ties to the smaller ``tau_r``, then ``phi = 1``."""
+    return min(values, key=lambda p: (-values[p], p[0], -p[1]))
+
+
+def table_text(provenance: dict[str, Any], params: dict[str, float], grid: list[Any]) -> str:
+    """The YAML of a table, with a header saying how it is made."""
+    header = (
+        "# The drive-aware filtered PPC's lookahead (baselines/filtered_ppc_drive.py). Written by\n"
+        f"# {COMMAND}: do not edit by hand (the provenance would no longer\n"
+        "# describe the numbers); re-run the search instead.\n"
+    )
+    body = {"provenance": provenance, "params": params, "grid": grid}
+    return header + yaml.safe_dump(body, sort_keys=False, width=100)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog=COMMAND, description=__doc__.split("\n\n")[0], allow_abbrev=False
+    )
+    ap.add_argument("--out", type=Path, default=Path("results/tune_filtered"))
+    ap.add_argument("--episodes", type=count(1), default=None, help="seeds per scenario (12)")
+    ap.add_argument("--workers", type=count(1), default=2)
+    ap.add_argument("--scenario", nargs="+", default=list(DEFAULT_SCENARIOS))
+    ap.add_argument("--tau-r", type=float, nargs="+", default=list(DEFAULT_TAU_R))
+    ap.add_argument("--phi", type=float, nargs="+", default=list(DEFAULT_PHI))
+    ap.add_argument("--table", type=Path, default=DEFAULT_TABLE, help="the table written")
+    ap.add_argument("--quick", action="store_true", help="a smoke run: 2 seeds per scenario")
+    args = ap.parse_args(argv)
+    episodes = args.episodes or (2 if args.quick else 12)
+    for name in args.scenario:
+        try:
+            check_training_scenario(name)
+        except ValueError as exc:
+            ap.error(str(exc))
+    for t in args.tau_r:
+        if not (math.isfinite(t) and t >= 0):
+            ap.error(f"--tau-r values must be finite and >= 0, got {t}")
+    for f in args.phi:
+        if not 0 <= f <= 1:
+            ap.error(f"--phi values must be in [0, 1], got {f}")
+    horizons = {name: _horizon(name) for name in args.scenario}
+    cells = grid_cells(args.scenario, args.tau_r, args.phi, episodes)
+    config = {"episodes": episodes, "scenarios": args.scenario, "tau_r": args.tau_r,
+              "phi": args.phi}  # fmt: skip
+    stamp = metadata_stamp("tune_filtered", config, argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    result = run_grid(
+        store_path(args.out), cells, tool="tune_filtered", stamp=stamp, workers=args.workers
+    )
+    if result.interrupted or result.failed:
+        print(f"{COMMAND}: {len(result.failed)} episode(s) failed or the run was interrupted; "
+              "the table is not written", file=sys.stderr)  # fmt: skip
+        return 1
+    by_point: dict[tuple[float, float], dict[str, list[dict[str, Any]]]] = {}
+    for rc, rec in result.finished():
+        spec = json.loads(rc.cell.policy.params)
+        point = (spec["lookahead_rate_limited"], spec["lookahead_predecessor"])
+        by_point.setdefault(point, {}).setdefault(rc.cell.scenario, []).append(rec.metrics)
+    values: dict[tuple[float, float], float] = {}
+    grid = []
+    lines = ["| tau_r [s] | phi | " + " | ".join(f"{s}: no violation" for s in args.scenario)
+             + " | objective |", "|---|---|" + "---|" * len(args.scenario) + "---|"]  # fmt: skip
+    for point in sorted(by_point):
+        per = by_point[point]
+        # pooled: each scenario's objective over its own horizon, weighted by its episodes
+        value = sum(
+            objective_value(per[s], horizons[s]) * len(per[s]) for s in args.scenario
+        ) / sum(len(per[s]) for s in args.scenario)
+        values[point] = value
+        safe = {s: sum(m["violation"] == "" for m in per[s]) for s in args.scenario}
+        grid.append(
+            {
+                "lookahead_rate_limited": point[0],
+                "lookahead_predecessor": point[1],
+                "value": round(value, 6),
+                "no_violation": safe,
+                "episodes": episodes,
+            }
+        )
+        lines.append(f"| {point[0]:g} | {point[1]:g} | "
+                     + " | ".join(f"{safe[s]}/{len(per[s])}" for s in args.scenario)
+                     + f" | {value:.4f} |")  # fmt: skip
+    best = best_point(values)
+    params = dict(zip(TABLE_KEYS, best, strict=True))
+    provenance = {
+        "command": " ".join([COMMAND, *(sys.argv[1:] if argv is None else argv)]),
+        "commit": stamp.get("commit", ""),
+        "uncommitted_changes": sorted(stamp.get("modified") or []),
+        "objective": "pooled over the scenarios: fraction of episodes without a violation + "
+        f"{TIE_BREAK} x mean min(time_to_violation, T)/T (T the tier's episode length)",
+        "sensor_profile": PROFILE,
+        "scenarios": list(args.scenario),
+        "seeds": f"0..{episodes - 1}",
+        "wall_time_s": round(result.wall_time, 1),
+    }
+    args.table.write_text(table_text(provenance, params, grid))
+    load_drive_table(args.table)  # what was written validates
+    summary = (
+        f"Grid of the drive-aware filtered PPC under `{PROFILE}` on training layouts "
+        f"({episodes} seeds per scenario; made by `{COMMAND}`). Best: tau_r = {best[0]:g} s, "
+        f"phi = {best[1]:g}.\n\n" + "\n".join(lines) + "\n"
+    )
+    (args.out / "tune_filtered.md").write_text(summary)
+    print(summary)
+    print(f"table written to {args.table}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
