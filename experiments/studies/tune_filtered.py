@@ -4,7 +4,7 @@ Usage::
 
     python -m experiments.studies.tune_filtered [--out results/tune_filtered] [--episodes 12]
         [--workers 2] [--scenario NAME ...] [--tau-r 0.1 0.2 ...] [--phi 0 1]
-        [--table baselines/data/filtered_ppc_drive.yaml] [--quick]
+        [--table baselines/data/filtered_ppc_drive.yaml] [--max-steps N] [--quick]
 
 :class:`baselines.filtered_ppc_drive.DriveAwareFilteredPPCPolicy` shows the filtered PPC's
 inner law the predecessor ``tau = robot.lag + tau_r`` seconds ahead on a rate-limited drive,
@@ -76,12 +76,23 @@ def _spec(tau_r: float, phi: float) -> PolicySpec:
     )
 
 
+def _overrides(max_steps: int | None) -> dict[str, Any]:
+    """The cells' ``make()`` overrides: :data:`PROFILE`, and a shorter step limit if given."""
+    extra = {} if max_steps is None else {"max_episode_steps": int(max_steps)}
+    return {"sensor_profile": PROFILE, **extra}
+
+
 def grid_cells(
-    scenarios: Sequence[str], tau_r: Sequence[float], phi: Sequence[float], episodes: int
+    scenarios: Sequence[str],
+    tau_r: Sequence[float],
+    phi: Sequence[float],
+    episodes: int,
+    max_steps: int | None = None,
 ) -> list[Cell]:
-    """One cell per grid point, scenario and seed ``0..episodes-1``, under :data:`PROFILE`."""
+    """One cell per grid point, scenario and seed ``0..episodes-1``, under :data:`PROFILE`
+    (and ``max_steps`` steps at most, if given)."""
     return [
-        Cell.of(_spec(t, f), scenario, seed, {"sensor_profile": PROFILE})
+        Cell.of(_spec(t, f), scenario, seed, _overrides(max_steps))
         for t in tau_r
         for f in phi
         for scenario in scenarios
@@ -89,9 +100,9 @@ def grid_cells(
     ]
 
 
-def _horizon(scenario: str) -> float:
-    """[s] the episode length of ``scenario`` under :data:`PROFILE`."""
-    env = platoon_env.make(scenario, sensor_profile=PROFILE)
+def _horizon(scenario: str, max_steps: int | None) -> float:
+    """[s] the episode length of ``scenario`` under :data:`PROFILE` (``max_steps``: at most)."""
+    env = platoon_env.make(scenario, **_overrides(max_steps))
     return float(env.max_episode_steps * env.control_period)
 
 
@@ -122,6 +133,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--tau-r", type=float, nargs="+", default=list(DEFAULT_TAU_R))
     ap.add_argument("--phi", type=float, nargs="+", default=list(DEFAULT_PHI))
     ap.add_argument("--table", type=Path, default=DEFAULT_TABLE, help="the table written")
+    ap.add_argument("--max-steps", type=count(1), default=None, help="a shorter step limit (tests)")
     ap.add_argument("--quick", action="store_true", help="a smoke run: 2 seeds per scenario")
     args = ap.parse_args(argv)
     episodes = args.episodes or (2 if args.quick else 12)
@@ -136,10 +148,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     for f in args.phi:
         if not 0 <= f <= 1:
             ap.error(f"--phi values must be in [0, 1], got {f}")
-    horizons = {name: _horizon(name) for name in args.scenario}
-    cells = grid_cells(args.scenario, args.tau_r, args.phi, episodes)
+    horizons = {name: _horizon(name, args.max_steps) for name in args.scenario}
+    cells = grid_cells(args.scenario, args.tau_r, args.phi, episodes, args.max_steps)
     config = {"episodes": episodes, "scenarios": args.scenario, "tau_r": args.tau_r,
-              "phi": args.phi}  # fmt: skip
+              "phi": args.phi, "max_steps": args.max_steps}  # fmt: skip
     stamp = metadata_stamp("tune_filtered", config, argv)
     args.out.mkdir(parents=True, exist_ok=True)
     result = run_grid(
@@ -189,6 +201,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "sensor_profile": PROFILE,
         "scenarios": list(args.scenario),
         "seeds": f"0..{episodes - 1}",
+        "max_episode_steps": args.max_steps,
         "wall_time_s": round(result.wall_time, 1),
     }
     args.table.write_text(table_text(provenance, params, grid))
