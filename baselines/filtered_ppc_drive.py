@@ -141,7 +141,8 @@ class DriveAwareFilteredPPCPolicy(FilteredPPCPolicy):
         if not (math.isfinite(tau_r) and tau_r >= 0):
             raise ValueError(f"lookahead_rate_limited must be finite and >= 0, got {tau_r!r}")
         robot = env.scenario.config.robot
-        options.setdefault("lookahead", robot.lag + tau_r if drive_limited(robot) else 0.0)
-        options.setdefault("lookahead_predecessor", tab.lookahead_predecessor)
+        if drive_limited(robot):  # else: no lookahead, the filtered PPC's parameters exactly
+            options.setdefault("lookahead", robot.lag + tau_r)
+            options.setdefault("lookahead_predecessor", tab.lookahead_predecessor)
         self.table: DriveTable = tab
         super().__init__(env, dt=dt, **options)

@@ -235,6 +235,18 @@ CONFIGS: dict[str, Config] = by_name(
         _with(_RESIDUAL, sensor_profile="aruco", residual="filtered_ppc", timesteps="10000000"),
     ),
     Config(
+        "residual_drive_aruco",
+        "fast engine: as residual_filtered_aruco on the drive-aware filtered PPC (the "
+        "filtered PPC with a lookahead sized for the rate-limited drive, chosen on training "
+        "layouts: baselines/filtered_ppc_drive.py), 20 M transitions",
+        _with(
+            _RESIDUAL,
+            sensor_profile="aruco",
+            residual="filtered_ppc_drive",
+            timesteps="20000000",
+        ),
+    ),
+    Config(
         "residual_filtered_aruco_cmd",
         "fast engine: as residual_filtered_aruco, the policy also reading its own previous "
         "command (--previous-command: under the aruco profile's acceleration limits the applied "

@@ -2,7 +2,7 @@ r"""Choose the drive-aware filtered PPC's lookahead on training layouts (paper, 
 
 Usage::
 
-    python -m experiments.studies.tune_filtered [--out results/tune_filtered] [--episodes 12]
+    python -m experiments.studies.tune_filtered [--out results/tune_filtered] [--episodes 40]
         [--workers 2] [--scenario NAME ...] [--tau-r 0.1 0.2 ...] [--phi 0 1]
         [--table baselines/data/filtered_ppc_drive.yaml] [--max-steps N] [--quick]
 
@@ -31,6 +31,11 @@ another is strictly better.
 
 Outputs: the table, and ``OUT/tune_filtered.md`` (the grid: successes per scenario and the
 objective per point).
+
+``python -m experiments.studies.tune_filtered report [--seeds 20]`` then evaluates, on the
+paper's studies the search never saw (A, B, C; ideal and aruco), the filtered PPC, the
+drive-aware one and each half of the change alone (:func:`report_policies`), and writes
+``OUT/report.md`` (:func:`run_report`).
 """
 
 from __future__ import annotations
@@ -46,14 +51,26 @@ from typing import Any
 import yaml
 
 import platoon_env
+from baselines.filtered_ppc import FilterParams
 from baselines.filtered_ppc_drive import DEFAULT_TABLE, TABLE_KEYS, load_drive_table
 from experiments.cli import count
 from experiments.grid import Cell, run_grid, store_path
 from experiments.policies import PolicySpec
+from experiments.significance import compare, task_rate
 from experiments.stamp import metadata_stamp
 from experiments.studies.tune_ppc import TIE_BREAK, check_training_scenario, objective_value
+from experiments.suites import suite
 
-__all__ = ["DEFAULT_SCENARIOS", "PROFILE", "best_point", "grid_cells", "main", "table_text"]
+__all__ = [
+    "DEFAULT_SCENARIOS",
+    "PROFILE",
+    "best_point",
+    "grid_cells",
+    "main",
+    "report_policies",
+    "run_report",
+    "table_text",
+]
 
 #: The residual configurations' training tiers (a formation drawn per layout).
 DEFAULT_SCENARIOS: tuple[str, ...] = (
@@ -62,8 +79,8 @@ DEFAULT_SCENARIOS: tuple[str, ...] = (
 )
 #: The sensor profile the search runs under.
 PROFILE = "aruco"
-DEFAULT_TAU_R: tuple[float, ...] = (0.1, 0.2, 0.3, 0.5, 0.7, 1.0)
-DEFAULT_PHI: tuple[float, ...] = (0.0, 1.0)
+DEFAULT_TAU_R: tuple[float, ...] = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
+DEFAULT_PHI: tuple[float, ...] = (0.0, 0.5, 1.0)
 COMMAND = "python -m experiments.studies.tune_filtered"
 
 
@@ -122,12 +139,109 @@ def table_text(provenance: dict[str, Any], params: dict[str, float], grid: list[
     return header + yaml.safe_dump(body, sort_keys=False, width=100)
 
 
+# ----------------------------------------------------------------------------------------------
+# The report: the paper's studies, never seen by the search
+# ----------------------------------------------------------------------------------------------
+
+
+def report_policies() -> dict[str, PolicySpec]:
+    """The report's columns: the filtered PPC, the drive-aware one (the table's point), and
+    the two halves of the change alone (the table's ``tau_r`` with ``phi = 1``; ``phi = 0``
+    with the filtered PPC's ``tau_r``)."""
+    table = load_drive_table()
+    tau_r, phi = table.lookahead_rate_limited, table.lookahead_predecessor
+    own = FilterParams.LOOKAHEAD_RATE_LIMITED
+    return {
+        "filtered PPC": PolicySpec.of("filtered_ppc"),
+        "drive-aware filtered PPC": PolicySpec.of("filtered_ppc_drive"),
+        f"tau_r = {tau_r:g} s alone (phi = 1)": _spec(tau_r, 1.0),
+        f"phi = {phi:g} alone (tau_r = {own:g} s)": _spec(own, phi),
+    }
+
+
+def run_report(args: argparse.Namespace) -> int:
+    """Every report policy on the paper suite (studies A, B, C; ideal and aruco), seeds
+    ``0..seeds-1``; writes ``OUT/report.md``: successes with Wilson intervals, and the
+    drive-aware law against the filtered PPC per task (Fisher's exact test, Holm over the six
+    tasks)."""
+    specs = report_policies()
+    paper = suite("paper")
+    cells = {
+        (name, f"{scenario}/{cond.label}", seed): Cell.of(spec, scenario, seed, cond.overrides)
+        for name, spec in specs.items()
+        for cond in paper.conditions
+        for scenario in paper.scenarios
+        for seed in range(args.seeds)
+    }
+    stamp = metadata_stamp("tune_filtered report", {"seeds": args.seeds}, None)
+    args.out.mkdir(parents=True, exist_ok=True)
+    result = run_grid(
+        store_path(args.out), list(cells.values()), tool="tune_filtered report", stamp=stamp,
+        workers=args.workers, batch=args.batch,
+    )  # fmt: skip
+    key_of = {rc.cell: rc.key for rc in result.cells}
+    counts: dict[str, dict[str, list[int]]] = {}
+    for (name, task, _seed), cell in cells.items():
+        rec = result.records.get(key_of[cell])
+        if rec is None or rec.status != "done":
+            continue
+        k_n = counts.setdefault(name, {}).setdefault(task, [0, 0])
+        k_n[0] += bool(rec.metrics.get("success"))
+        k_n[1] += 1
+    rates = {n: {t: (k, m) for t, (k, m) in per.items()} for n, per in counts.items()}
+    tasks = [f"{s}/{c.label}" for c in paper.conditions for s in paper.scenarios]
+    names = list(specs)
+    lines = [
+        f"The paper's studies, seeds 0..{args.seeds - 1} (made by `{COMMAND} report`; store "
+        f"`{store_path(args.out)}`, run {result.run_id}, {result.ran} episodes run now, "
+        f"{result.reused} reused). Success: successes/episodes [95 % Wilson interval].",
+        "",
+        "| task | " + " | ".join(names) + " |",
+        "|---|" + "---|" * len(names),
+    ]
+    for task in tasks:
+        row = [str(task_rate(*rates[n][task])) if task in rates.get(n, {}) else "–"
+               for n in names]  # fmt: skip
+        lines.append(f"| {task} | " + " | ".join(row) + " |")
+    a, b = names[1], names[0]
+    lines += [
+        "",
+        f"{a} against {b}, per task: difference in success [95 % Newcombe interval], "
+        "Fisher's exact p, Holm-adjusted over the tasks tested (ties at the floor or the "
+        "ceiling are flagged, not tested).",
+        "",
+        "| task | difference | p | p (Holm) | verdict |",
+        "|---|---|---|---|---|",
+    ]
+    for c in compare(rates, [(a, b)]):
+        d = c.difference
+        lines.append(
+            f"| {c.task} | {d.value:+.2f} [{d.low:+.2f}, {d.high:+.2f}] | "
+            f"{'–' if c.tie else f'{c.p_value:.2g}'} | {'–' if c.tie else f'{c.p_holm:.2g}'} | "
+            f"{c.verdict} |"
+        )
+    text = "\n".join(lines) + "\n"
+    (args.out / "report.md").write_text(text)
+    print(text)
+    return 1 if result.failed or result.interrupted else 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    given = list(sys.argv[1:] if argv is None else argv)
+    if given[:1] == ["report"]:
+        rp = argparse.ArgumentParser(
+            prog=f"{COMMAND} report", description=run_report.__doc__, allow_abbrev=False
+        )
+        rp.add_argument("--out", type=Path, default=Path("results/tune_filtered"))
+        rp.add_argument("--seeds", type=count(1), default=20)
+        rp.add_argument("--workers", type=count(1), default=2)
+        rp.add_argument("--batch", type=count(0), default=20, help="episodes per batched core")
+        return run_report(rp.parse_args(given[1:]))
     ap = argparse.ArgumentParser(
         prog=COMMAND, description=__doc__.split("\n\n")[0], allow_abbrev=False
     )
     ap.add_argument("--out", type=Path, default=Path("results/tune_filtered"))
-    ap.add_argument("--episodes", type=count(1), default=None, help="seeds per scenario (12)")
+    ap.add_argument("--episodes", type=count(1), default=None, help="seeds per scenario (40)")
     ap.add_argument("--workers", type=count(1), default=2)
     ap.add_argument("--scenario", nargs="+", default=list(DEFAULT_SCENARIOS))
     ap.add_argument("--tau-r", type=float, nargs="+", default=list(DEFAULT_TAU_R))
@@ -136,7 +250,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--max-steps", type=count(1), default=None, help="a shorter step limit (tests)")
     ap.add_argument("--quick", action="store_true", help="a smoke run: 2 seeds per scenario")
     args = ap.parse_args(argv)
-    episodes = args.episodes or (2 if args.quick else 12)
+    episodes = args.episodes or (2 if args.quick else 40)
     for name in args.scenario:
         try:
             check_training_scenario(name)
