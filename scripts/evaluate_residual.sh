@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# The residual configurations (residual_ppc, residual_filtered_aruco; docs/training.md) beside
-# the PPC law and the filtered PPC on the paper's studies A, B and C, 20 episodes per task:
+# The residual configurations (residual_ppc, residual_filtered_aruco, residual_drive_aruco;
+# docs/training.md) beside the PPC law, the filtered PPC and the drive-aware filtered PPC on the
+# paper's studies A, B and C, 20 episodes per task:
 #   bash scripts/evaluate_residual.sh [ideal] [aruco]      # default: both conditions
 #   bash scripts/evaluate_residual.sh --shipped [...]      # the shipped models/ runs
 # Trains what runs/sweep lacks first (platoon-sweep: five seeds each, finished runs kept; about
-# 25 minutes on 2 cores), draws their learning curves (docs/figures/learning_curves_residual.png),
+# 80 minutes on 2 cores), draws their learning curves (docs/figures/learning_curves_residual.png),
 # then evaluates (with --shipped: no training, the runs the README's tables evaluated, as
 # shipped in models/<config>_s<seed>): results/residual_paper_<condition>/summary.md (one row
 # per configuration, the successes of each training seed in its "by training seed" column) and
@@ -13,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY="${PYTHON:-python}"
-CONFIGS=(residual_ppc residual_filtered_aruco)
+CONFIGS=(residual_ppc residual_filtered_aruco residual_drive_aruco)
 SHIPPED_RUNS=0
 if [ "${1:-}" = --shipped ]; then SHIPPED_RUNS=1; shift; fi
 CONDITIONS=("$@")
@@ -34,11 +35,11 @@ for config in "${CONFIGS[@]}"; do
     POLICIES+=(--policy "${config}_s${seed}=${run}")
   done
 done
-POLICIES+=(--policy ppc --policy filtered_ppc)
+POLICIES+=(--policy ppc --policy filtered_ppc --policy filtered_ppc_drive)
 for c in "${CONDITIONS[@]}"; do
   realism=()
   [ "$c" = aruco ] && realism=(--sensor-profile aruco)
   "$PY" -m experiments.studies.evaluate "${POLICIES[@]}" "${realism[@]}" \
     --scenario study_a --scenario study_b --scenario study_c --episodes 20 \
-    --out "results/residual_paper_$c" --no-plots --workers 2
+    --out "results/residual_paper_$c" --no-plots --workers 2 --batch 20
 done
