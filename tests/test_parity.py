@@ -49,3 +49,28 @@ def test_a_run_with_a_model_resumes(tmp_path: Path) -> None:
     assert "--resume" not in train_args("fast", "study_c", 10, 0, tmp_path)
     (tmp_path / "model.zip").write_bytes(b"")
     assert "--resume" in train_args("fast", "study_c", 10, 0, tmp_path)
+
+
+def test_the_sb3_schedule_variant_is_the_fast_engine_on_sb3s_update_schedule(
+    tmp_path: Path,
+) -> None:
+    args = train_args("fast_sb3_schedule", "procedural_medium_train", 10, 0, tmp_path)
+    assert args[:2] == ["--engine", "fast"]
+    opts = dict(zip(args[2:12:2], args[3:12:2], strict=True))
+    assert opts == {"--n-envs": "64", "--n-steps": "32", "--batch-size": "256",
+                    "--n-epochs": "10", "--learning-rate": "3e-4"}  # fmt: skip
+    # the same rollout as SB3's 4 copies x 512 steps: 64 x 32
+    assert 64 * 32 == 4 * 512
+    assert train_args("sb3", "study_c", 10, 0, tmp_path)[:3] == ["--engine", "sb3", "--algo"]
+
+
+def test_each_fast_variant_gets_a_verdict() -> None:
+    rates = {
+        "sb3": [0.5, 0.6, 0.55],
+        "fast": [0.0, 0.0, 0.01],
+        "fast_sb3_schedule": [0.52, 0.58, 0.6],
+    }
+    text = report(rates, [0, 1, 2], _args(), {"argv": []})
+    assert "- fast - sb3:" in text and "**not within noise**" in text
+    assert "- fast_sb3_schedule - sb3:" in text and "**within noise**" in text
+    assert "| fast_sb3_schedule |" in text

@@ -1,15 +1,25 @@
 """The fast learner against Stable-Baselines3 at equal transitions (``python -m
 experiments.studies.parity``).
 
-Both engines train PPO with their own defaults (``platoon-train --engine sb3``: SB3's 4 env
-copies and 256-sample minibatches; ``--engine fast``: :class:`training.fast_ppo.FastPPOConfig`'s
-512 copies and 8,192-sample minibatches) on one training scenario, with the same observation,
-reward, control period and number of follower transitions, for the same training seeds. Each
-run is one ``platoon-train`` process into ``OUT/<engine>/s<seed>`` (resumed when it holds a
-model, as ``platoon-sweep`` does). The comparison is the team success rate of the training
+Three learners (:data:`VARIANTS`) train PPO on one training scenario, with the same
+observation, reward, control period and number of follower transitions, for the same training
+seeds:
+
+* ``sb3``: ``platoon-train --engine sb3`` at its defaults (4 env copies, rollouts of 512 steps,
+  256-sample minibatches, 10 epochs, learning rate 3e-4);
+* ``fast``: ``--engine fast`` at :class:`training.fast_ppo.FastPPOConfig`'s defaults (512
+  copies, 64 steps, 8,192-sample minibatches, 5 epochs, 1e-3): built for throughput, about
+  sixty times fewer gradient steps per transition than SB3;
+* ``fast_sb3_schedule``: the fast engine on SB3's update schedule: a rollout of the same size
+  (64 copies x 32 steps instead of 4 x 512), 256-sample minibatches, 10 epochs, 3e-4, so as
+  many gradient steps per transition as SB3 takes. This is the parity check of the
+  implementation: the same algorithm, the same schedule, another engine.
+
+Each run is one ``platoon-train`` process into ``OUT/<variant>/s<seed>`` (resumed when it holds
+a model, as ``platoon-sweep`` does). The comparison is the team success rate of the training
 episodes in ``progress.csv`` (``training.curves``), averaged over each run's last ``--tail``
-logged windows: per engine the mean over seeds, the difference (fast - SB3) with Welch's t-test
-and its 95 % interval. "Within noise" means that interval contains 0.
+logged windows: per variant the mean over seeds, and each fast variant's difference from SB3
+with Welch's t-test and its 95 % interval. "Within noise" means that interval contains 0.
 
 Outputs: ``OUT/parity.md`` (the table, the test and the command) and ``OUT/parity.png`` (the
 learning curves of both engines, mean over seeds with the band from the lowest to the highest
@@ -35,17 +45,40 @@ import numpy as np
 from experiments.cli import count
 from experiments.stamp import REPO_ROOT, metadata_stamp, png_metadata, stamp_markdown
 
-__all__ = ["ENGINES", "main", "tail_success", "train_args"]
+__all__ = ["ENGINES", "VARIANTS", "main", "tail_success", "train_args"]
 
-#: The engines compared, by ``platoon-train --engine`` name.
-ENGINES = ("sb3", "fast")
+#: The learners compared: name -> (``platoon-train --engine``, its extra options).
+VARIANTS: dict[str, tuple[str, tuple[str, ...]]] = {
+    "sb3": ("sb3", ()),
+    "fast": ("fast", ()),
+    "fast_sb3_schedule": (
+        "fast",
+        (
+            "--n-envs",
+            "64",
+            "--n-steps",
+            "32",
+            "--batch-size",
+            "256",
+            "--n-epochs",
+            "10",
+            "--learning-rate",
+            "3e-4",
+        ),
+    ),
+}
+#: The variants' names, the reference first.
+ENGINES = tuple(VARIANTS)
 
 
-def train_args(engine: str, scenario: str, timesteps: int, seed: int, out: Path) -> list[str]:
-    """The ``platoon-train`` arguments of one run (``--resume`` when ``out`` holds a model)."""
+def train_args(variant: str, scenario: str, timesteps: int, seed: int, out: Path) -> list[str]:
+    """The ``platoon-train`` arguments of one run of ``variant`` (:data:`VARIANTS`;
+    ``--resume`` when ``out`` holds a model)."""
+    engine, extra = VARIANTS[variant]
     args = [
         "--engine",
         engine,
+        *extra,
         "--algo",
         "ppo",
         "--scenario",
@@ -104,27 +137,37 @@ def report(
     """The markdown of ``parity.md``."""
     from scipy import stats
 
-    sb3, fast = np.array(rates["sb3"]), np.array(rates["fast"])
-    test = stats.ttest_ind(fast, sb3, equal_var=False)
-    interval = test.confidence_interval(0.95)
-    if np.isnan(test.pvalue):  # both engines' rates constant: no variance to test
-        verdict = "no variance to test (every run of each engine has the same rate)"
-    elif interval.low <= 0.0 <= interval.high:
-        verdict = "**within noise** (the interval contains 0)"
-    else:
-        verdict = "**not within noise**"
+    sb3 = np.array(rates["sb3"])
+    verdicts = []
+    for variant in [v for v in rates if v != "sb3"]:
+        fast = np.array(rates[variant])
+        test = stats.ttest_ind(fast, sb3, equal_var=False)
+        interval = test.confidence_interval(0.95)
+        if np.isnan(test.pvalue):  # both rates constant: no variance to test
+            verdict = "no variance to test (every run of each engine has the same rate)"
+        elif interval.low <= 0.0 <= interval.high:
+            verdict = "**within noise** (the interval contains 0)"
+        else:
+            verdict = "**not within noise**"
+        verdicts.append(
+            f"- {variant} - sb3: {float(fast.mean() - sb3.mean()):+.3f}, Welch's t-test p = "
+            f"{float(test.pvalue):.3f}, 95 % interval [{interval.low:+.3f}, "
+            f"{interval.high:+.3f}]: {verdict}."
+        )
     lines = [
         "# The fast learner against SB3 at equal transitions",
         "",
         f"PPO on `{args.scenario}` (task-aware observations, ideal sensing), "
         f"{args.timesteps:,} follower transitions per run, training seeds "
-        f"{', '.join(map(str, seeds))}; each engine with its own defaults. Team success rate of "
-        f"the training episodes over each run's last {args.tail} logged windows.",
+        f"{', '.join(map(str, seeds))}; the variants as the driver's docstring defines them "
+        "(`fast_sb3_schedule`: the fast engine on SB3's rollout size, minibatches, epochs and "
+        f"learning rate). Team success rate of the training episodes over each run's last "
+        f"{args.tail} logged windows.",
         "",
-        "| engine | " + " | ".join(f"seed {s}" for s in seeds) + " | mean |",
+        "| learner | " + " | ".join(f"seed {s}" for s in seeds) + " | mean |",
         "|---|" + "---|" * (len(seeds) + 1),
     ]
-    for engine in ENGINES:
+    for engine in rates:
         values = rates[engine]
         lines.append(
             f"| {engine} | "
@@ -133,9 +176,7 @@ def report(
         )
     lines += [
         "",
-        f"Difference fast - SB3: {float(fast.mean() - sb3.mean()):+.3f}, Welch's t-test p = "
-        f"{float(test.pvalue):.3f}, 95 % interval [{interval.low:+.3f}, {interval.high:+.3f}]: "
-        f"{verdict}.",
+        *verdicts,
         "",
         "![learning curves](parity.png)",
         "",
@@ -161,6 +202,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--tail", type=count(1, "tail"), default=5, help="logged windows averaged at the end"
     )
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        choices=ENGINES,
+        default=list(ENGINES),
+        help="the learners compared (sb3 always included: the reference)",
+    )
     return parser
 
 
@@ -175,7 +223,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     # the two engines side by side, one core each
     with ThreadPoolExecutor(2) as pool:
-        futures = {e: [pool.submit(_train, e, args, s) for s in args.seeds] for e in ENGINES}
+        variants = ["sb3", *(v for v in ENGINES if v in args.variants and v != "sb3")]
+        futures = {e: [pool.submit(_train, e, args, s) for s in args.seeds] for e in variants}
         progress = {e: [f.result() for f in fs] for e, fs in futures.items()}
     rates = {e: [tail_success(p, args.tail) for p in files] for e, files in progress.items()}
     stamp = metadata_stamp(
