@@ -117,6 +117,7 @@ def test_configs_are_named_by_their_keys() -> None:
         "residual_ppc",
         "residual_filtered_aruco",
         "residual_filtered_aruco_cmd",
+        "residual_drive_aruco",
     }
     for name, config in CONFIGS.items():
         assert config.name == name and config.summary
@@ -132,8 +133,13 @@ def test_every_config_parses_and_resolves(name: str) -> None:
     # the SB3 configurations train under aruco (30 Hz frames), the clones with ideal sensing
     aruco = cfg.engine == "sb3" or name.endswith(("_aruco", "_aruco_cmd"))
     assert cfg.sensor_profile == ("aruco" if aruco else None)
-    residual = "filtered_ppc" if name.startswith("residual_filtered") else "ppc"
-    assert cfg.residual == (residual if name.startswith("residual") else None)
+    residual = {
+        "residual_ppc": "ppc",
+        "residual_filtered_aruco": "filtered_ppc",
+        "residual_filtered_aruco_cmd": "filtered_ppc",
+        "residual_drive_aruco": "filtered_ppc_drive",
+    }
+    assert cfg.residual == residual.get(name)
     assert cfg.control_period <= 1 / 30
     assert cfg.scale_free_observations == (
         name.startswith(("bc_ppo_formations", "bc_ppo_mixed", "residual"))
@@ -150,6 +156,7 @@ def test_every_config_parses_and_resolves(name: str) -> None:
             "residual_ppc": "ppo",
             "residual_filtered_aruco": "ppo",
             "residual_filtered_aruco_cmd": "ppo",
+            "residual_drive_aruco": "ppo",
         }[name]
     )
     assert cfg.timesteps >= 1
