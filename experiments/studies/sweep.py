@@ -270,6 +270,7 @@ SHIPPED: tuple[str, ...] = (
     "lag_ta_aruco",
     "residual_ppc",
     "residual_filtered_aruco",
+    "residual_drive_aruco",
 )
 
 #: The seeds of a sweep unless ``--seeds`` says otherwise.
