@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments.studies.parity import report, tail_success, train_args
+from experiments.studies.parity import report, tail_success, train_args, wall_time
 from training.curves import PROGRESS_COLUMNS
 
 
@@ -74,3 +74,16 @@ def test_each_fast_variant_gets_a_verdict() -> None:
     assert "- fast - sb3:" in text and "**not within noise**" in text
     assert "- fast_sb3_schedule - sb3:" in text and "**within noise**" in text
     assert "| fast_sb3_schedule |" in text
+
+
+def test_wall_times_are_a_column_with_the_throughput(tmp_path: Path) -> None:
+    progress = _progress(tmp_path / "progress.csv", ["0.1", "0.2", "0.3"])
+    assert wall_time(progress) == 2.0  # the last window's wall time
+    rates = {"sb3": [0.5, 0.6, 0.55], "fast": [0.5, 0.55, 0.6]}
+    walls = {"sb3": [100.0, 200.0, 300.0], "fast": [10.0, 20.0, 40.0]}
+    args = _args()
+    text = report(rates, [0, 1, 2], args, {"argv": []}, walls)
+    assert "median wall time [s] | transitions/s |" in text
+    assert f"| 200 | {args.timesteps / 200:,.0f} |" in text  # sb3's median
+    assert f"| 20 | {args.timesteps / 20:,.0f} |" in text
+    assert "median wall time" not in report(rates, [0, 1, 2], args, {"argv": []})

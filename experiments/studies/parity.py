@@ -45,7 +45,7 @@ import numpy as np
 from experiments.cli import count
 from experiments.stamp import REPO_ROOT, metadata_stamp, png_metadata, stamp_markdown
 
-__all__ = ["ENGINES", "VARIANTS", "main", "tail_success", "train_args"]
+__all__ = ["ENGINES", "VARIANTS", "main", "tail_success", "train_args", "wall_time"]
 
 #: The learners compared: name -> (``platoon-train --engine``, its extra options).
 VARIANTS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -131,10 +131,24 @@ def _train(engine: str, args: argparse.Namespace, seed: int) -> Path:
     return out / "progress.csv"
 
 
+def wall_time(progress: Path) -> float:
+    """The run's training wall time in seconds: the last ``wall_time_s`` of ``progress``."""
+    from training.curves import read_progress
+
+    wall = read_progress(progress)["wall_time_s"]
+    if wall.size == 0:
+        raise ValueError(f"{progress}: no logged window")
+    return float(wall[-1])
+
+
 def report(
-    rates: dict[str, list[float]], seeds: Sequence[int], args: argparse.Namespace, stamp: Any
+    rates: dict[str, list[float]],
+    seeds: Sequence[int],
+    args: argparse.Namespace,
+    stamp: Any,
+    walls: dict[str, list[float]] | None = None,
 ) -> str:
-    """The markdown of ``parity.md``."""
+    """The markdown of ``parity.md`` (``walls``: each run's wall time, a column when given)."""
     from scipy import stats
 
     sb3 = np.array(rates["sb3"])
@@ -164,20 +178,37 @@ def report(
         f"learning rate). Team success rate of the training episodes over each run's last "
         f"{args.tail} logged windows.",
         "",
-        "| learner | " + " | ".join(f"seed {s}" for s in seeds) + " | mean |",
-        "|---|" + "---|" * (len(seeds) + 1),
+        "| learner | "
+        + " | ".join(f"seed {s}" for s in seeds)
+        + " | mean |"
+        + (" median wall time [s] | transitions/s |" if walls else ""),
+        "|---|" + "---|" * (len(seeds) + 1 + (2 if walls else 0)),
     ]
     for engine in rates:
         values = rates[engine]
-        lines.append(
+        row = (
             f"| {engine} | "
             + " | ".join(f"{v:.3f}" for v in values)
             + f" | {float(np.mean(values)):.3f} |"
         )
+        if walls:
+            wall = float(np.median(walls[engine]))
+            row += f" {wall:.0f} | {args.timesteps / wall:,.0f} |"
+        lines.append(row)
     lines += [
         "",
         *verdicts,
         "",
+        *(
+            [
+                "Wall time: each run's training time from its `progress.csv` (collection and "
+                "updates, one torch thread), the runs two at a time on this machine's two "
+                "cores, so each learner had about one core.",
+                "",
+            ]
+            if walls
+            else []
+        ),
         "![learning curves](parity.png)",
         "",
         stamp_markdown(stamp),
@@ -227,12 +258,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         futures = {e: [pool.submit(_train, e, args, s) for s in args.seeds] for e in variants}
         progress = {e: [f.result() for f in fs] for e, fs in futures.items()}
     rates = {e: [tail_success(p, args.tail) for p in files] for e, files in progress.items()}
+    walls = {e: [wall_time(p) for p in files] for e, files in progress.items()}
     stamp = metadata_stamp(
         "python -m experiments.studies.parity", {k: str(v) for k, v in vars(args).items()}, argv
     )
     out = Path(args.out)
     plot_learning_curves(progress, out / "parity.png", metadata=png_metadata(stamp))
-    (out / "parity.md").write_text(report(rates, args.seeds, args, stamp), encoding="utf-8")
+    (out / "parity.md").write_text(report(rates, args.seeds, args, stamp, walls), encoding="utf-8")
     print(f"wrote {out / 'parity.md'}, {out / 'parity.png'}")
     return 0
 
