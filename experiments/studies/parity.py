@@ -202,8 +202,9 @@ def report(
         *(
             [
                 "Wall time: each run's training time from its `progress.csv` (collection and "
-                "updates, one torch thread), the runs two at a time on this machine's two "
-                "cores, so each learner had about one core.",
+                "updates, one torch thread); the driver trains two runs at a time, and what "
+                "else the machine ran is not recorded, so compare the learners with each "
+                "other (`benchmarks/train_speed.py` measures speed on a quiet machine).",
                 "",
             ]
             if walls
