@@ -80,9 +80,8 @@ MODEL_FINGERPRINTS: dict[str, str | None] = {
         for seed in range(5)
     },
     **{
-        f"residual_filtered_aruco_s{seed}": (
-            "5185ad39c27476504406bd51231793ec358984dd5981e6bac951aa08799440aa"
-        )
+        f"{config}_s{seed}": "5185ad39c27476504406bd51231793ec358984dd5981e6bac951aa08799440aa"
+        for config in ("residual_filtered_aruco", "residual_drive_aruco")
         for seed in range(5)
     },
 }
