@@ -79,6 +79,10 @@ def test_each_fast_variant_gets_a_verdict() -> None:
 def test_wall_times_are_a_column_with_the_throughput(tmp_path: Path) -> None:
     progress = _progress(tmp_path / "progress.csv", ["0.1", "0.2", "0.3"])
     assert wall_time(progress) == 2.0  # the last window's wall time
+    # a resumed run: its second segment counts from 0 again
+    with progress.open("a") as f:
+        f.write("4000,0.5,1,0.0,0.4,0.0,\n")
+    assert wall_time(progress) == 2.5
     rates = {"sb3": [0.5, 0.6, 0.55], "fast": [0.5, 0.55, 0.6]}
     walls = {"sb3": [100.0, 200.0, 300.0], "fast": [10.0, 20.0, 40.0]}
     args = _args()

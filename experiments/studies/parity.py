@@ -132,13 +132,16 @@ def _train(engine: str, args: argparse.Namespace, seed: int) -> Path:
 
 
 def wall_time(progress: Path) -> float:
-    """The run's training wall time in seconds: the last ``wall_time_s`` of ``progress``."""
+    """The run's training wall time in seconds, from the ``wall_time_s`` column of
+    ``progress``: each segment of a resumed run counts from 0 again, so the time is the sum of
+    each segment's last value (a segment ends where the column drops)."""
     from training.curves import read_progress
 
     wall = read_progress(progress)["wall_time_s"]
     if wall.size == 0:
         raise ValueError(f"{progress}: no logged window")
-    return float(wall[-1])
+    ends = np.flatnonzero(np.diff(wall) < 0)  # the last row of every segment but the last
+    return float(wall[ends].sum() + wall[-1])
 
 
 def report(
