@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import ast
+import math
 
 import pytest
 
 import platoon_env
-from experiments.studies.cards import _observation_option, _profile, _training_summary
+from experiments.studies.cards import (
+    _observation_option,
+    _profile,
+    _training_summary,
+    core_hours,
+    training_cores,
+)
 from platoon_env.observation import OBS_NAMES, OBS_NAMES_SCALE_FREE, OBS_NAMES_TASK
 
 
@@ -37,3 +44,16 @@ def test_the_training_lines_name_the_trainer_and_the_residual_law() -> None:
     )
     assert "trained by `training.fast_ppo`" in fast[0] and "residual on the `ppc` law" in fast[0]
     assert "64 env copies" in fast[2]
+
+
+def test_core_hours_count_every_core_a_run_occupied() -> None:
+    fast = {"wall_time_s": 1800.0, "config": {"env_threads": 2, "torch_threads": 1}}
+    assert training_cores(fast["config"]) == 2 and core_hours(fast) == pytest.approx(1.0)
+    rllib = {"engine": "rllib", "num_env_runners": 3, "num_learners": 1, "torch_threads": 1}
+    assert training_cores(rllib) == 4
+    assert training_cores({}) == 1
+    assert math.isnan(core_hours({"config": {}}))
+    line = _training_summary(
+        {"algo": "ppo", "timesteps": 10, "wall_time_s": 7200.0, "config": {"n_envs": 4}}
+    )[2]
+    assert "2.00 core-hours on 1 core(s)" in line

@@ -26,7 +26,36 @@ from training.curves import plot_learning_curves, read_progress
 if TYPE_CHECKING:
     from experiments.studies.board import Board, Entry
 
-__all__ = ["card_markdown", "index_markdown", "write_cards"]
+__all__ = ["card_markdown", "core_hours", "index_markdown", "training_cores", "write_cards"]
+
+
+def training_cores(cfg: Mapping[str, Any]) -> int:
+    """The CPU cores a recorded training run occupied, from its ``model.json`` ``config``.
+
+    The trainer's process alternates the simulator (``env_threads`` numba threads) and torch
+    (``torch_threads``), so it occupies the larger of the two; an RLlib run adds one process per
+    env runner (``num_env_runners``) and per learner beyond the first (``num_learners``).
+    """
+
+    def count(key: str, default: int) -> int:
+        value = cfg.get(key)
+        return int(value) if isinstance(value, int) and not isinstance(value, bool) else default
+
+    cores = max(count("env_threads", 1), count("torch_threads", 1), 1)
+    if cfg.get("engine") == "rllib":
+        cores += count("num_env_runners", 0) + max(count("num_learners", 0) - 1, 0)
+    return cores
+
+
+def core_hours(meta: Mapping[str, Any]) -> float:
+    """A run's compute: its wall time (all segments) times :func:`training_cores`, in hours.
+
+    NaN when ``model.json`` records no wall time.
+    """
+    wall = meta.get("wall_time_s")
+    if not isinstance(wall, (int, float)) or isinstance(wall, bool):
+        return math.nan
+    return float(wall) * training_cores(meta.get("config") or {}) / 3600.0
 
 
 def _training_summary(meta: Mapping[str, Any]) -> list[str]:
@@ -61,7 +90,8 @@ def _training_summary(meta: Mapping[str, Any]) -> list[str]:
         + (" (task-aware)" if cfg.get("task_aware_observations") else ""),
         f"- seed {meta.get('seed')}; {meta.get('timesteps'):,} follower transitions in "
         f"{wall / 60:.1f} min ({meta.get('timesteps_per_s', math.nan):.0f} transitions/s, "
-        f"{cfg.get('n_envs', '?')} env copies); code "
+        f"{cfg.get('n_envs', '?')} env copies; {core_hours(meta):.2f} core-hours on "
+        f"{training_cores(cfg)} core(s)); code "
         f"`{str(meta.get('git_commit') or '?')[:12]}`"
         + (" (dirty)" if meta.get("git_dirty") else ""),
         f"- network: {net} MLP; learning rate {cfg.get('learning_rate')}, "
@@ -188,10 +218,10 @@ def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
         "The cards, this table and the learning curves are written by "
         "`python -m experiments.studies.leaderboard`.",
         "",
-        "| model | configuration | seed | transitions | wall time | "
+        "| model | configuration | seed | transitions | wall time | core-hours | "
         + " | ".join(f"{s} success" for s in SUITES)
         + " |",
-        "|---|---|---|---|---|" + "---|" * len(SUITES),
+        "|---|---|---|---|---|---|" + "---|" * len(SUITES),
     ]
     for e in board.entries:
         if not e.learned:
@@ -206,7 +236,9 @@ def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
                 rates.append(f"{ok}/{len(eps)}" if eps else "–")
             lines.append(
                 f"| [`{spec.name}`]({spec.name}/README.md) | `{e.name}` | {meta.get('seed')} | "
-                f"{meta.get('timesteps', 0):,} | {wall_min:.1f} min | " + " | ".join(rates) + " |"
+                f"{meta.get('timesteps', 0):,} | {wall_min:.1f} min | {core_hours(meta):.2f} | "
+                + " | ".join(rates)
+                + " |"
             )
     lines += ["", "Configurations:", ""]
     lines += [f"- `{k}`: {v}" for k, v in summaries.items()]
