@@ -189,7 +189,7 @@ def plot_errors(
         axes[r, 0].set_ylim(d_lo * 1.15, d_hi * 1.15)
         axes[r, 1].set_ylim(-b * 1.15, b * 1.15)
     if any(a.get_legend_handles_labels()[0] for a in axes[0]):
-        axes[0, 0].legend(loc="upper right", fontsize=7)
+        fig.legend(loc="outside right upper", fontsize=7)
 
 
 def plot_commands(
@@ -212,7 +212,7 @@ def plot_commands(
         axes[r, 0].set_ylabel(f"$u_{i}$ [m/s]")
         axes[r, 1].set_ylabel(f"$\\omega_{i}$ [rad/s]")
     if labels:
-        axes[0, 0].legend(loc="upper right", fontsize=7)
+        fig.legend(loc="outside right upper", fontsize=7)
 
 
 def save_figure(fig: Figure, path: str | Path, metadata: dict[str, str] | None = None) -> Path:

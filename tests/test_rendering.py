@@ -342,3 +342,43 @@ def test_procedural_layout_config_defaults_to_the_family_bounds() -> None:
         assert renderer.bounds == LAYOUT_BOUNDS
         shapes.add(renderer.frame_shape)
     assert shapes == {(*frame_size(LAYOUT_BOUNDS, 200), 3)}
+
+
+def test_error_and_command_figures_keep_their_legend_beside_the_axes(
+    corridor: dict, tmp_path: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The evaluator's errors and commands figures overlay only ``overlaid`` (the first
+    training seed of each configuration) and keep the legend outside the axes: a legend of
+    twenty-six policies inside the axes collapsed them to nothing."""
+    import platoon_env
+    from experiments.studies.evaluate import plot_scenario
+    from platoon_env.plots import new_figure, plot_commands, plot_errors
+    from platoon_env.rollout import run_episode
+
+    class Straight:
+        def reset(self, seed: int | None = None) -> None:
+            pass
+
+        def act(self, obs: dict) -> dict:
+            return {a: np.array([0.2, 0.0], dtype=np.float32) for a in obs}
+
+    env = platoon_env.make(corridor)
+    ep = run_episode(env, Straight(), seed=0, max_steps=40, record_signals=False)
+    for plot in (plot_errors, plot_commands):
+        fig = new_figure(9, 3)
+        plot(fig, env.scenario, [ep, ep], labels=["a", "b"])
+        assert [t.get_text() for t in fig.legends[0].get_texts()] == ["a", "b"]
+        assert not any(ax.get_legend() for ax in fig.axes)
+    import platoon_env.plots as plots
+
+    drawn: list[list[str]] = []
+
+    def spy(fig: Any, scenario: Any, episodes: Any, labels: Any = (), followers: Any = None):
+        drawn.append(list(labels))
+        return plot_errors(fig, scenario, episodes, labels=labels, followers=followers)
+
+    monkeypatch.setattr(plots, "plot_errors", spy)
+    episodes = {f"cfg_s{k}": ep for k in range(5)}
+    paths = plot_scenario(corridor, episodes, tmp_path, "c", overlaid=["cfg_s0", "cfg_s3"])
+    assert drawn == [["cfg_s0", "cfg_s3"]]
+    assert {p.name for p in paths} >= {"c_errors.png", "c_commands.png", "c_trajectories.png"}

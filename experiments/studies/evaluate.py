@@ -505,12 +505,16 @@ def plot_scenario(
     out: Path,
     slug: str | None = None,
     metadata: dict[str, str] | None = None,
+    overlaid: Sequence[str] | None = None,
 ) -> list[Path]:
     """Comparison plots of one scenario (one episode per policy) and a GIF per policy, into
     ``out`` under the file-name stem ``slug`` (default: the scenario's name); ``metadata``
     are the PNG text fields (the run's stamp). The trajectories are a grid of panels, one per
     policy, in as many columns as give the figure a landscape shape (:func:`_grid_columns`),
-    each titled with the policy and the episode's outcome, under one legend."""
+    each titled with the policy and the episode's outcome, under one legend. The errors and
+    commands figures overlay the episodes of ``overlaid`` (default: every policy; the
+    evaluator passes each configuration's first training seed, so that the lines stay
+    apart), with the legend beside the axes."""
     from platoon_env.plots import (
         new_figure,
         plot_commands,
@@ -540,12 +544,14 @@ def plot_scenario(
     paths = [save_figure(fig, out / f"{slug}_trajectories.png", metadata)]
     n = sc.config.followers
     followers = [1, n] if n > 2 else None
-    fig = new_figure(9, 1.2 + 1.4 * (len(followers) if followers else n))
-    plot_errors(fig, sc, eps, labels=names, followers=followers)
+    lines = [k for k in names if overlaid is None or k in overlaid] or names
+    line_eps = [episodes[k] for k in lines]
+    fig = new_figure(11, 1.2 + 1.4 * (len(followers) if followers else n))
+    plot_errors(fig, sc, line_eps, labels=lines, followers=followers)
     fig.suptitle(f"{scenario}, seed {eps[0].seed}: errors and safety limits (dashed)")
     paths.append(save_figure(fig, out / f"{slug}_errors.png", metadata))
-    fig = new_figure(9, 1.2 + 1.2 * (len(followers) if followers else n))
-    plot_commands(fig, sc, eps, labels=names, followers=followers)
+    fig = new_figure(11, 1.2 + 1.2 * (len(followers) if followers else n))
+    plot_commands(fig, sc, line_eps, labels=lines, followers=followers)
     fig.suptitle(f"{scenario}, seed {eps[0].seed}: velocity commands")
     paths.append(save_figure(fig, out / f"{slug}_commands.png", metadata))
     for name, ep in zip(names, eps, strict=True):
@@ -1131,10 +1137,10 @@ def _plots(
             while slug in slugs.values():
                 slug += "_"
             slugs[(s, c.label)] = slug
+    shown = _representatives(args.configurations)
     for key in tqdm(list(slugs), desc="plots", unit="plot set"):
         if groups[key]:
-            plot_scenario(key[0], groups[key], out, slugs[key], metadata)
-    shown = _representatives(args.configurations)
+            plot_scenario(key[0], groups[key], out, slugs[key], metadata, overlaid=shown)
     for c in args.conditions:
         several = len(args.conditions) > 1
         panels = [
