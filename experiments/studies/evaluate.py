@@ -19,7 +19,8 @@ run's wall time and says which code made them; every ``check_env`` note of the l
 in full at the end) and ``OUT/plots/`` (from the first seed's episodes: ``trajectories.png``,
 a grid of a column per scenario and a row per analytic law and configuration (its first
 training seed); per scenario, every policy's trajectories in a grid, the errors against the
-constraints, the velocity commands and a GIF per policy). The console gets one note line per
+constraints and the velocity commands of each analytic law and configuration (its first
+training seed), and a GIF per policy). The console gets one note line per
 configuration and scenario and, at the end, the wall time.
 
 With no arguments it runs the default benchmark: PPC against every shipped model
