@@ -38,10 +38,9 @@ def training_cores(cfg: Mapping[str, Any]) -> int:
     """
 
     def count(key: str, default: int) -> int:
-        value = cfg.get(key)
-        return int(value) if isinstance(value, int) and not isinstance(value, bool) else default
+        return int(cfg.get(key) or default)
 
-    cores = max(count("env_threads", 1), count("torch_threads", 1), 1)
+    cores = max(count("env_threads", 1), count("torch_threads", 1))
     if cfg.get("engine") == "rllib":
         cores += count("num_env_runners", 0) + max(count("num_learners", 0) - 1, 0)
     return cores
@@ -52,10 +51,8 @@ def core_hours(meta: Mapping[str, Any]) -> float:
 
     NaN when ``model.json`` records no wall time.
     """
-    wall = meta.get("wall_time_s")
-    if not isinstance(wall, (int, float)) or isinstance(wall, bool):
-        return math.nan
-    return float(wall) * training_cores(meta.get("config") or {}) / 3600.0
+    wall = float(meta.get("wall_time_s") or math.nan)  # as _training_summary reads it
+    return wall * training_cores(meta.get("config") or {}) / 3600.0
 
 
 def _training_summary(meta: Mapping[str, Any]) -> list[str]:
