@@ -687,6 +687,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             )
         except MissingExtraError as exc:
             parser.error(str(exc))
+    args.no_plots_reason = "--no-plots"
+    if not args.no_plots:
+        try:
+            require_extra("plot", "matplotlib", "imageio", purpose="drawing the plots and GIFs")
+        except MissingExtraError as exc:  # the episodes and tables need no plotting library
+            print(f"note: {exc}; running without them (--no-plots)", file=sys.stderr)
+            args.no_plots = True
+            args.no_plots_reason = "the [plot] extra is not installed"
     names = [p.name for p in args.policy]
     if len(set(names)) != len(names):
         parser.error(f"policy names must be unique, got {names}")
@@ -861,7 +869,10 @@ def _model_notes(args: argparse.Namespace) -> list[ModelNotes]:
     """What each learned model's ``check_env`` says of each scenario it is evaluated on (the
     legitimate differences from its training: another scenario family, more followers, ...),
     a :class:`ModelNotes` per configuration and scenario that has any. A refusal is not raised
-    here: the episodes record it (status ``refused``)."""
+    here: the episodes record it (status ``refused``). Without a model it imports nothing of
+    the ``[train]`` extra, so the analytic laws run on a plain install."""
+    if not any(spec.kind == MODEL for spec in args.policy):
+        return []
     from training.policies import LearnedPolicy
 
     by_pair: dict[tuple[str, str], ModelNotes] = {}
@@ -1078,7 +1089,7 @@ def _wall_time(
 ) -> str:
     """The run's wall time and its parts."""
     drawn = (
-        "no plots (--no-plots)"
+        f"no plots ({getattr(args, 'no_plots_reason', '--no-plots')})"
         if args.no_plots
         else "plots not drawn yet"
         if plots is None

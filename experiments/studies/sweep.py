@@ -40,6 +40,7 @@ from experiments.cli import count
 from experiments.names import by_name
 from experiments.report import file_stem
 from experiments.stamp import REPO_ROOT
+from platoon_env.extras import MissingExtraError, require_extra
 
 __all__ = [
     "CONFIGS",
@@ -488,6 +489,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{c.name}: {c.summary}\n    platoon-train {' '.join(c.args)}")
         return 0
     runs = Path(a.runs)
+    try:  # the curves are read with the training package; a run trains with it
+        if a.curves:
+            require_extra("plot", "matplotlib", purpose="--curves")
+        if not a.ship:
+            require_extra("train", "torch", "stable_baselines3", purpose="platoon-sweep")
+    except MissingExtraError as exc:
+        parser.error(str(exc))
     if a.curves:
         return 0 if curves(runs, a.config, a.seeds, Path(a.curves), argv) else 1
     if a.ship:
