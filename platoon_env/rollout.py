@@ -36,6 +36,8 @@ METRIC_NAMES: tuple[str, ...] = (
     "control_effort",
     "peak_u",
     "peak_omega",
+    "command_rate_u",
+    "command_rate_omega",
     "steps",
     "sim_time",
     "leader_arrived",
@@ -255,6 +257,10 @@ def episode_metrics(ep: Episode, transient: float = DEFAULT_TRANSIENT) -> dict[s
     * ``min_inter_robot_distance`` (any two robots), ``min_obstacle_clearance`` (followers);
     * ``control_effort``: mean over followers of the time integral of ``u² + omega²``;
       ``peak_u``, ``peak_omega``: the largest ``|u|``, ``|omega|`` commanded;
+      ``command_rate_u`` [m/s²], ``command_rate_omega`` [rad/s²]: the mean over followers and
+      consecutive steps of ``|Δu| / control_period``, ``|Δomega| / control_period`` (how fast the
+      commands change: a command that switches between its bounds every step is large here,
+      a smooth one small; 0 for an episode of one step);
     * ``lost_sight_steps``: follower-steps without visibility; ``funnel_exits`` (PPC only).
     """
     dt = ep.control_period
@@ -282,6 +288,7 @@ def episode_metrics(ep: Episode, transient: float = DEFAULT_TRANSIENT) -> dict[s
     min_pair = float(np.min(dist[:, iu[0], iu[1]]))
     u = ep.actions[:, :, 0]
     w = ep.actions[:, :, 1]
+    steps = u.shape[0] - 1  # consecutive pairs of commands
     first = ep.first_violation
     return {
         "success": bool(ep.leader_arrived and first is None),
@@ -296,6 +303,10 @@ def episode_metrics(ep: Episode, transient: float = DEFAULT_TRANSIENT) -> dict[s
         "control_effort": float(np.mean(np.sum(u**2 + w**2, axis=0) * dt)) if u.size else 0.0,
         "peak_u": float(np.max(np.abs(u))) if u.size else 0.0,
         "peak_omega": float(np.max(np.abs(w))) if w.size else 0.0,
+        "command_rate_u": float(np.mean(np.abs(np.diff(u, axis=0)))) / dt if steps > 0 else 0.0,
+        "command_rate_omega": (
+            float(np.mean(np.abs(np.diff(w, axis=0)))) / dt if steps > 0 else 0.0
+        ),
         "steps": ep.steps,
         "sim_time": float(ep.times[-1]),
         "leader_arrived": bool(ep.leader_arrived),

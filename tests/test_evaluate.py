@@ -133,6 +133,13 @@ def test_summary_counts_causes() -> None:
     text = summarise(rows)
     assert "| s | p | – | 2 | 0 | 1/2" in text and "occluded 1" in text
     assert text.rstrip().endswith("2 |")
+    rows[0] |= {"command_rate_u": "1.0", "command_rate_omega": "30"}
+    rows[1] |= {"command_rate_u": "3.0", "command_rate_omega": "50"}
+    assert "| 2.00 | 40.00 | 2 |" in summarise(rows)
+    # rows stored before the command rates existed have no value: the column says so
+    for row in rows:
+        row["command_rate_u"] = row["command_rate_omega"] = ""
+    assert "| – | – | 2 |" in summarise(rows)
 
 
 def _png_size(path: Path) -> tuple[int, int]:

@@ -54,3 +54,26 @@ def test_long_episode_is_scored_after_the_transient() -> None:
     m = episode_metrics(ep, transient=5.0)
     assert m["rms_e_d"] == pytest.approx(float(np.sqrt(np.mean((0.01 * k) ** 2))))
     assert m["max_abs_e_d"] == pytest.approx(0.8)
+
+
+def test_command_rates_measure_how_fast_the_commands_change() -> None:
+    """Chatter (u and omega switching between bounds every step) against a smooth ramp, and
+    the rates' units: per second of the control period."""
+    ep = _episode(1.0, dt=0.025)
+    steps = ep.actions.shape[0]
+    sign = np.where(np.arange(steps) % 2 == 0, 1.0, -1.0)
+    ep.actions[:, 0, 0] = 0.5 + sign  # -0.5 <-> 1.5 m/s
+    ep.actions[:, 0, 1] = 2.0 * sign  # -2 <-> 2 rad/s
+    m = episode_metrics(ep)
+    assert m["command_rate_u"] == pytest.approx(2.0 / 0.025)
+    assert m["command_rate_omega"] == pytest.approx(4.0 / 0.025)
+    ep.actions[:, 0, 0] = 0.1 * np.arange(steps)  # +0.1 m/s per step
+    ep.actions[:, 0, 1] = 0.3
+    m = episode_metrics(ep)
+    assert m["command_rate_u"] == pytest.approx(0.1 / 0.025)
+    assert m["command_rate_omega"] == 0.0
+
+
+def test_command_rates_of_a_one_step_episode_are_zero() -> None:
+    m = episode_metrics(_episode(0.1))
+    assert m["command_rate_u"] == 0.0 and m["command_rate_omega"] == 0.0

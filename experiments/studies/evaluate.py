@@ -322,8 +322,8 @@ def _summary_table(rows: Iterable[dict[str, str]]) -> str:
         "| scenario | policy | training seeds | episodes | seeds | success [95% CI] | "
         "by training seed | violations by cause | rms e_d [m] | rms e_beta [rad] | "
         "min clearance [m] | min robot distance [m] | peak u [m/s] | peak omega [rad/s] | "
-        "funnel exits |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "command rate u [m/s²] | command rate omega [rad/s²] | funnel exits |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for (scenario, policy), rs in sorted(groups.items()):
         n = len(rs)
@@ -355,9 +355,17 @@ def _summary_table(rows: Iterable[dict[str, str]]) -> str:
             f"{mean_ci(f('rms_e_d'))} | {mean_ci(f('rms_e_beta'))} | "
             f"{min(f('min_obstacle_clearance')):.3f} | {min(f('min_inter_robot_distance')):.3f} | "
             f"{max(f('peak_u')):.2f} | {max(f('peak_omega')):.2f} | "
+            f"{_mean_of(rs, 'command_rate_u')} | {_mean_of(rs, 'command_rate_omega')} | "
             f"{sum(int(r['funnel_exits']) for r in rs)} |"
         )
     return "\n".join(lines)
+
+
+def _mean_of(rows: Sequence[dict[str, str]], key: str) -> str:
+    """The mean of column ``key`` over the rows that have it (``–`` if none: episodes stored
+    before the column existed)."""
+    values = [float(r[key]) for r in rows if r.get(key) not in (None, "")]
+    return f"{sum(values) / len(values):.2f}" if values else "–"
 
 
 def _by_seed(runs: Mapping[str, list[int]], trained: Sequence[int]) -> str:
