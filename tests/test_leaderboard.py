@@ -13,6 +13,7 @@ pytest.importorskip("rliable")
 from experiments.policies import PolicySpec
 from experiments.stats import bootstrap_episodes
 from experiments.studies import leaderboard as lb
+from experiments.studies.board import episode_seeds, span
 from experiments.suites import ARUCO, IDEAL, suite
 
 REPO = Path(__file__).resolve().parent.parent
@@ -260,3 +261,30 @@ def test_a_board_from_mixed_code_versions_is_refused(tmp_path: Path) -> None:
     assert not (tmp_path / "docs" / "leaderboard.md").exists()  # refused before writing
     assert lb.main([*argv, "--allow-mixed"]) == 0
     assert "Mixed code versions" in (tmp_path / "docs" / "leaderboard.md").read_text()
+
+
+def test_paper_runs_split_the_seeds_and_a_law_plays_them_all(tmp_path: Path) -> None:
+    """On a paper study a configuration's runs play disjoint seeds and an analytic law all of
+    them (as many episodes, the same seeds, none twice); on a held-out tier every run plays the
+    same layouts."""
+    law = lb.Entry("ppc", (PolicySpec.of("ppc"),), False)
+    runs = tuple(PolicySpec.of("ppc", name=f"m_s{k}", k_d=1.0 + k) for k in range(3))
+    config = lb.Entry("m", runs, True)
+    paper = lb.Task("paper", "study_c", "ideal", 4)
+    heldout = lb.Task("heldout", "procedural_easy_test", "ideal", 4)
+    assert span([law, config]) == 3
+    seeds = [list(episode_seeds(paper, config, k, 3)) for k in range(3)]
+    assert seeds == [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10, 11]]
+    assert list(episode_seeds(paper, law, 0, 3)) == list(range(12))
+    for entry, k in ((law, 0), (config, 2)):
+        assert list(episode_seeds(heldout, entry, k, 3)) == [0, 1, 2, 3]
+    # the cells and the board follow the same rule
+    grid, refused = lb.cells([law, config], [paper])
+    assert not refused
+    by_policy: dict[str, list[int]] = {}
+    for rc in grid:
+        by_policy.setdefault(rc.cell.policy.name, []).append(rc.cell.seed)
+    assert sorted(by_policy["ppc"]) == list(range(12))
+    assert {k: sorted(v) for k, v in by_policy.items() if k != "ppc"} == {
+        f"m_s{k}": seeds[k] for k in range(3)
+    }

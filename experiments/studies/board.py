@@ -25,6 +25,7 @@ from platoon_env.scenarios.schema import ScenarioError
 
 __all__ = [
     "ANALYTIC",
+    "SPLIT_SUITES",
     "SUITES",
     "Board",
     "Entry",
@@ -32,6 +33,8 @@ __all__ = [
     "build_board",
     "cells",
     "entries",
+    "episode_seeds",
+    "span",
     "tasks",
 ]
 
@@ -39,6 +42,13 @@ __all__ = [
 ANALYTIC: tuple[str, ...] = tuple(analytic_policies("leaderboard"))
 #: The suites on the board.
 SUITES = LEADERBOARD_SUITES
+#: The suites on which a configuration's runs **split** the episode seeds (:func:`episode_seeds`):
+#: the paper's studies, where an episode seed draws a start perturbation and the sensing noise.
+#: There run ``k`` plays seeds ``k·n … k·n + n − 1`` and an analytic law all of them, so that a
+#: configuration's pooled episodes and an analytic law's are as many, on the same seeds, none
+#: repeated. On the held-out tiers a seed draws a layout, the test items: every run plays the
+#: same layouts (``0 … n − 1``).
+SPLIT_SUITES: tuple[str, ...] = ("paper",)
 
 
 @dataclass(frozen=True)
@@ -52,7 +62,8 @@ class Entry:
 
 @dataclass(frozen=True)
 class Task:
-    """A scenario under a condition, in a suite, with its episode seeds ``0 .. seeds-1``."""
+    """A scenario under a condition, in a suite, with ``seeds`` episodes per run (which seeds:
+    :func:`episode_seeds`)."""
 
     suite: str
     scenario: str
@@ -65,6 +76,30 @@ class Task:
     def label(self) -> str:
         short = self.scenario.removeprefix("procedural_").removesuffix("_test")
         return f"{short}/{self.condition.label}"
+
+    @property
+    def split(self) -> bool:
+        """Whether a configuration's runs split this task's seeds (:data:`SPLIT_SUITES`)."""
+        return self.suite in SPLIT_SUITES
+
+
+def span(board_entries: Sequence[Entry]) -> int:
+    """The most runs of any entry: on a split task an analytic law plays that many runs'
+    seeds."""
+    return max((len(e.runs) for e in board_entries), default=1)
+
+
+def episode_seeds(task: Task, entry: Entry, run: int, runs: int) -> range:
+    """The episode seeds of ``entry``'s run number ``run`` (its index in ``entry.runs``) on
+    ``task``, ``runs`` being :func:`span` of the board: ``0 … seeds − 1`` on a shared task; on a
+    split one (:data:`SPLIT_SUITES`) ``run·seeds …`` for a configuration's run and
+    ``0 … runs·seeds − 1`` for an analytic law."""
+    n = task.seeds
+    if not task.split:
+        return range(n)
+    if entry.learned:
+        return range(run * n, (run + 1) * n)
+    return range(runs * n)
 
 
 def entries(models_dir: Path) -> list[Entry]:
@@ -105,12 +140,13 @@ def cells(
     refuse, e.g. a 20 Hz policy with a 30 Hz camera)."""
     out: list[ResolvedCell] = []
     refused: dict[tuple[str, Task], str] = {}
+    runs = span(board_entries)
     for e in board_entries:
-        for spec in e.runs:
+        for k, spec in enumerate(e.runs):
             for t in board_tasks:
                 group = [
                     Cell.of(spec, t.scenario, seed, t.condition.overrides)
-                    for seed in range(t.seeds)
+                    for seed in episode_seeds(t, e, k, runs)
                 ]
                 try:
                     out += resolve_cells(group, unique=True)
@@ -191,15 +227,16 @@ def build_board(
     metrics: dict[str, list[dict[Task, list[dict[str, Any]]]]] = {}
     refused = dict(refused or {})
     missing = 0
+    n_runs = span(board_entries)
     for e in board_entries:
         runs = []
-        for spec in e.runs:
+        for k, spec in enumerate(e.runs):
             per_task: dict[Task, list[dict[str, Any]]] = {}
             for t in board_tasks:
                 eps = []
                 if (e.name, t) in refused:
                     continue
-                for seed in range(t.seeds):
+                for seed in episode_seeds(t, e, k, n_runs):
                     rc = by_cell.get(Cell.of(spec, t.scenario, seed, t.condition.overrides))
                     rec = None if rc is None else records.get(rc.key)
                     if rec is None or rec.status == "failed":

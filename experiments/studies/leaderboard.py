@@ -15,7 +15,11 @@ interrupted run resumes, and episodes already stored are not run again):
 
 on every **task** of the two suites (:mod:`experiments.suites`): a scenario under a
 condition — ``paper``: studies A, B, C × {ideal, aruco}; ``heldout``: the test split of every
-procedural tier × {ideal, aruco}; each task with the same episode seeds for every policy and run.
+procedural tier × {ideal, aruco}. The episode seeds (:func:`~experiments.studies.board.
+episode_seeds`): on a held-out task every run plays the same layouts, seeds ``0 … n − 1``; on a
+paper study a configuration's runs split the seeds (run ``k``: ``k·n … k·n + n − 1``) and an
+analytic law plays all of them, so that a configuration's pooled episodes and an analytic law's
+are as many, on the same seeds, and no start is counted twice in a pooled test.
 
 Statistics (:mod:`experiments.significance`, :mod:`experiments.stats`), per policy, suite and
 condition (ideal and aruco are reported apart: they share layouts, so they are not
@@ -88,6 +92,7 @@ from experiments.studies.board import (
     build_board,
     cells,
     entries,
+    span,
     tasks,
 )
 from experiments.studies.cards import write_cards
@@ -567,7 +572,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--paper-seeds",
         type=count(1),
         default=None,
-        help="episodes per paper task (default: the suite's, 20)",
+        help="episodes per run and paper task: a configuration's runs split the seeds, an "
+        "analytic law plays them all (runs x this; default: the suite's, 20)",
     )
     p.add_argument(
         "--heldout-seeds",
@@ -596,6 +602,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--no-cards", action="store_true", help="leave the model cards alone")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p.parse_args(argv)
+
+
+def _seeds_text(task: Task, runs: int) -> str:
+    """How many episodes, on which seeds, a suite's tasks have (:func:`episode_seeds`)."""
+    n = task.seeds
+    if not task.split:
+        return f"{task.suite}: {n} episodes per task, seeds 0–{n - 1} for every run"
+    return (
+        f"{task.suite}: {n} episodes per run and task; a configuration's run k on seeds "
+        f"{n}k … {n}k + {n - 1}, an analytic law on all {runs * n} (0–{runs * n - 1})"
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -678,7 +695,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     plot_profiles(board, figures / "leaderboard_profiles.png", meta)
     plot_separation(found, board.tasks, figures / "leaderboard_separation.png", meta)
     table = table_markdown(rows)
-    seeds = ", ".join(f"{s}: {board.suite_tasks(s)[0].seeds} episodes per task" for s in SUITES)
+    seeds = "; ".join(_seeds_text(board.suite_tasks(s)[0], span(board_entries)) for s in SUITES)
     doc = [
         "# Leaderboard\n",
         "Made by `python -m experiments.studies.leaderboard` (see its module docstring for every "
@@ -721,8 +738,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"A configuration meets it when every training seed completes each of studies A, B "
         f"and C under ideal sensing in ≥ {GOAL_IDEAL_RATE:.0%} of its episodes, and under the "
         f"aruco profile it beats `{GOAL_REFERENCE}` on at least one of those studies and loses "
-        "on none, by the pairwise comparisons above (the same episode seeds for both, Fisher's "
-        "exact test, Holm-adjusted over the whole family).\n",
+        "on none, by the pairwise comparisons above (the configuration's runs together and "
+        "the filtered PPC on the same episode seeds, Fisher's exact test, Holm-adjusted over "
+        "the whole family).\n",
         goal_text,
     ]
     if board.missing:
