@@ -383,15 +383,18 @@ def test_train_runs_platoon_train_with_one_torch_thread_and_logs(
         return subprocess.CompletedProcess(cmd, 0)
 
     monkeypatch.setattr(sweep.subprocess, "run", fake_run)
-    out = tmp_path / "runs" / "ppo_ta_aruco" / "s0"
+    monkeypatch.chdir(tmp_path)
+    out = Path("runs") / "ppo_ta_aruco" / "s0"  # relative: the caller's working directory
     name, rc, wall = sweep._train(CONFIG, 0, out)
     assert (name, rc) == ("ppo_ta_aruco s0", 0) and wall >= 0
     cmd = seen["cmd"]
     assert cmd[:3] == [sys.executable, "-m", "training.train"]
     assert cmd[3:-2] == run_args(CONFIG, 0, out)
     assert cmd[-2:] == ["--torch-threads", "1"]
-    assert seen["kwargs"]["cwd"] == sweep.REPO_ROOT
-    log = (out / "train.log").read_text()
+    # the child runs where the caller does (not in the package's folder, which in a wheel
+    # install is site-packages), so its --out is the folder that holds the log
+    assert seen["kwargs"].get("cwd") is None
+    log = (tmp_path / out / "train.log").read_text()
     assert log.startswith("$ " + " ".join(cmd) + "\n") and log.endswith("trained\n")
 
 

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from experiments.cli import count
-from experiments.stamp import REPO_ROOT, metadata_stamp, png_metadata, stamp_markdown
+from experiments.stamp import metadata_stamp, png_metadata, stamp_markdown
 
 __all__ = ["ENGINES", "VARIANTS", "main", "tail_success", "train_args", "wall_time"]
 
@@ -124,7 +124,9 @@ def _train(engine: str, args: argparse.Namespace, seed: int) -> Path:
     with (out / "train.log").open("a") as log:
         log.write("$ " + " ".join(cmd) + "\n")
         log.flush()
-        rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT).returncode
+        # the caller's working directory: a relative --out (or scenario path) names the
+        # same place for the child as for the log written here
+        rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT).returncode
     if rc != 0:
         raise RuntimeError(f"{engine} seed {seed} failed (exit {rc}); see {out / 'train.log'}")
     print(f"{engine} s{seed}: done", flush=True)

@@ -39,7 +39,6 @@ from typing import Any
 from experiments.cli import count
 from experiments.names import by_name
 from experiments.report import file_stem
-from experiments.stamp import REPO_ROOT
 from platoon_env.extras import MissingExtraError, require_extra
 
 __all__ = [
@@ -309,7 +308,9 @@ def _train(config: Config, seed: int, out: Path) -> tuple[str, int, float]:
     with (out / "train.log").open("a") as log:
         log.write("$ " + " ".join(cmd) + "\n")
         log.flush()
-        rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT).returncode
+        # the caller's working directory: a relative --out (or scenario path) names the
+        # same place for the child as for the log written here
+        rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT).returncode
     return f"{config.name} s{seed}", rc, time.perf_counter() - t0
 
 
