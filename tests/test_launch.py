@@ -1,4 +1,4 @@
-"""The console commands on an install without the optional extras (experiments/launch.py): a
+"""The console commands on an install without the optional extras (experiments/studies/launch.py): a
 command that needs a missing extra says so in one line with exit code 2, and
 ``platoon-evaluate`` runs the analytic laws with none of them.
 
@@ -47,7 +47,7 @@ def _run(
     code = textwrap.dedent(
         f"""
         import sys
-        from experiments import launch
+        from experiments.studies import launch
         sys.argv = {["platoon-" + entry, *argv]!r}
         raise SystemExit(launch.{entry}())
         """

@@ -14,5 +14,7 @@ module here is imported by a layer below it.
 * :mod:`~experiments.studies.paper_figures` — the paper's figures from PPC episodes;
   :mod:`~experiments.studies.comparison` — PPC against the last-seen baselines of ref. [32];
   :mod:`~experiments.studies.frontiers` — success against each realism axis;
-  :mod:`~experiments.studies.discretisation` — the control period study.
+  :mod:`~experiments.studies.discretisation` — the control period study;
+* :mod:`~experiments.studies.launch` — the console commands' entry points, which check the
+  optional extras a command needs before importing it.
 """
