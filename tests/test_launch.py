@@ -70,6 +70,7 @@ def _run(
         ("leaderboard", ["--help"], STATS, "[stats]"),
         ("leaderboard", ["--help"], PLOT, "[plot]"),
         ("sweep", ["--config", "residual_ppc"], TRAIN, "[train]"),
+        ("sweep", ["--ship", "--runs", "r", "--models", "m"], TRAIN, "[train]"),
         ("sweep", ["--curves", "c.png", "--config", "residual_ppc"], PLOT, "[plot]"),
     ],
 )
@@ -86,10 +87,13 @@ def test_a_missing_extra_is_one_line_naming_it(
     assert not any(tmp_path.iterdir())  # nothing was started
 
 
-def test_sweep_help_needs_no_extra(tmp_path: Path) -> None:
+def test_sweep_help_and_list_need_no_extra(tmp_path: Path) -> None:
     done = _run("sweep", ["--help"], TRAIN + PLOT + STATS, tmp_path)
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("usage: platoon-sweep")
+    done = _run("sweep", ["--list"], TRAIN + PLOT + STATS, tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert "residual_ppc:" in done.stdout
 
 
 def test_evaluate_runs_the_analytic_laws_without_any_extra(tmp_path: Path) -> None:

@@ -8,8 +8,9 @@ tool's imports.
 * ``platoon-train`` needs ``[train]``;
 * ``platoon-leaderboard`` needs ``[train]`` (the shipped models), ``[stats]`` (its aggregates)
   and ``[plot]`` (its figures and the learning curves);
-* ``platoon-sweep`` needs ``[train]`` to train and ``[plot]`` for ``--curves``; it checks those
-  itself when it starts work, so its ``--help`` works on a plain install.
+* ``platoon-sweep`` needs ``[train]`` for everything but ``--list`` and ``--help``, and
+  ``[plot]`` for ``--curves``; it checks those itself when it starts work, so its ``--help`` and
+  ``--list`` work on a plain install.
 
 ``python -m <module>`` runs a tool without these checks.
 """

@@ -490,11 +490,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{c.name}: {c.summary}\n    platoon-train {' '.join(c.args)}")
         return 0
     runs = Path(a.runs)
-    try:  # the curves are read with the training package; a run trains with it
+    try:  # training, shipping (its checks read the runs' options) and the curves import the
+        # training package
         if a.curves:
             require_extra("plot", "matplotlib", purpose="--curves")
-        if not a.ship:
-            require_extra("train", "torch", "stable_baselines3", purpose="platoon-sweep")
+        require_extra("train", "torch", "stable_baselines3", purpose="platoon-sweep")
     except MissingExtraError as exc:
         parser.error(str(exc))
     if a.curves:
