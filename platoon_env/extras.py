@@ -22,19 +22,29 @@ _INSTALL = {
 }
 
 
+#: The modules that stand for each extra in a check (:func:`require_extra` without modules).
+_MODULES = {
+    "train": ("torch", "stable_baselines3"),
+    "plot": ("matplotlib", "imageio"),
+    "stats": ("rliable", "pandas"),
+    "rllib": ("ray",),
+}
+
+
 class MissingExtraError(ImportError):
     """An optional extra a tool needs is not installed (the message says which, and how)."""
 
 
 def require_extra(extra: str, *modules: str, purpose: str) -> None:
-    """Raise :class:`MissingExtraError` unless every module in ``modules`` can be imported.
+    """Raise :class:`MissingExtraError` unless every module in ``modules`` can be imported
+    (none given: the modules that stand for ``extra``, :data:`_MODULES`).
 
     ``purpose`` says what needs them (``"evaluating trained models"``); the message names the
     extra and its install command.
     """
     if extra not in _INSTALL:
         raise ValueError(f"unknown extra {extra!r}; known: {', '.join(_INSTALL)}")
-    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    missing = [m for m in modules or _MODULES[extra] if importlib.util.find_spec(m) is None]
     if missing:
         raise MissingExtraError(
             f"{purpose} needs the optional [{extra}] extra (missing: {', '.join(missing)}); "

@@ -690,15 +690,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error("--models adds models to the default policies; with --policy name each model")
     if any(p.kind == MODEL for p in args.policy):
         try:
-            require_extra(
-                "train", "stable_baselines3", "torch", purpose="evaluating trained models"
-            )
+            require_extra("train", purpose="evaluating trained models")
         except MissingExtraError as exc:
             parser.error(str(exc))
     args.no_plots_reason = "--no-plots"
     if not args.no_plots:
         try:
-            require_extra("plot", "matplotlib", "imageio", purpose="drawing the plots and GIFs")
+            require_extra("plot", purpose="drawing the plots and GIFs")
         except MissingExtraError as exc:  # the episodes and tables need no plotting library
             print(f"note: {exc}; running without them (--no-plots)", file=sys.stderr)
             args.no_plots = True

@@ -25,20 +25,13 @@ from platoon_env.extras import MissingExtraError, require_extra
 
 __all__ = ["evaluate", "leaderboard", "sweep", "train"]
 
-#: The modules that stand for each extra in a check.
-_MODULES = {
-    "train": ("torch", "stable_baselines3"),
-    "stats": ("rliable", "pandas"),
-    "plot": ("matplotlib", "imageio"),
-}
-
 
 def _launch(command: str, target: str, extras: tuple[str, ...], purpose: str) -> int:
     """Check ``extras`` (a one-line error and exit code 2 for a missing one), then run
     ``target`` (``module:function``, called with no arguments: it reads ``sys.argv``)."""
     for extra in extras:
         try:
-            require_extra(extra, *_MODULES[extra], purpose=purpose)
+            require_extra(extra, purpose=purpose)
         except MissingExtraError as exc:
             print(f"{command}: error: {exc}", file=sys.stderr)
             return 2

@@ -493,8 +493,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:  # training, shipping (its checks read the runs' options) and the curves import the
         # training package
         if a.curves:
-            require_extra("plot", "matplotlib", purpose="--curves")
-        require_extra("train", "torch", "stable_baselines3", purpose="platoon-sweep")
+            require_extra("plot", "matplotlib", purpose="--curves")  # PNGs only: no imageio
+        require_extra("train", purpose="platoon-sweep")
     except MissingExtraError as exc:
         parser.error(str(exc))
     if a.curves:
