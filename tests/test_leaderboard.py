@@ -265,8 +265,8 @@ def test_a_board_from_mixed_code_versions_is_refused(tmp_path: Path) -> None:
 
 def test_paper_runs_split_the_seeds_and_a_law_plays_them_all(tmp_path: Path) -> None:
     """On a paper study a configuration's runs play disjoint seeds and an analytic law all of
-    them (as many episodes, the same seeds, none twice); on a held-out tier every run plays the
-    same layouts."""
+    them (as many episodes, the same seeds, none twice); on a held-out tier a configuration's
+    runs share out the layouts an analytic law plays."""
     law = lb.Entry("ppc", (PolicySpec.of("ppc"),), False)
     runs = tuple(PolicySpec.of("ppc", name=f"m_s{k}", k_d=1.0 + k) for k in range(3))
     config = lb.Entry("m", runs, True)
@@ -276,15 +276,23 @@ def test_paper_runs_split_the_seeds_and_a_law_plays_them_all(tmp_path: Path) -> 
     seeds = [list(episode_seeds(paper, config, k, 3)) for k in range(3)]
     assert seeds == [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10, 11]]
     assert list(episode_seeds(paper, law, 0, 3)) == list(range(12))
-    for entry, k in ((law, 0), (config, 2)):
-        assert list(episode_seeds(heldout, entry, k, 3)) == [0, 1, 2, 3]
+    assert list(episode_seeds(heldout, law, 0, 3)) == [0, 1, 2, 3]
+    layouts = [list(episode_seeds(heldout, config, k, 3)) for k in range(3)]
+    assert layouts == [[0], [1], [2, 3]]  # every layout once, near-equal slices
     # the cells and the board follow the same rule
-    grid, refused = lb.cells([law, config], [paper])
-    assert not refused
-    by_policy: dict[str, list[int]] = {}
-    for rc in grid:
-        by_policy.setdefault(rc.cell.policy.name, []).append(rc.cell.seed)
-    assert sorted(by_policy["ppc"]) == list(range(12))
-    assert {k: sorted(v) for k, v in by_policy.items() if k != "ppc"} == {
-        f"m_s{k}": seeds[k] for k in range(3)
-    }
+    for task, law_seeds, run_seeds in (
+        (paper, list(range(12)), seeds),
+        (heldout, [0, 1, 2, 3], layouts),
+    ):
+        grid, refused = lb.cells([law, config], [task])
+        assert not refused
+        by_policy: dict[str, list[int]] = {}
+        for rc in grid:
+            by_policy.setdefault(rc.cell.policy.name, []).append(rc.cell.seed)
+        assert sorted(by_policy["ppc"]) == law_seeds
+        assert {k: sorted(v) for k, v in by_policy.items() if k != "ppc"} == {
+            f"m_s{k}": run_seeds[k] for k in range(3)
+        }
+    # fewer layouts than runs: a run would play none
+    with pytest.raises(ValueError, match="fewer than the 3 runs"):
+        lb.cells([law, config], [lb.Task("heldout", "procedural_easy_test", "ideal", 2)])

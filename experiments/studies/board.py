@@ -25,6 +25,7 @@ from platoon_env.scenarios.schema import ScenarioError
 
 __all__ = [
     "ANALYTIC",
+    "PARTITIONED_SUITES",
     "SPLIT_SUITES",
     "SUITES",
     "Board",
@@ -46,9 +47,16 @@ SUITES = LEADERBOARD_SUITES
 #: the paper's studies, where an episode seed draws a start perturbation and the sensing noise.
 #: There run ``k`` plays seeds ``k·n … k·n + n − 1`` and an analytic law all of them, so that a
 #: configuration's pooled episodes and an analytic law's are as many, on the same seeds, none
-#: repeated. On the held-out tiers a seed draws a layout, the test items: every run plays the
-#: same layouts (``0 … n − 1``).
+#: repeated. On the held-out tiers a seed draws a layout, the test item: see
+#: :data:`PARTITIONED_SUITES`.
 SPLIT_SUITES: tuple[str, ...] = ("paper",)
+#: The suites whose ``n`` layouts every entry plays **once**, its runs sharing them out
+#: (:func:`episode_seeds`): the held-out tiers, where a seed draws a layout, the test item. A
+#: configuration's run ``k`` of ``R`` plays layouts ``⌊k·n/R⌋ … ⌊(k+1)·n/R⌋ − 1`` and an
+#: analytic law all ``n``. Every entry's pooled episodes are then the same ``n`` layouts, none
+#: counted twice in a pooled test (five runs on the same layouts would be 5n episodes of n
+#: items), and a configuration costs n episodes per task, not R·n.
+PARTITIONED_SUITES: tuple[str, ...] = ("heldout",)
 
 
 @dataclass(frozen=True)
@@ -82,6 +90,11 @@ class Task:
         """Whether a configuration's runs split this task's seeds (:data:`SPLIT_SUITES`)."""
         return self.suite in SPLIT_SUITES
 
+    @property
+    def partitioned(self) -> bool:
+        """Whether an entry's runs share out this task's layouts (:data:`PARTITIONED_SUITES`)."""
+        return self.suite in PARTITIONED_SUITES
+
 
 def span(board_entries: Sequence[Entry]) -> int:
     """The most runs of any entry: on a split task an analytic law plays that many runs'
@@ -91,10 +104,14 @@ def span(board_entries: Sequence[Entry]) -> int:
 
 def episode_seeds(task: Task, entry: Entry, run: int, runs: int) -> range:
     """The episode seeds of ``entry``'s run number ``run`` (its index in ``entry.runs``) on
-    ``task``, ``runs`` being :func:`span` of the board: ``0 … seeds − 1`` on a shared task; on a
-    split one (:data:`SPLIT_SUITES`) ``run·seeds …`` for a configuration's run and
-    ``0 … runs·seeds − 1`` for an analytic law."""
+    ``task``, ``runs`` being :func:`span` of the board: on a split task (:data:`SPLIT_SUITES`)
+    ``run·seeds …`` for a configuration's run and ``0 … runs·seeds − 1`` for an analytic law; on
+    a partitioned one (:data:`PARTITIONED_SUITES`) the ``run``-th of ``len(entry.runs)`` slices
+    of ``0 … seeds − 1`` (a one-run entry: all of them); else ``0 … seeds − 1``."""
     n = task.seeds
+    if task.partitioned:
+        r = len(entry.runs)
+        return range(run * n // r, (run + 1) * n // r)
     if not task.split:
         return range(n)
     if entry.learned:
@@ -141,6 +158,12 @@ def cells(
     out: list[ResolvedCell] = []
     refused: dict[tuple[str, Task], str] = {}
     runs = span(board_entries)
+    short = [t for t in board_tasks if t.partitioned and t.seeds < runs]
+    if short:
+        raise ValueError(
+            f"{short[0].suite} has {short[0].seeds} layouts per task, fewer than the {runs} runs "
+            "of a configuration that share them out: every run needs at least one"
+        )
     for e in board_entries:
         for k, spec in enumerate(e.runs):
             for t in board_tasks:

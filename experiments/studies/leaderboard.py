@@ -16,10 +16,12 @@ interrupted run resumes, and episodes already stored are not run again):
 on every **task** of the two suites (:mod:`experiments.suites`): a scenario under a
 condition — ``paper``: studies A, B, C × {ideal, aruco}; ``heldout``: the test split of every
 procedural tier × {ideal, aruco}. The episode seeds (:func:`~experiments.studies.board.
-episode_seeds`): on a held-out task every run plays the same layouts, seeds ``0 … n − 1``; on a
-paper study a configuration's runs split the seeds (run ``k``: ``k·n … k·n + n − 1``) and an
-analytic law plays all of them, so that a configuration's pooled episodes and an analytic law's
-are as many, on the same seeds, and no start is counted twice in a pooled test.
+episode_seeds`): on a held-out task every policy plays each of the ``n`` layouts (seeds
+``0 … n − 1``) once, a configuration's runs sharing them out (run ``k`` of ``R``: the ``k``-th of
+``R`` near-equal slices); on a paper study a configuration's runs split the seeds (run ``k``:
+``k·n … k·n + n − 1``) and an analytic law plays all of them. Either way a configuration's
+pooled episodes and an analytic law's are as many, on the same seeds, and no layout or start is
+counted twice in a pooled test.
 
 Statistics (:mod:`experiments.significance`, :mod:`experiments.stats`), per policy, suite and
 condition (ideal and aruco are reported apart: they share layouts, so they are not
@@ -607,6 +609,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def _seeds_text(task: Task, runs: int) -> str:
     """How many episodes, on which seeds, a suite's tasks have (:func:`episode_seeds`)."""
     n = task.seeds
+    if task.partitioned:
+        return (
+            f"{task.suite}: {n} layouts per task (seeds 0–{n - 1}), each played once by every "
+            f"policy: a configuration's {runs} runs share them out ({n // runs}–{-(-n // runs)} "
+            "each), an analytic law plays them all"
+        )
     if not task.split:
         return f"{task.suite}: {n} episodes per task, seeds 0–{n - 1} for every run"
     return (
@@ -640,7 +648,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         },
         argv,
     )
-    grid, refused = cells(board_entries, board_tasks)
+    try:
+        grid, refused = cells(board_entries, board_tasks)
+    except ValueError as exc:
+        print(f"platoon-leaderboard: error: {exc} (--heldout-seeds)", file=sys.stderr)
+        return 2
     print(f"{len(board_entries)} policies, {len(board_tasks)} tasks, {len(grid)} episodes")
     with store:
         result = run_grid(
