@@ -118,6 +118,9 @@ def test_configs_are_named_by_their_keys() -> None:
         "residual_filtered_aruco",
         "residual_filtered_aruco_cmd",
         "residual_drive_aruco",
+        "residual_drive_realism",
+        "residual_filtered_realism",
+        "lag_residual_drive_realism",
     }
     for name, config in CONFIGS.items():
         assert config.name == name and config.summary
@@ -131,18 +134,24 @@ def test_every_config_parses_and_resolves(name: str) -> None:
     cfg = parse_args([*config.args, "--seed", "0", "--out", "x"])
     assert cfg.task_aware_observations is True
     # the SB3 configurations train under aruco (30 Hz frames), the clones with ideal sensing
-    aruco = cfg.engine == "sb3" or name.endswith(("_aruco", "_aruco_cmd"))
+    # the realism configurations: aruco for the law, each episode's realism drawn
+    realism = name.endswith("_realism")
+    aruco = cfg.engine == "sb3" or name.endswith(("_aruco", "_aruco_cmd")) or realism
     assert cfg.sensor_profile == ("aruco" if aruco else None)
+    assert cfg.realism_preset == ("ideal_to_beyond_aruco" if realism else None)
     residual = {
         "residual_ppc": "ppc",
         "residual_filtered_aruco": "filtered_ppc",
         "residual_filtered_aruco_cmd": "filtered_ppc",
         "residual_drive_aruco": "filtered_ppc_drive",
+        "residual_drive_realism": "filtered_ppc_drive",
+        "residual_filtered_realism": "filtered_ppc",
+        "lag_residual_drive_realism": "filtered_ppc_drive",
     }
     assert cfg.residual == residual.get(name)
     assert cfg.control_period <= 1 / 30
     assert cfg.scale_free_observations == (
-        name.startswith(("bc_ppo_formations", "bc_ppo_mixed", "residual"))
+        name.startswith(("bc_ppo_formations", "bc_ppo_mixed", "residual", "lag_residual"))
     )
     assert (
         cfg.algo
@@ -157,6 +166,9 @@ def test_every_config_parses_and_resolves(name: str) -> None:
             "residual_filtered_aruco": "ppo",
             "residual_filtered_aruco_cmd": "ppo",
             "residual_drive_aruco": "ppo",
+            "residual_drive_realism": "ppo",
+            "residual_filtered_realism": "ppo",
+            "lag_residual_drive_realism": "ppo_lagrangian",
         }[name]
     )
     assert cfg.timesteps >= 1

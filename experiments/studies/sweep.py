@@ -247,6 +247,45 @@ CONFIGS: dict[str, Config] = by_name(
         ),
     ),
     Config(
+        "residual_drive_realism",
+        "fast engine: as residual_drive_aruco with the realism drawn per episode "
+        "(--realism-preset ideal_to_beyond_aruco: from ideal sensing to beyond the aruco "
+        "profile; the law keeps the nominal aruco parameters), 20 M transitions",
+        _with(
+            _RESIDUAL,
+            sensor_profile="aruco",
+            residual="filtered_ppc_drive",
+            realism_preset="ideal_to_beyond_aruco",
+            timesteps="20000000",
+        ),
+    ),
+    Config(
+        "residual_filtered_realism",
+        "fast engine: as residual_drive_realism on the filtered PPC law (no drive lookahead)",
+        _with(
+            _RESIDUAL,
+            sensor_profile="aruco",
+            residual="filtered_ppc",
+            realism_preset="ideal_to_beyond_aruco",
+            timesteps="20000000",
+        ),
+    ),
+    Config(
+        "lag_residual_drive_realism",
+        "fast engine: as residual_drive_realism trained by PPO-Lagrangian with a cost critic "
+        "(budget 0.1 violations per follower episode, between the unconstrained run's level "
+        "and the 0.05 no run reached)",
+        _with(
+            _RESIDUAL,
+            algo="ppo_lagrangian",
+            cost_budget="0.1",
+            sensor_profile="aruco",
+            residual="filtered_ppc_drive",
+            realism_preset="ideal_to_beyond_aruco",
+            timesteps="20000000",
+        ),
+    ),
+    Config(
         "residual_filtered_aruco_cmd",
         "fast engine: as residual_filtered_aruco, the policy also reading its own previous "
         "command (--previous-command: under the aruco profile's acceleration limits the applied "
