@@ -4,15 +4,19 @@ from __future__ import annotations
 
 import ast
 import math
+from pathlib import Path
 
 import pytest
 
 import platoon_env
 from experiments.studies.cards import (
+    _curve_end,
+    _end_cost,
     _observation_option,
     _profile,
     _training_summary,
     core_hours,
+    cost_budget,
     training_cores,
 )
 from platoon_env.observation import OBS_NAMES, OBS_NAMES_SCALE_FREE, OBS_NAMES_TASK
@@ -57,3 +61,25 @@ def test_core_hours_count_every_core_a_run_occupied() -> None:
         {"algo": "ppo", "timesteps": 10, "wall_time_s": 7200.0, "config": {"n_envs": 4}}
     )[2]
     assert "2.00 core-hours on 1 core(s)" in line
+
+
+def test_a_lagrangian_card_says_whether_the_end_of_its_curve_is_within_its_budget(
+    tmp_path: Path,
+) -> None:
+    progress = tmp_path / "progress.csv"
+    rows = ["timesteps,wall_time_s,episodes,return_mean,success_rate,cost_mean,lambda"]
+    # the last five windows' mean cost: (0.2 + 0.1 + 0.1 + 0.1 + 0.1) / 5 = 0.12
+    for k, cost in enumerate([0.5, 0.2, 0.1, 0.1, 0.1, 0.1]):
+        rows.append(f"{(k + 1) * 100},{k},10,1.0,0.5,{cost},{3.0 + k}")
+    progress.write_text("\n".join(rows) + "\n")
+    assert cost_budget({"algo": "ppo", "config": {"cost_budget": 0.05}}) is None
+    budget = cost_budget({"algo": "ppo_lagrangian", "config": {"cost_budget": 0.15}})
+    assert budget == pytest.approx(0.15)
+    line = _curve_end(progress, budget)
+    assert "follower episode cost 0.120 (within its budget 0.15)" in line
+    assert line.endswith("multiplier λ 8.000")
+    assert "(above its budget 0.1)" in _curve_end(progress, 0.1)
+    assert "budget" not in _curve_end(progress)
+    assert _end_cost(progress, 0.1) == "0.120 (above 0.1)"
+    assert _end_cost(progress, None) == "0.120"
+    assert _end_cost(tmp_path / "missing.csv", 0.1) == "–"

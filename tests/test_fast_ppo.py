@@ -15,7 +15,15 @@ from tiny_runs import TINY
 
 import platoon_env
 from training.curves import read_progress
-from training.fast_ppo import ActorCritic, FastPPOConfig, _gae, make_core, train_fast
+from training.fast_ppo import (
+    ActorCritic,
+    FastPPOConfig,
+    _gae,
+    make_core,
+    scaled_cost_advantages,
+    surrogate_advantages,
+    train_fast,
+)
 from training.policies import LearnedPolicy
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -115,6 +123,42 @@ def test_the_multiplier_follows_the_cost_against_the_budget(
     LearnedPolicy.load(tmp_path)  # the cost head is not part of the saved policy
 
 
+def test_standardised_cost_advantages_keep_the_surrogate_at_scale_for_a_large_multiplier() -> None:
+    gen = torch.Generator().manual_seed(0)
+    adv = torch.randn(4096, generator=gen)
+    # A rare 0/1 cost: small cost advantages (a few large, most near zero).
+    cadv = 0.01 * torch.randn(4096, generator=gen)
+    cadv[:40] += 1.0
+    lam = 100.0
+    centred = surrogate_advantages(adv, scaled_cost_advantages(cadv, "centred"), lam)
+    standard = surrogate_advantages(adv, scaled_cost_advantages(cadv, "standardised"), lam)
+    # Centred: the surrogate shrinks to about std(A_c) ~ 0.1; standardised: about 1.
+    assert float(centred.std()) < 0.15
+    assert 0.9 < float(standard.std()) < 1.1
+    # Either way it points against the cost: the costly samples have the lowest advantages.
+    assert float(standard[:40].mean()) < float(standard[40:].mean())
+    assert float(centred[:40].mean()) < float(centred[40:].mean())
+    # Without a cost it is the standardised reward advantage.
+    plain = surrogate_advantages(adv, None, lam)
+    assert abs(float(plain.mean())) < 1e-6 and abs(float(plain.std()) - 1.0) < 1e-4
+    with pytest.raises(ValueError, match="cost_advantage"):
+        scaled_cost_advantages(cadv, "scaled")
+
+
+def test_the_cost_advantage_option_changes_what_is_learned(tmp_path: Path) -> None:
+    nets = {}
+    for mode in ("centred", "standardised"):
+        cfg = tiny(algo="ppo_lagrangian", cost_budget=0.0, lagrangian_init=5.0, cost_advantage=mode)
+        train_fast(cfg, tmp_path / mode)
+        nets[mode] = state(tmp_path / mode)
+        recorded = json.loads((tmp_path / mode / "model.json").read_text())["config"]
+        assert recorded["cost_advantage"] == mode
+    assert nets["centred"].keys() == nets["standardised"].keys()
+    assert any(
+        not torch.equal(nets["centred"][k], nets["standardised"][k]) for k in nets["centred"]
+    )
+
+
 def test_gae_bootstraps_only_where_the_episode_goes_on() -> None:
     cfg = tiny(gamma=0.5, gae_lambda=1.0)
     rewards = torch.tensor([[1.0, 1.0], [1.0, 1.0]])
@@ -138,6 +182,7 @@ def test_gae_bootstraps_only_where_the_episode_goes_on() -> None:
         ("layout_repeats", 0),
         ("net_arch", ()),
         ("algo", "sac"),
+        ("cost_advantage", "scaled"),
         ("device", "tpu"),
     ],
 )

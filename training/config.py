@@ -44,6 +44,7 @@ from training.vec_env import ActionRange
 
 __all__ = [
     "BOUNDS",
+    "COST_ADVANTAGES",
     "ENGINES",
     "ENV_FIELDS",
     "FAST_ALGOS",
@@ -73,6 +74,13 @@ PPO_ALGOS = ("ppo", "ppo_lagrangian")
 #: The algorithms of ``--engine fast`` (:mod:`training.fast_ppo`; ``bc_*``: :mod:`training.bc`,
 #: behaviour cloning of the PPC law with DAgger, then that PPO fine-tuning).
 FAST_ALGOS = ("ppo", "ppo_lagrangian", "bc_ppo", "bc_ppo_lagrangian")
+#: How PPO-Lagrangian scales the cost advantages ``A_c`` (``cost_advantage``): ``centred`` per
+#: minibatch only (OmniSafe's PPOLag), or ``standardised`` over the rollout first (unit
+#: standard deviation), so that the penalised surrogate ``(Â_r - λ Â_c) / (1 + λ)`` keeps the
+#: scale of PPO's for every ``λ``. Centred, ``A_c`` is small beside the standardised ``A_r`` (a
+#: violation is a rare 0/1 cost): as ``λ`` grows the surrogate's gradient shrinks, and a fixed
+#: regulariser (``anchor_coef``) then wins over it.
+COST_ADVANTAGES = ("centred", "standardised")
 #: The engines of ``--engine``.
 ENGINES = ("sb3", "rllib", "fast")
 
@@ -202,6 +210,13 @@ class TrainConfig:
     )
     lagrangian_init: float | None = _opt(None, "fast, ppo_lagrangian: initial multiplier")
     lagrangian_max: float | None = _opt(None, "fast, ppo_lagrangian: bound of the multiplier")
+    cost_advantage: str | None = _opt(
+        None,
+        "fast, ppo_lagrangian: scaling of the cost advantages in the surrogate: centred "
+        "(FastPPOConfig's default, OmniSafe's) or standardised over the rollout "
+        "(training.fast_ppo.COST_ADVANTAGES)",
+        choices=COST_ADVANTAGES,
+    )
     init_from: str | None = _opt(
         None,
         "fast: start the network from this SB3 PPO model.zip (same observation size and "
@@ -387,6 +402,7 @@ FAST_ONLY = (
     "log_std_init",
     "lagrangian_init",
     "lagrangian_max",
+    "cost_advantage",
     "init_from",
     "value_warmup",
     "anchor_coef",

@@ -29,7 +29,9 @@ top to bottom (in the manner of CleanRL) that keeps closer to the simulator's pa
   followers' violation cost ``info["cost"]`` of the adapters (1 at a step with a violation of
   any cause: :data:`platoon_env.violations.VIOLATION_INFO`); cost advantages ``A_c`` come from
   GAE on it, and the policy maximises the surrogate of ``(A_r - λ A_c) / (1 + λ)`` (``A_r``
-  standardised per minibatch, ``A_c`` centred, as OmniSafe's PPOLag does). The multiplier is
+  standardised per minibatch, ``A_c`` centred, as OmniSafe's PPOLag does; with
+  ``cost_advantage="standardised"`` ``A_c`` is first scaled to unit standard deviation over the
+  rollout, so the surrogate keeps its scale as ``λ`` grows). The multiplier is
   updated by **gradient (dual) ascent**, the rule of
   :class:`training.lagrangian.LagrangeMultiplier`: after each rollout,
   ``λ ← clip(λ + η (Ĵ_c - b), 0, λ_max)`` with ``Ĵ_c`` the mean cost of the follower episodes
@@ -125,6 +127,7 @@ from platoon_env.scenarios.source import ScenarioSource, scenario_source
 from platoon_env.violations import VIOLATION_INFO
 from training.config import (
     BOUNDS,
+    COST_ADVANTAGES,
     ENV_FIELDS,
     FAST_ONLY,
     MAX_LAYER,
@@ -154,11 +157,14 @@ __all__ = [
     "initial_weights",
     "make_core",
     "sb3_model",
+    "scaled_cost_advantages",
+    "surrogate_advantages",
     "train_fast",
 ]
 
 #: What :func:`train_fast` trains: PPO, or PPO with a cost critic and a Lagrange multiplier.
 ALGOS = ("ppo", "ppo_lagrangian")
+
 #: What ``model.json`` names as the trainer of this module's models.
 TRAINER = "training.fast_ppo"
 #: The two saved points of a run: the final model and the latest checkpoint.
@@ -231,7 +237,8 @@ class FastPPOConfig:
     PPO-Lagrangian: ``cost_budget`` (``b``, expected cost per follower episode),
     ``lagrangian_lr`` (``η`` per rollout; a rollout here is tens of thousands of transitions,
     so larger than ``platoon-train``'s 0.05 per 4096), ``lagrangian_init`` (``λ`` at the
-    start), ``lagrangian_max`` (``λ_max``).
+    start), ``lagrangian_max`` (``λ_max``), ``cost_advantage`` (how ``A_c`` is scaled before
+    it enters the surrogate: :data:`training.config.COST_ADVANTAGES`).
 
     Bookkeeping: ``log_every`` (transitions between rows of ``progress.csv``),
     ``checkpoint_every`` (transitions between checkpoints; 0: none), ``torch_threads``,
@@ -284,6 +291,7 @@ class FastPPOConfig:
     lagrangian_lr: float = 0.5
     lagrangian_init: float = 0.0
     lagrangian_max: float = 100.0
+    cost_advantage: str = "centred"
     # --- bookkeeping ---
     log_every: int = 100_000
     checkpoint_every: int = 1_000_000
@@ -311,7 +319,11 @@ class FastPPOConfig:
 
 #: The bounds of this learner's own options (the shared ones are :data:`training.config.BOUNDS`).
 FAST_BOUNDS: dict[str, Bound] = {
-    **{name: BOUNDS[name] for name in FAST_ONLY if name not in ("init_from", "residual")},
+    **{
+        name: BOUNDS[name]
+        for name in FAST_ONLY
+        if name not in ("init_from", "residual", "cost_advantage")
+    },
     "batch_size": Bound(2, 10**9),  # advantage standardisation needs two samples
 }
 #: The options of :class:`FastPPOConfig` checked against :data:`training.config.BOUNDS`.
@@ -388,6 +400,10 @@ def config_problems(cfg: FastPPOConfig) -> list[str]:
         )
     if cfg.algo not in ALGOS:
         problems.append(f"algo must be one of {ALGOS}, got {cfg.algo!r}")
+    if cfg.cost_advantage not in COST_ADVANTAGES:
+        problems.append(
+            f"cost_advantage must be one of {COST_ADVANTAGES}, got {cfg.cost_advantage!r}"
+        )
     if not problems and not cfg.u_low < cfg.u_high:
         problems.append(f"u_high must be > u_low = {cfg.u_low:g}, got {cfg.u_high:g}")
     if not problems and cfg.lagrangian_init > cfg.lagrangian_max:
@@ -1162,6 +1178,7 @@ def _learn(
             b_cadv = b_cret = None
             if cost_adv is not None and cost_returns is not None:
                 b_cadv, b_cret = flat(cost_adv), flat(cost_returns)
+                b_cadv = scaled_cost_advantages(b_cadv, cfg.cost_advantage)
             n = b_obs.shape[0]
             # The first value_warmup rollouts of the run train the critic(s) alone.
             warmup = rollouts < cfg.value_warmup
@@ -1177,11 +1194,9 @@ def _learn(
                     mean = own + b_base[idx]  # b_base is zero unless residual
                     logp = gaussian_log_prob(b_act[idx], mean, net.log_std)
                     ratio = torch.exp(logp - b_logp[idx])
-                    adv = b_adv[idx]
-                    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-                    if b_cadv is not None:
-                        cadv = b_cadv[idx]
-                        adv = (adv - lam * (cadv - cadv.mean())) / (1.0 + lam)
+                    adv = surrogate_advantages(
+                        b_adv[idx], None if b_cadv is None else b_cadv[idx], lam
+                    )
                     clipped = torch.clamp(ratio, 1.0 - cfg.clip_range, 1.0 + cfg.clip_range)
                     policy_loss = -torch.min(adv * ratio, adv * clipped).mean()
                     value_loss = ((value - b_ret[idx]) ** 2).mean()
@@ -1223,6 +1238,29 @@ def _learn(
 def _digest(array: NDArray[Any]) -> str:
     """The SHA-256 of an array's bytes."""
     return hashlib.sha256(np.ascontiguousarray(array).tobytes()).hexdigest()
+
+
+def scaled_cost_advantages(cost_advantages: torch.Tensor, mode: str) -> torch.Tensor:
+    """A rollout's cost advantages ``A_c`` as ``cost_advantage`` ``mode`` has them: unchanged
+    (``centred``: :func:`surrogate_advantages` centres each minibatch's) or standardised over
+    the rollout (``standardised``: zero mean, unit standard deviation)."""
+    if mode == "centred":
+        return cost_advantages
+    if mode == "standardised":
+        return (cost_advantages - cost_advantages.mean()) / (cost_advantages.std() + 1e-8)
+    raise ValueError(f"cost_advantage must be one of {COST_ADVANTAGES}, got {mode!r}")
+
+
+def surrogate_advantages(
+    advantages: torch.Tensor, cost_advantages: torch.Tensor | None, lam: float
+) -> torch.Tensor:
+    """A minibatch's advantages in PPO's clipped surrogate: ``Â_r``, ``A_r`` standardised over
+    the minibatch, and with cost advantages (PPO-Lagrangian) ``(Â_r - λ (A_c - mean A_c)) /
+    (1 + λ)``."""
+    adv = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    if cost_advantages is None:
+        return adv
+    return (adv - lam * (cost_advantages - cost_advantages.mean())) / (1.0 + lam)
 
 
 def _gae(

@@ -26,7 +26,14 @@ from training.curves import plot_learning_curves, read_progress
 if TYPE_CHECKING:
     from experiments.studies.board import Board, Entry
 
-__all__ = ["card_markdown", "core_hours", "index_markdown", "training_cores", "write_cards"]
+__all__ = [
+    "card_markdown",
+    "core_hours",
+    "cost_budget",
+    "index_markdown",
+    "training_cores",
+    "write_cards",
+]
 
 
 def training_cores(cfg: Mapping[str, Any]) -> int:
@@ -97,19 +104,45 @@ def _training_summary(meta: Mapping[str, Any]) -> list[str]:
     ]
 
 
-def _curve_end(progress: Path, rows: int = 5) -> str:
-
+def _curve_end(progress: Path, budget: float | None = None, rows: int = 5) -> str:
+    """The end of a run's learning curve: its last ``rows`` logged windows' means, and with a
+    cost ``budget`` (``ppo_lagrangian``) whether that mean cost is within it."""
     if not progress.is_file():
         return "no `progress.csv` (trained before learning curves were logged)"
     p = read_progress(progress)
     last = slice(-rows, None)
+    cost = float(np.nanmean(p["cost_mean"][last]))
+    verdict = "" if budget is None else f" ({_within(cost, budget)} its budget {budget:g})"
     return (
         f"over the last {min(rows, len(p['timesteps']))} logged windows (up to "
         f"{int(p['timesteps'][-1]):,} transitions): team success rate "
         f"{np.nanmean(p['success_rate'][last]):.2f}, follower episode cost "
-        f"{np.nanmean(p['cost_mean'][last]):.3f}, return {np.nanmean(p['return_mean'][last]):.1f}"
+        f"{cost:.3f}{verdict}, return {np.nanmean(p['return_mean'][last]):.1f}"
         + (f", multiplier λ {p['lambda'][-1]:.3f}" if not math.isnan(p["lambda"][-1]) else "")
     )
+
+
+def _within(cost: float, budget: float) -> str:
+    return "within" if cost <= budget else "above"
+
+
+def _end_cost(progress: Path, budget: float | None, rows: int = 5) -> str:
+    """The mean follower episode cost of a run's last ``rows`` logged windows (the card's),
+    with its budget and verdict for ``ppo_lagrangian``; ``–`` without ``progress.csv``."""
+    if not progress.is_file():
+        return "–"
+    cost = float(np.nanmean(read_progress(progress)["cost_mean"][-rows:]))
+    if budget is None:
+        return f"{cost:.3f}"
+    return f"{cost:.3f} ({_within(cost, budget)} {budget:g})"
+
+
+def cost_budget(meta: Mapping[str, Any]) -> float | None:
+    """The cost budget of a ``ppo_lagrangian`` model's ``model.json`` (else None)."""
+    if meta.get("algo") != "ppo_lagrangian":
+        return None
+    budget = (meta.get("config") or {}).get("cost_budget")
+    return None if budget is None else float(budget)
 
 
 def _task_lines(board: Board, entry: Entry, run: int) -> list[str]:
@@ -168,7 +201,7 @@ def card_markdown(board: Board, entry: Entry, run: int, summary: str = "") -> st
         "## Training",
         "",
         *_training_summary(meta),
-        f"- learning curve: {_curve_end(folder / 'progress.csv')}",
+        f"- learning curve: {_curve_end(folder / 'progress.csv', cost_budget(meta))}",
         "",
         "## Evaluation (every leaderboard task)",
         "",
@@ -215,16 +248,21 @@ def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
         "The cards, this table and the learning curves are written by "
         "`python -m experiments.studies.leaderboard`.",
         "",
-        "| model | configuration | seed | transitions | wall time | core-hours | "
+        "The training cost is the mean follower episode cost (the share of follower episodes "
+        "with a violation) over the learning curve's last five windows; for PPO-Lagrangian "
+        "runs, whether it is within the run's budget.",
+        "",
+        "| model | configuration | seed | transitions | wall time | core-hours | training cost | "
         + " | ".join(f"{s} success" for s in SUITES)
         + " |",
-        "|---|---|---|---|---|---|" + "---|" * len(SUITES),
+        "|---|---|---|---|---|---|---|" + "---|" * len(SUITES),
     ]
     for e in board.entries:
         if not e.learned:
             continue
         for i, spec in enumerate(e.runs):
             meta = spec.model_metadata()
+            folder = spec.path.parent if spec.path is not None else Path(".")
             wall_min = float(meta.get("wall_time_s") or 0) / 60
             rates = []
             for s in SUITES:
@@ -234,6 +272,7 @@ def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
             lines.append(
                 f"| [`{spec.name}`]({spec.name}/README.md) | `{e.name}` | {meta.get('seed')} | "
                 f"{meta.get('timesteps', 0):,} | {wall_min:.1f} min | {core_hours(meta):.2f} | "
+                f"{_end_cost(folder / 'progress.csv', cost_budget(meta))} | "
                 + " | ".join(rates)
                 + " |"
             )
