@@ -261,13 +261,14 @@ CONFIGS: dict[str, Config] = by_name(
     ),
     Config(
         "residual_filtered_realism",
-        "fast engine: as residual_drive_realism on the filtered PPC law (no drive lookahead)",
+        "fast engine: as residual_drive_realism on the filtered PPC law (no drive lookahead), "
+        "10 M transitions (its aruco twin residual_filtered_aruco flattened within them)",
         _with(
             _RESIDUAL,
             sensor_profile="aruco",
             residual="filtered_ppc",
             realism_preset="ideal_to_beyond_aruco",
-            timesteps="20000000",
+            timesteps="10000000",
         ),
     ),
     Config(
