@@ -214,7 +214,7 @@ class TrainConfig:
         None,
         "fast, ppo_lagrangian: scaling of the cost advantages in the surrogate: centred "
         "(FastPPOConfig's default, OmniSafe's) or standardised over the rollout "
-        "(training.fast_ppo.COST_ADVANTAGES)",
+        "(COST_ADVANTAGES in training.config)",
         choices=COST_ADVANTAGES,
     )
     init_from: str | None = _opt(

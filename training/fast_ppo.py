@@ -164,7 +164,6 @@ __all__ = [
 
 #: What :func:`train_fast` trains: PPO, or PPO with a cost critic and a Lagrange multiplier.
 ALGOS = ("ppo", "ppo_lagrangian")
-
 #: What ``model.json`` names as the trainer of this module's models.
 TRAINER = "training.fast_ppo"
 #: The two saved points of a run: the final model and the latest checkpoint.
