@@ -9,14 +9,15 @@ from pathlib import Path
 import pytest
 
 import platoon_env
+from experiments.report import wilson
 from experiments.studies.cards import (
     _curve_end,
-    _end_cost,
     _observation_option,
     _profile,
     _training_summary,
     core_hours,
     cost_budget,
+    end_cost,
     training_cores,
 )
 from platoon_env.observation import OBS_NAMES, OBS_NAMES_SCALE_FREE, OBS_NAMES_TASK
@@ -63,23 +64,28 @@ def test_core_hours_count_every_core_a_run_occupied() -> None:
     assert "2.00 core-hours on 1 core(s)" in line
 
 
-def test_a_lagrangian_card_says_whether_the_end_of_its_curve_is_within_its_budget(
+def test_a_lagrangian_card_says_whether_the_end_of_training_is_within_its_budget(
     tmp_path: Path,
 ) -> None:
     progress = tmp_path / "progress.csv"
     rows = ["timesteps,wall_time_s,episodes,return_mean,success_rate,cost_mean,lambda"]
-    # the last five windows' mean cost: (0.2 + 0.1 + 0.1 + 0.1 + 0.1) / 5 = 0.12
-    for k, cost in enumerate([0.5, 0.2, 0.1, 0.1, 0.1, 0.1]):
-        rows.append(f"{(k + 1) * 100},{k},10,1.0,0.5,{cost},{3.0 + k}")
+    # 20 windows of 100 transitions; the last 10 % (timesteps > 1800): windows 1900 and 2000,
+    # 400 + 600 follower episodes with costs 0.1 and 0.2: 40 + 120 = 160 of 1000.
+    for k in range(1, 21):
+        episodes, cost = {19: (400, 0.1), 20: (600, 0.2)}.get(k, (100, 0.9))
+        rows.append(f"{k * 100},{k},{episodes},1.0,0.5,{cost},{3.0 + k}")
     progress.write_text("\n".join(rows) + "\n")
     assert cost_budget({"algo": "ppo", "config": {"cost_budget": 0.05}}) is None
-    budget = cost_budget({"algo": "ppo_lagrangian", "config": {"cost_budget": 0.15}})
-    assert budget == pytest.approx(0.15)
-    line = _curve_end(progress, budget)
-    assert "follower episode cost 0.120 (within its budget 0.15)" in line
-    assert line.endswith("multiplier λ 8.000")
-    assert "(above its budget 0.1)" in _curve_end(progress, 0.1)
+    budget = cost_budget({"algo": "ppo_lagrangian", "config": {"cost_budget": 0.17}})
+    assert budget == pytest.approx(0.17)
+    lo, hi = wilson(160, 1000)
+    interval = f"0.160 [{lo:.3f}, {hi:.3f}] over 1,000 follower episodes"
+    assert end_cost(progress) == interval
+    assert end_cost(progress, 0.17) == f"{interval}, within its budget 0.17"
+    assert end_cost(progress, 0.15) == f"{interval}, not significantly above its budget 0.15"
+    assert end_cost(progress, 0.1) == f"{interval}, above its budget 0.1"
+    assert end_cost(tmp_path / "missing.csv", 0.1) == "–"
+    line = _curve_end(progress, 0.17)
+    assert "multiplier λ 23.000; cost at the end of training" in line
+    assert line.endswith("within its budget 0.17")
     assert "budget" not in _curve_end(progress)
-    assert _end_cost(progress, 0.1) == "0.120 (above 0.1)"
-    assert _end_cost(progress, None) == "0.120"
-    assert _end_cost(tmp_path / "missing.csv", 0.1) == "–"

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from experiments.report import wilson
 from experiments.studies.sweep import CONFIGS
 from experiments.suites import LEADERBOARD_SUITES as SUITES
 from platoon_env.observation import OBS_NAMES_SCALE_FREE, OBS_NAMES_TASK
@@ -30,6 +31,7 @@ __all__ = [
     "card_markdown",
     "core_hours",
     "cost_budget",
+    "end_cost",
     "index_markdown",
     "training_cores",
     "write_cards",
@@ -106,35 +108,53 @@ def _training_summary(meta: Mapping[str, Any]) -> list[str]:
 
 def _curve_end(progress: Path, budget: float | None = None, rows: int = 5) -> str:
     """The end of a run's learning curve: its last ``rows`` logged windows' means, and with a
-    cost ``budget`` (``ppo_lagrangian``) whether that mean cost is within it."""
+    cost ``budget`` (``ppo_lagrangian``) :func:`end_cost`'s verdict."""
     if not progress.is_file():
         return "no `progress.csv` (trained before learning curves were logged)"
     p = read_progress(progress)
     last = slice(-rows, None)
-    cost = float(np.nanmean(p["cost_mean"][last]))
-    verdict = "" if budget is None else f" ({_within(cost, budget)} its budget {budget:g})"
     return (
         f"over the last {min(rows, len(p['timesteps']))} logged windows (up to "
         f"{int(p['timesteps'][-1]):,} transitions): team success rate "
         f"{np.nanmean(p['success_rate'][last]):.2f}, follower episode cost "
-        f"{cost:.3f}{verdict}, return {np.nanmean(p['return_mean'][last]):.1f}"
+        f"{np.nanmean(p['cost_mean'][last]):.3f}, return {np.nanmean(p['return_mean'][last]):.1f}"
         + (f", multiplier λ {p['lambda'][-1]:.3f}" if not math.isnan(p["lambda"][-1]) else "")
+        + ("" if budget is None else f"; cost at the end of training {end_cost(progress, budget)}")
     )
 
 
-def _within(cost: float, budget: float) -> str:
-    return "within" if cost <= budget else "above"
+#: The share of a run's transitions, at its end, over which :func:`end_cost` averages.
+END_SHARE = 0.1
 
 
-def _end_cost(progress: Path, budget: float | None, rows: int = 5) -> str:
-    """The mean follower episode cost of a run's last ``rows`` logged windows (the card's),
-    with its budget and verdict for ``ppo_lagrangian``; ``–`` without ``progress.csv``."""
+def end_cost(progress: Path, budget: float | None = None) -> str:
+    """The follower episode cost at the end of training: over the logged windows of the last
+    :data:`END_SHARE` of the run's transitions, the mean cost of the follower episodes that
+    ended in them (weighted by their count) with a 95 % Wilson interval (the episodes counted
+    as independent; a copy's followers end together, so it is somewhat narrow), and with a
+    ``budget`` the verdict: **within** (mean at most the budget), **not significantly above**
+    (the interval holds the budget: a multiplier holding the cost at its budget ends there
+    about half the time), or **above**. ``–`` without ``progress.csv`` or episodes."""
     if not progress.is_file():
         return "–"
-    cost = float(np.nanmean(read_progress(progress)["cost_mean"][-rows:]))
+    p = read_progress(progress)
+    steps = p["timesteps"]
+    keep = (steps > (1.0 - END_SHARE) * steps[-1]) & (p["episodes"] > 0)
+    n = int(p["episodes"][keep].sum())
+    if n == 0:
+        return "–"
+    k = min(round(float((p["cost_mean"][keep] * p["episodes"][keep]).sum())), n)
+    lo, hi = wilson(k, n)
+    text = f"{k / n:.3f} [{lo:.3f}, {hi:.3f}] over {n:,} follower episodes"
     if budget is None:
-        return f"{cost:.3f}"
-    return f"{cost:.3f} ({_within(cost, budget)} {budget:g})"
+        return text
+    if k / n <= budget:
+        verdict = "within"
+    elif lo <= budget:
+        verdict = "not significantly above"
+    else:
+        verdict = "above"
+    return f"{text}, {verdict} its budget {budget:g}"
 
 
 def cost_budget(meta: Mapping[str, Any]) -> float | None:
@@ -248,9 +268,10 @@ def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
         "The cards, this table and the learning curves are written by "
         "`python -m experiments.studies.leaderboard`.",
         "",
-        "The training cost is the mean follower episode cost (the share of follower episodes "
-        "with a violation) over the learning curve's last five windows; for PPO-Lagrangian "
-        "runs, whether it is within the run's budget.",
+        "The training cost is the follower episode cost (the share of follower episodes with a "
+        "violation) at the end of training: over the last 10 % of the run's transitions, with "
+        "a 95 % Wilson interval and, for PPO-Lagrangian runs, the verdict against the run's "
+        "budget (`experiments.studies.cards.end_cost`).",
         "",
         "| model | configuration | seed | transitions | wall time | core-hours | training cost | "
         + " | ".join(f"{s} success" for s in SUITES)
@@ -272,7 +293,7 @@ def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
             lines.append(
                 f"| [`{spec.name}`]({spec.name}/README.md) | `{e.name}` | {meta.get('seed')} | "
                 f"{meta.get('timesteps', 0):,} | {wall_min:.1f} min | {core_hours(meta):.2f} | "
-                f"{_end_cost(folder / 'progress.csv', cost_budget(meta))} | "
+                f"{end_cost(folder / 'progress.csv', cost_budget(meta))} | "
                 + " | ".join(rates)
                 + " |"
             )
