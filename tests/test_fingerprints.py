@@ -84,6 +84,16 @@ MODEL_FINGERPRINTS: dict[str, str | None] = {
         for config in ("residual_filtered_aruco", "residual_drive_aruco")
         for seed in range(5)
     },
+    # trained with the realism drawn per episode (--realism-preset ideal_to_beyond_aruco)
+    **{
+        f"{config}_s{seed}": "50e90b617867fee77fc42ec902d0dc884c129a0b0397dd619f4e5ba5ff79bcbc"
+        for config in (
+            "residual_drive_realism",
+            "residual_filtered_realism",
+            "lag_residual_drive_realism",
+        )
+        for seed in range(5)
+    },
 }
 
 

@@ -39,11 +39,13 @@ def test_a_shipped_run_loads_suits_its_env_and_has_its_files(run: Path) -> None:
     # the task-aware layout: 13 values, 15 scale-free (docs/observations.md)
     assert policy.task_aware and policy.observation_size == (15 if scale_free else 13)
     observation = {"task_aware": True, "scale_free": True} if scale_free else {"task_aware": True}
+    preset = cfg.get("realism_preset")  # the realism drawn per episode in training
     env = platoon_env.make(
         meta["scenario"],
         control_period=policy.control_period,
         sensor_profile=cfg["sensor_profile"],
         observation=observation,
+        **({"realism": {"preset": preset}} if preset else {}),
     )
     notes = policy.check_env(env)
     assert all("not held out" in n for n in notes)  # the training env itself

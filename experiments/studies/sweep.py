@@ -313,6 +313,9 @@ SHIPPED: tuple[str, ...] = (
     "residual_ppc",
     "residual_filtered_aruco",
     "residual_drive_aruco",
+    "residual_drive_realism",
+    "residual_filtered_realism",
+    "lag_residual_drive_realism",
 )
 
 #: The seeds of a sweep unless ``--seeds`` says otherwise.
