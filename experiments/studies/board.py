@@ -31,6 +31,7 @@ __all__ = [
     "Board",
     "Entry",
     "Task",
+    "TooFewLayoutsError",
     "build_board",
     "cells",
     "entries",
@@ -149,18 +150,24 @@ def tasks(paper_seeds: int | None = None, heldout_seeds: int | None = None) -> l
     return out
 
 
+class TooFewLayoutsError(ValueError):
+    """A partitioned task (:data:`PARTITIONED_SUITES`) has fewer layouts than a configuration
+    has runs to share them out among: some run would play none."""
+
+
 def cells(
     board_entries: Sequence[Entry], board_tasks: Sequence[Task]
 ) -> tuple[list[ResolvedCell], dict[tuple[str, Task], str]]:
     """The resolved cells of every entry run × task × seed, and the (entry, task) pairs that
     cannot run at all, with the reason (a model whose control period the condition's sensors
-    refuse, e.g. a 20 Hz policy with a 30 Hz camera)."""
+    refuse, e.g. a 20 Hz policy with a 30 Hz camera). :class:`TooFewLayoutsError` if a
+    partitioned task has fewer layouts than the board's most runs."""
     out: list[ResolvedCell] = []
     refused: dict[tuple[str, Task], str] = {}
     runs = span(board_entries)
     short = [t for t in board_tasks if t.partitioned and t.seeds < runs]
     if short:
-        raise ValueError(
+        raise TooFewLayoutsError(
             f"{short[0].suite} has {short[0].seeds} layouts per task, fewer than the {runs} runs "
             "of a configuration that share them out: every run needs at least one"
         )

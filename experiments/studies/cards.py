@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from experiments.report import wilson
 from experiments.studies.sweep import CONFIGS
@@ -119,7 +120,7 @@ def _curve_end(progress: Path, budget: float | None = None, rows: int = 5) -> st
         f"{np.nanmean(p['success_rate'][last]):.2f}, follower episode cost "
         f"{np.nanmean(p['cost_mean'][last]):.3f}, return {np.nanmean(p['return_mean'][last]):.1f}"
         + (f", multiplier λ {p['lambda'][-1]:.3f}" if not math.isnan(p["lambda"][-1]) else "")
-        + ("" if budget is None else f"; cost at the end of training {end_cost(progress, budget)}")
+        + ("" if budget is None else f"; cost at the end of training {_end_cost(p, budget)}")
     )
 
 
@@ -135,9 +136,11 @@ def end_cost(progress: Path, budget: float | None = None) -> str:
     ``budget`` the verdict: **within** (mean at most the budget), **not significantly above**
     (the interval holds the budget: a multiplier holding the cost at its budget ends there
     about half the time), or **above**. ``–`` without ``progress.csv`` or episodes."""
-    if not progress.is_file():
-        return "–"
-    p = read_progress(progress)
+    return _end_cost(read_progress(progress), budget) if progress.is_file() else "–"
+
+
+def _end_cost(p: Mapping[str, NDArray[np.float64]], budget: float | None) -> str:
+    """:func:`end_cost` of the learning curve ``p`` (:func:`read_progress`'s columns)."""
     steps = p["timesteps"]
     keep = (steps > (1.0 - END_SHARE) * steps[-1]) & (p["episodes"] > 0)
     n = int(p["episodes"][keep].sum())

@@ -91,6 +91,7 @@ from experiments.studies.board import (
     Board,
     Entry,
     Task,
+    TooFewLayoutsError,
     build_board,
     cells,
     entries,
@@ -650,7 +651,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     try:
         grid, refused = cells(board_entries, board_tasks)
-    except ValueError as exc:
+    except TooFewLayoutsError as exc:
         print(f"platoon-leaderboard: error: {exc} (--heldout-seeds)", file=sys.stderr)
         return 2
     print(f"{len(board_entries)} policies, {len(board_tasks)} tasks, {len(grid)} episodes")
