@@ -73,7 +73,7 @@ import math
 import os
 import tempfile
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -92,6 +92,7 @@ from platoon_env.observation import (
 )
 from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping, file_sha256
 from training.experts import EXPERTS, to_normalised
+from training.forward import MLPForward, sb3_forward
 from training.vec_env import ActionRange
 
 __all__ = [
@@ -368,31 +369,29 @@ class MLPActor:
     + b_L`` (no activation after the last layer), with SB3's ``predict`` signature.
 
     This is how an RLlib-trained policy (:mod:`training.rllib`) is evaluated: the mean of its
-    Gaussian, computed with NumPy (no Ray, no torch, no unpickling).
+    Gaussian, computed by :class:`training.forward.MLPForward` (no Ray, no torch, no
+    unpickling; each row the same to the bit whatever the batch).
     """
 
     def __init__(self, layers: list[tuple[NDArray[np.float32], NDArray[np.float32]]]) -> None:
         if not layers:
             raise ValueError("an MLPActor needs at least one layer")
-        for k, (w, b) in enumerate(layers):
-            if w.ndim != 2 or b.shape != (w.shape[0],):
-                raise ValueError(f"layer {k}: weight {w.shape} and bias {b.shape} do not match")
-            if k and w.shape[1] != layers[k - 1][0].shape[0]:
-                raise ValueError(
-                    f"layer {k} takes {w.shape[1]} inputs, layer {k - 1} gives "
-                    f"{layers[k - 1][0].shape[0]}"
-                )
+        last = len(layers) - 1
+        #: The network (a row-invariant forward pass).
+        self.forward = MLPForward(
+            [(w, b, "tanh" if k < last else "identity") for k, (w, b) in enumerate(layers)]
+        )
         self.layers = layers
 
     @property
     def input_dim(self) -> int:
         """Length of an observation."""
-        return int(self.layers[0][0].shape[1])
+        return self.forward.input_dim
 
     @property
     def output_dim(self) -> int:
         """Length of an action."""
-        return int(self.layers[-1][0].shape[0])
+        return self.forward.output_dim
 
     @classmethod
     def from_arrays(cls, arrays: Mapping[str, NDArray[Any]]) -> MLPActor:
@@ -420,13 +419,7 @@ class MLPActor:
         self, observation: NDArray[Any], deterministic: bool = True
     ) -> tuple[NDArray[np.float32], None]:
         """The actions ``(B, output_dim)`` for observations ``(B, input_dim)`` (always greedy)."""
-        x = np.asarray(observation, dtype=np.float32)
-        last = len(self.layers) - 1
-        for k, (w, b) in enumerate(self.layers):
-            x = x @ w.T + b
-            if k < last:
-                x = np.tanh(x)
-        return x.astype(np.float32), None
+        return self.forward(np.asarray(observation, dtype=np.float32)), None
 
 
 #: ``model.json`` files already warned about (a ``format_version`` 1 file has no zip hash).
@@ -522,15 +515,70 @@ def _family(mapping: Mapping[str, Any] | None, name: Any) -> str:
     return f"fixed workspace {name!r}"
 
 
-def _fast_actor(
-    model: Any, clip: bool = True
-) -> Callable[[NDArray[np.float32]], NDArray[np.float32]] | None:
-    """A function computing the deterministic action of an SB3 ``ActorCriticPolicy`` with a
-    diagonal Gaussian head and a Box action space as ``predict`` does, or None for any other
-    model (SAC, an RLlib actor, a squashed or state-dependent head). ``clip=False``: the mean
-    itself, not clipped to the action space (a residual policy adds it to its law's action
-    before clipping)."""
-    import torch
+class FastActor:
+    """A model's deterministic action computed by its :class:`~training.forward.MLPForward`
+    (what :func:`fast_actor` gives), optionally clipped to the action box ``[low, high]``.
+
+    :attr:`key` names what it computes: two fast actors with equal keys give the same actions,
+    so the batched evaluator runs the copies of a chunk through one call
+    (:meth:`LearnedPolicy.act_group`). Built from a torch module, it follows the module's
+    weights: a parameter changed in place (more training) rebuilds the forward at the next
+    call (torch's version counters say when)."""
+
+    def __init__(
+        self,
+        forward: MLPForward,
+        low: NDArray[np.float32] | None = None,
+        high: NDArray[np.float32] | None = None,
+        module: Any = None,
+    ) -> None:
+        self.forward = forward
+        self.low = low
+        self.high = high
+        self._clip = "" if low is None or high is None else f"{low.tolist()}{high.tolist()}"
+        self._module = module
+        self._versions = self._read_versions()
+
+    def _read_versions(self) -> tuple[int, ...]:
+        if self._module is None:
+            return ()
+        return tuple(p._version for p in self._module.parameters())
+
+    def _sync(self) -> MLPForward:
+        """The forward of the module's current weights."""
+        if self._module is not None:
+            versions = self._read_versions()
+            if versions != self._versions:
+                rebuilt = sb3_forward(self._module)
+                if rebuilt is not None:
+                    self.forward = rebuilt
+                self._versions = versions
+        return self.forward
+
+    @property
+    def key(self) -> tuple[str, str]:
+        """The network's digest and the clip box."""
+        return (self._sync().digest, self._clip)
+
+    def __call__(self, obs: NDArray[np.float32]) -> NDArray[np.float32]:
+        out = self._sync()(obs)
+        if self.low is None or self.high is None:
+            return out
+        return np.clip(out, self.low, self.high)
+
+
+def fast_actor(model: Any, clip: bool = True) -> FastActor | None:
+    """The deterministic action of ``model`` as a :class:`FastActor`, or None for a model it
+    cannot compute (then ``predict`` is called): an SB3 ``ActorCriticPolicy`` with a diagonal
+    Gaussian head, a Box action space and a plain MLP (:func:`training.forward.sb3_forward`;
+    the mean clipped to the action space as ``predict(obs, deterministic=True)`` does, or with
+    ``clip=False`` the mean itself: a residual policy adds it to its law's action before
+    clipping), or an :class:`MLPActor` (its output, unclipped as its ``predict``).
+
+    It agrees with ``predict`` within float32 rounding, not to the bit: it sums in float64 in a
+    fixed order so that each row is the same whatever the batch (:mod:`training.forward`)."""
+    if isinstance(model, MLPActor):
+        return FastActor(model.forward)
     from stable_baselines3.common.distributions import DiagGaussianDistribution
     from stable_baselines3.common.policies import ActorCriticPolicy
 
@@ -540,21 +588,15 @@ def _fast_actor(
     if not isinstance(policy.action_dist, DiagGaussianDistribution):
         return None
     space = policy.action_space
-    if not isinstance(space, spaces.Box) or not policy.share_features_extractor:
+    if not isinstance(space, spaces.Box) or space.shape != (ACT_SIZE,):
         return None
-    policy.set_training_mode(False)
-    low, high = space.low, space.high
-
-    def act(obs: NDArray[np.float32]) -> NDArray[np.float32]:
-        with torch.no_grad():
-            t = torch.as_tensor(obs, device=policy.device)
-            features = policy.extract_features(t, policy.pi_features_extractor)
-            assert isinstance(features, torch.Tensor)  # a shared extractor gives one tensor
-            mean = policy.action_net(policy.mlp_extractor.forward_actor(features))
-        out = mean.cpu().numpy().reshape(len(obs), ACT_SIZE)
-        return np.clip(out, low, high) if clip else out
-
-    return act
+    forward = sb3_forward(policy)
+    if forward is None or forward.output_dim != ACT_SIZE:
+        return None
+    if not clip:
+        return FastActor(forward, module=policy)
+    low, high = space.low.astype(np.float32), space.high.astype(np.float32)
+    return FastActor(forward, low, high, module=policy)
 
 
 class LearnedPolicy:
@@ -636,7 +678,7 @@ class LearnedPolicy:
         self._sent: dict[str, NDArray[np.float32]] = {}
         self._env: Any = None
         self._law: Any = None
-        self._fast: Callable[[NDArray[np.float32]], NDArray[np.float32]] | None = None
+        self._fast: FastActor | None = None
         self._fast_checked = False
         n = len(self.observation_layout)
         if self.obs_scale is not None and self.obs_scale.shape != (n,):
@@ -952,23 +994,28 @@ class LearnedPolicy:
         self._law = EXPERTS[self.residual](self._env)
         self._law.reset(seed=seed)
 
-    def _deterministic(self, obs: NDArray[np.float32]) -> NDArray[np.float32]:
-        """The model's deterministic actions for a batch of (scaled) observations.
-
-        For an SB3 actor-critic (PPO) with a Gaussian head, the operations of
-        ``model.predict(obs, deterministic=True)`` are done directly: features, the actor's
-        latent, the action mean, clipped to the action space. The result is the same to the
-        bit (tested), without ``predict``'s per-call bookkeeping (switching the modules to
-        evaluation mode, building the action distribution), which took four fifths of an
-        evaluation episode. Other models go through ``predict``.
-        """
+    def _fast_actor(self) -> FastActor | None:
+        """The model's :class:`FastActor` (built on first use), or None: ``predict`` is used."""
         if not self._fast_checked:
-            self._fast = _fast_actor(self.model, clip=self.residual is None)
+            self._fast = fast_actor(self.model, clip=self.residual is None)
             self._fast_checked = True
             if self._fast is None and self.residual is not None:
                 raise ValueError("a residual policy needs an SB3 PPO model with a Gaussian head")
-        if self._fast is not None:
-            return self._fast(obs)
+        return self._fast
+
+    def _deterministic(self, obs: NDArray[np.float32]) -> NDArray[np.float32]:
+        """The model's deterministic actions for a batch of (scaled) observations.
+
+        For an SB3 actor-critic (PPO) with a Gaussian head and an MLP, and for an RLlib
+        actor, the network's mean is computed by :class:`~training.forward.MLPForward` (clipped
+        to the action space as ``model.predict(obs, deterministic=True)`` does, unless the
+        policy is a residual): each row the same to the bit whatever the batch, within float32
+        rounding of ``predict`` (tested), and without ``predict``'s per-call bookkeeping. Other
+        models go through ``predict``.
+        """
+        fast = self._fast_actor()
+        if fast is not None:
+            return fast(obs)
         actions, _ = self.model.predict(obs, deterministic=True)
         return np.asarray(actions, dtype=np.float32).reshape(len(obs), ACT_SIZE)
 
@@ -979,6 +1026,42 @@ class LearnedPolicy:
         if not agents:
             return {}
         return self._commands(agents, observations, self._deterministic(inputs))
+
+    @classmethod
+    def act_group(
+        cls,
+        policies: Sequence[LearnedPolicy],
+        observations: Sequence[Mapping[str, NDArray[Any]]],
+    ) -> list[dict[str, NDArray[np.float32]]]:
+        """What ``[p.act(o) for p, o in zip(policies, observations)]`` returns, with one
+        network call for all the policies that compute the same network (equal
+        :attr:`FastActor.key`, e.g. the copies of one model in a chunk of the batched
+        evaluator, :mod:`experiments.batched_eval`). The results are those of each ``act`` to
+        the bit: the forward pass does not depend on the batch (:mod:`training.forward`)."""
+        if len(policies) != len(observations):
+            raise ValueError(
+                f"act_group needs one observation dict per policy, got {len(observations)} "
+                f"for {len(policies)}"
+            )
+        out: list[dict[str, NDArray[np.float32]] | None] = [None] * len(policies)
+        groups: dict[tuple[str, str], list[tuple[int, list[str], NDArray[np.float32]]]] = {}
+        for i, (policy, obs) in enumerate(zip(policies, observations, strict=True)):
+            fast = policy._fast_actor()
+            agents, inputs = policy._model_input(obs)
+            if fast is None or not agents:
+                out[i] = policy.act(obs)
+                continue
+            groups.setdefault(fast.key, []).append((i, agents, inputs))
+        for members in groups.values():
+            first = policies[members[0][0]]._fast_actor()
+            assert first is not None  # grouped by its key
+            actions = first(np.concatenate([inputs for _, _, inputs in members]))
+            start = 0
+            for i, agents, _ in members:
+                rows = actions[start : start + len(agents)]
+                start += len(agents)
+                out[i] = policies[i]._commands(agents, observations[i], rows)
+        return [o if o is not None else {} for o in out]
 
     def _model_input(
         self, observations: Mapping[str, NDArray[Any]]
