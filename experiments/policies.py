@@ -1,15 +1,17 @@
 """The policy registry: every policy an experiment can run, by name, and its fingerprint.
 
 A :class:`PolicySpec` says which policy a grid cell runs: a display ``name``, a registered
-``kind`` (:data:`REGISTRY`: the analytic laws) or ``"model"`` (a model saved by
-``platoon-train``), and the keyword arguments of its constructor (``params``). Specs are plain
+``kind`` (:data:`REGISTRY`: the analytic laws), ``"model"`` (a model saved by
+``platoon-train``) or ``"user"`` (a user's class named ``module:Class``, :func:`load_user_class`),
+and the keyword arguments of its constructor (``params``). Specs are plain
 data, so they pickle to worker processes; :func:`build_policy` builds the policy there, for
 the env of the cell.
 
 The **fingerprint** (:meth:`PolicySpec.fingerprint`) is what identifies the policy in the
 evaluation store: for an analytic law its factory and parameters (the scenario's own PPC gains
 are part of the scenario's fingerprint), for a model the SHA-256 of ``model.zip`` together with
-the content of its ``model.json``. A different model saved under the same name is another
+the content of its ``model.json``, for a user's class its ``module:Class``, parameters and the
+SHA-256 of its module's source file. A different model saved under the same name is another
 policy; the same model under another name is the same one.
 """
 
@@ -20,7 +22,9 @@ import hashlib
 import importlib
 import io
 import json
+import os
 import re
+import sys
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -34,20 +38,25 @@ __all__ = [
     "MODEL",
     "REGISTRY",
     "STUDY_DRIVERS",
+    "USER",
     "PolicyFileChanged",
     "PolicyKind",
     "PolicySpec",
+    "UserPolicyError",
     "analytic_policies",
     "build_policy",
     "configurations",
     "default_models_dir",
     "load_model",
+    "load_user_class",
     "register_policy",
     "shipped_models",
 ]
 
 #: The kind of a model saved by ``platoon-train`` (``DIR/model.zip`` + ``DIR/model.json``).
 MODEL = "model"
+#: The kind of a user's policy class, ``module:Class`` (:meth:`PolicySpec.user`).
+USER = "user"
 
 
 @dataclass(frozen=True)
@@ -93,7 +102,7 @@ REGISTRY: dict[str, PolicyKind] = {
         "PPC behind a constant-velocity Kalman filter with noise-tightened funnels",
         signals=True,
         label="filtered PPC",
-        studies=frozenset({"frontiers", "leaderboard"}),
+        studies=frozenset({"frontiers", "leaderboard", "evaluate"}),
     ),
     "filtered_ppc_drive": PolicyKind(
         "baselines.filtered_ppc_drive:DriveAwareFilteredPPCPolicy",
@@ -101,14 +110,14 @@ REGISTRY: dict[str, PolicyKind] = {
         "layouts under the aruco profile (Remark 3; baselines/data/filtered_ppc_drive.yaml)",
         signals=True,
         label="drive-aware filtered PPC",
-        studies=frozenset({"frontiers", "leaderboard"}),
+        studies=frozenset({"frontiers", "leaderboard", "evaluate"}),
     ),
     "last_seen": PolicyKind(
         "baselines.last_seen:LastSeenPolicy",
         "ref. [32] as the paper describes it: saturated tracking, drive to where the "
         "predecessor was last seen",
         label="last-seen [32]",
-        studies=frozenset({"comparison", "frontiers", "leaderboard"}),
+        studies=_ALL,
     ),
     "last_seen_fov": PolicyKind(
         "baselines.last_seen:LastSeenFOVPolicy",
@@ -122,7 +131,7 @@ REGISTRY: dict[str, PolicyKind] = {
         "(Remark 3; baselines/data/ppc_tuned.yaml)",
         signals=True,
         label="tuned PPC",
-        studies=frozenset({"frontiers", "leaderboard"}),
+        studies=frozenset({"frontiers", "leaderboard", "evaluate"}),
     ),
 }
 
@@ -180,6 +189,68 @@ def _resolve(factory: str) -> Any:
     return getattr(importlib.import_module(module), attr)
 
 
+#: A user's policy class on the command line: ``module:Class`` (a dotted module path).
+_USER_FACTORY = re.compile(r"^[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*$")
+
+
+class UserPolicyError(ValueError):
+    """A ``module:Class`` policy that cannot be used: the module does not import, it has no
+    such attribute, or the attribute is not a policy class (``reset`` and ``act``)."""
+
+
+def load_user_class(factory: str) -> Any:
+    """The class (or factory) ``module:Class`` names, imported as ``python -m`` would: the
+    working directory first on the import path (so ``my_policy.py`` beside the user works in
+    every worker, which inherits the directory). It must be callable as ``Class(env)`` and its
+    instances implement :class:`baselines.Policy` (``reset(seed=None)``,
+    ``act(observations)``); anything else is a :class:`UserPolicyError` saying what is
+    missing."""
+    if not _USER_FACTORY.match(factory):
+        raise UserPolicyError(f"{factory!r} is not of the form module:Class")
+    module_name, _, attr = factory.partition(":")
+    cwd = os.getcwd()
+    if cwd not in sys.path and "" not in sys.path:
+        sys.path.insert(0, cwd)
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        raise UserPolicyError(
+            f"{factory}: no module {exc.name!r} on the import path (the working directory "
+            f"{cwd} and the installed packages); run from the folder that holds it, or set "
+            "PYTHONPATH"
+        ) from None
+    except Exception as exc:  # the user's module raised while importing
+        raise UserPolicyError(
+            f"{factory}: importing {module_name} raised {type(exc).__name__}: {exc}"
+        ) from None
+    if not hasattr(module, attr):
+        raise UserPolicyError(f"{factory}: module {module_name} has no attribute {attr!r}")
+    target = getattr(module, attr)
+    if not callable(target):
+        raise UserPolicyError(f"{factory}: {attr} is not a class (it is {type(target).__name__})")
+    if isinstance(target, type):
+        missing = [m for m in ("reset", "act") if not callable(getattr(target, m, None))]
+        if missing:
+            raise UserPolicyError(
+                f"{factory}: {attr} does not implement the Policy protocol: no "
+                f"{' and no '.join(missing)} method (a policy has reset(seed=None) and "
+                "act(observations) -> {agent: [u, omega]})"
+            )
+    return target
+
+
+def _source_sha256(factory: str) -> str | None:
+    """SHA-256 of the source file of ``factory``'s module (None: none, e.g. a built-in)."""
+    module = sys.modules.get(factory.partition(":")[0])
+    path = getattr(module, "__file__", None)
+    if not path:
+        return None
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
 @dataclass(frozen=True)
 class PolicySpec:
     """One policy of a grid: ``name`` (display), ``kind`` (a :data:`REGISTRY` name or
@@ -200,6 +271,14 @@ class PolicySpec:
     _memo: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
+        if self.kind == USER:
+            if not _USER_FACTORY.match(self.factory) or self.path is not None:
+                raise ValueError(
+                    f"a user policy needs a module:Class factory, got {self.factory!r}"
+                )
+            if not isinstance(json.loads(self.params), dict):
+                raise ValueError(f"params must be a JSON object, got {self.params!r}")
+            return
         if self.kind != MODEL and self.kind not in REGISTRY:
             raise ValueError(
                 f"unknown policy kind {self.kind!r}; known: {', '.join(sorted(REGISTRY))}, {MODEL}"
@@ -215,6 +294,17 @@ class PolicySpec:
     def of(cls, kind: str, name: str | None = None, **params: Any) -> PolicySpec:
         """A registered policy with constructor ``params``, named ``name`` (default: kind)."""
         return cls(name or kind, kind, params=canonical_json(params))
+
+    @classmethod
+    def user(cls, factory: str, name: str | None = None, **params: Any) -> PolicySpec:
+        """A user's policy class ``module:Class`` (:func:`load_user_class`, imported and checked
+        now), built as ``Class(env, **params)`` for every episode, named ``name`` (default: the
+        class's name). Its fingerprint hashes the module's source file, so an edited policy
+        runs again."""
+        load_user_class(factory)
+        return cls(
+            name or factory.partition(":")[2], USER, params=canonical_json(params), factory=factory
+        )
 
     @classmethod
     def model(cls, path: str | Path, name: str | None = None) -> PolicySpec:
@@ -245,6 +335,11 @@ class PolicySpec:
             raise argparse.ArgumentTypeError(f"--policy {text!r}: empty NAME before '='")
         if rest in REGISTRY:
             return cls.of(rest, name or None)
+        if _USER_FACTORY.match(rest) and not Path(rest).exists():
+            try:
+                return cls.user(rest, name or None)
+            except UserPolicyError as exc:
+                raise argparse.ArgumentTypeError(f"--policy {text!r}: {exc}") from None
         try:
             return cls.model(rest, name or None)
         except ValueError as exc:
@@ -294,6 +389,13 @@ class PolicySpec:
     def description(self) -> dict[str, Any]:
         """What the fingerprint hashes, as data (kept in the store beside it; a model's files are
         hashed once per spec)."""
+        if self.kind == USER:
+            return {
+                "kind": USER,
+                "factory": self.factory,
+                "params": self.kwargs,
+                "source_sha256": _source_sha256(self.factory),
+            }
         if self.kind != MODEL:
             return {"kind": self.kind, "factory": self.factory, "params": self.kwargs}
         if "description" not in self._memo:
@@ -374,6 +476,8 @@ def build_policy(
         if bind is not None:  # a residual policy builds its law on the env
             bind(env)
         return policy
+    if spec.kind == USER:
+        return load_user_class(spec.factory)(env, **spec.kwargs)
     return _resolve(spec.factory)(env, **spec.kwargs)
 
 

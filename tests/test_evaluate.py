@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from experiments.policies import analytic_policies
 from experiments.studies.evaluate import CSV_COLUMNS, PolicySpec, main, summarise, wilson
 from training.train import main as train_main
 
@@ -239,27 +240,28 @@ def test_default_benchmark_groups_seeds_and_notes(
 
     rows = _rows(out / "results.csv")
     assert list(rows[0]) == list(CSV_COLUMNS)
+    laws = list(analytic_policies("evaluate"))
+    assert "ppc" in laws and len(laws) >= 4  # PPC and the other laws
     assert sorted((r["scenario"], r["policy"], r["configuration"], r["training_seed"])
-                  for r in rows) == [
+                  for r in rows) == sorted(
         (s, p, c, k)
         for s in ("study_a", "study_c")
-        for p, c, k in (("ppc", "ppc", ""), ("tiny_s0", "tiny", "0"), ("tiny_s1", "tiny", "1"))
-    ]  # fmt: skip
+        for p, c, k in (*((law, law, "") for law in laws), ("tiny_s0", "tiny", "0"),
+                        ("tiny_s1", "tiny", "1"))
+    )  # fmt: skip
     summary = (out / "summary.md").read_text()
     table = [line for line in summary.splitlines() if line.startswith("| study_")]
     assert [line.split(" | ")[:3] for line in table] == [
-        ["| study_a", "ppc", "–"],
-        ["| study_a", "tiny", "0..1"],
-        ["| study_c", "ppc", "–"],
-        ["| study_c", "tiny", "0..1"],
-    ]
+        [f"| {s}", p, k] for s in ("study_a", "study_c")
+        for p, k in sorted([*((law, "–") for law in laws), ("tiny", "0..1")])
+    ]  # fmt: skip
     assert summary.splitlines()[3].startswith("- wall time of this run: ")
     assert "## Notes on the learned models" in summary
     assert "  - seeds 0..1: followers: trained with 2, the env has 7" in summary
     assert "tiny_s0" not in "\n".join(notes)  # the console names configurations, not runs
 
-    width, height = _png_size(out / "plots" / "trajectories.png")  # 2 rows × 2 scenarios
-    assert 1.0 < width / height < 2.5
+    width, height = _png_size(out / "plots" / "trajectories.png")  # a row per law and config
+    assert width / height > 2 / (len(laws) + 1) * 0.8  # 2 scenario columns
     width, height = _png_size(out / "plots" / "study_c_trajectories.png")  # 3 panels
     assert height < 1.5 * width
 

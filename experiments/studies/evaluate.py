@@ -125,6 +125,7 @@ __all__ = [
     "Realism",
     "build",
     "default_policies",
+    "episode_seeds",
     "export_rows",
     "main",
     "mean_ci",
@@ -138,7 +139,7 @@ __all__ = [
     "wilson",
 ]
 
-DEFAULT_SCENARIOS = ("study_a", "study_b", "study_c", "procedural_test")
+DEFAULT_SCENARIOS = ("study_a", "study_b", "study_c")
 #: Episodes (seeds) per policy and scenario by default: every table on the studies is over at
 #: least 20 seeds (each draws its own leader speed factor and start perturbation).
 DEFAULT_EPISODES = 20
@@ -612,6 +613,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         default=0,
         help="first seed (>= 0); episodes use seed..seed+K-1",
     )
+    parser.add_argument(
+        "--every-seed",
+        action="store_true",
+        help="every training seed of a learned configuration plays every episode (R seeds: R "
+        "times the learned episodes); default: a configuration's seeds share the episodes out",
+    )
     parser.add_argument("--out", type=Path, default=Path("results/benchmark"), help="output folder")
     add_models_option(parser, "the default policies include")
     add_workers_option(parser)
@@ -734,12 +741,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     default = the_suite.scenarios if the_suite is not None else DEFAULT_SCENARIOS
     scenarios = list(dict.fromkeys(args.scenario or default))
     seeds = range(args.seed, args.seed + args.episodes)
+    played = episode_seeds(configurations(args.policy), seeds, every_seed=args.every_seed)
     cells = [
         Cell.of(spec, s, seed, cond.overrides)
         for cond in conditions
         for s in scenarios
         for spec in args.policy
-        for seed in seeds
+        for seed in played[spec.name]
     ]
     # each cell's condition by the cell's overrides (the canonical JSON Cell.of writes)
     args.condition_of = {canonical_json(dict(c.overrides)): c for c in conditions}
@@ -756,6 +764,34 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         for rc in args.cells
     }
     return args
+
+
+def episode_seeds(
+    configs: Mapping[str, tuple[str, int | None]], seeds: range, every_seed: bool = False
+) -> dict[str, range | list[int]]:
+    """The episode seeds each policy plays, by name (``configs``: each policy's configuration
+    and training seed, :func:`experiments.policies.configurations`).
+
+    An analytic law, a model on its own and, with ``every_seed``, every training seed play all
+    of ``seeds``. Otherwise the R training seeds of a configuration share them out, as the
+    leaderboard's held-out tasks do: its k-th run (by training seed) plays the k-th of R
+    contiguous slices of ``seeds`` (``n // R`` or ``n // R + 1`` each), so the configuration
+    plays each episode once and costs what one run on all seeds costs; with fewer seeds than
+    runs (n < R) run k plays seed ``k mod n``. The summary pools a configuration's runs
+    (its hierarchical bootstrap resamples the runs, then their episodes)."""
+    runs: dict[str, list[tuple[int, str]]] = defaultdict(list)
+    for name, (configuration, trained) in configs.items():
+        if trained is not None:
+            runs[configuration].append((trained, name))
+    out: dict[str, range | list[int]] = {name: seeds for name in configs}
+    if every_seed:
+        return out
+    n = len(seeds)
+    for members in runs.values():
+        r = len(members)
+        for k, (_, name) in enumerate(sorted(members)):
+            out[name] = seeds[k * n // r : (k + 1) * n // r] if n >= r else [seeds[k % n]]
+    return out
 
 
 def _distinct_scenarios(cells: Sequence[ResolvedCell], given: Sequence[str]) -> list[str]:
@@ -1074,12 +1110,15 @@ def _summary_header(
         if groups
         else ""
     )
+    shared = " (a configuration's training seeds share them out)"
     return (
         f"# {_TOOL}\n\n"
         f"- {len(done)} episodes summarised (seeds {seed_ranges(int(r['seed']) for r in done)}); "
         f"grid: {policy_count} × {len(args.scenario)} scenarios × "
         f"{len(args.conditions)} condition(s) × seeds "
-        f"{seed_ranges(range(args.seed, args.seed + args.episodes))} = {len(result.cells)} "
+        f"{seed_ranges(range(args.seed, args.seed + args.episodes))}"
+        f"{'' if args.every_seed or not groups else shared}"
+        f" = {len(result.cells)} "
         f"episodes, {result.ran} run now and {result.reused} resumed from the store; "
         f"{len(result.failed)} failed\n"
         f"- wall time of this run: {_wall_time(args, result, wall, plots)}\n\n"
