@@ -51,6 +51,7 @@ import importlib.util
 import os
 import re
 import site
+import sys
 import sysconfig
 import tempfile
 import warnings
@@ -349,7 +350,34 @@ def configure_numba_cache() -> Path | None:
     return register_package(PACKAGE_DIR)
 
 
+def is_cold(cache_dir: Path | None) -> bool:
+    """Whether ``cache_dir`` holds no compiled kernel yet (no numba index file): the first use
+    of this source version on this machine (or caching off) compiles every kernel it calls."""
+    if cache_dir is None:
+        return True
+    try:
+        return not any(cache_dir.rglob("*.nbi"))
+    except OSError:
+        return True
+
+
+def cold_start_notice(cache_dir: Path | None) -> str | None:
+    """The one line printed at import when :func:`is_cold`: the first step compiles the
+    kernels (a minute or two), once per source version and machine, and where they are kept;
+    None when the cache already holds kernels or ``PLATOON_ENV_QUIET`` is set."""
+    if os.environ.get("PLATOON_ENV_QUIET") or not is_cold(cache_dir):
+        return None
+    where = f"cached in {cache_dir}" if cache_dir is not None else "not cached: no writable dir"
+    return (
+        "platoon_env: first use of this version here: the first steps compile the simulation "
+        f"kernels (about a minute, once; {where})"
+    )
+
+
 # Importing this module configures the cache: platoon_env/__init__.py imports it before any
 # module that compiles a kernel.
 #: This source version's cache directory of platoon_env's kernels, or None when caching is off.
 CACHE_DIR = configure_numba_cache()
+_NOTICE = cold_start_notice(CACHE_DIR)
+if _NOTICE is not None:
+    print(_NOTICE, file=sys.stderr, flush=True)
