@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -12,6 +13,13 @@ from pathlib import Path
 import pytest
 
 from experiments.policies import USER, PolicySpec, UserPolicyError, load_user_class
+from experiments.published import (
+    FORMAT,
+    PublishedError,
+    load_published,
+    mcnemar_exact,
+    write_published,
+)
 from experiments.studies.evaluate import episode_seeds, main
 
 POLICY = '''
@@ -131,3 +139,68 @@ def test_a_configurations_seeds_share_the_episodes() -> None:
     assert all(every[name] == range(10, 20) for name in configs)
     few = episode_seeds(configs, range(2))
     assert [list(few[f"a_s{k}"]) for k in range(3)] == [[0], [1], [0]]
+
+
+def test_mcnemar_exact() -> None:
+    assert mcnemar_exact(0, 0) == 1.0
+    assert mcnemar_exact(5, 0) == pytest.approx(2 / 32)
+    assert mcnemar_exact(0, 10) == pytest.approx(2 / 1024)
+    assert mcnemar_exact(3, 3) == 1.0
+    with pytest.raises(ValueError):
+        mcnemar_exact(-1, 2)
+
+
+def test_a_user_policy_ranks_against_published_rows(
+    user_module: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Rows of two laws written as a published file; the user's policy alone is run on their
+    scenario and seeds and ranked, without the laws running again; a file of other code, and
+    options the rows do not have, are refused."""
+    base = ["--scenario", "study_c", "--episodes", "3", "--no-plots", "--workers", "1"]
+    assert (
+        main(["--policy", "ppc", "--policy", "last_seen", *base, "--out", str(tmp_path / "a")]) == 0
+    )
+    with (tmp_path / "a" / "results.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    published = write_published(rows, tmp_path / "pub.json", {"commit": "test"})
+    assert sorted(load_published(published).entries()) == ["last_seen", "ppc"]
+
+    out = tmp_path / "b"
+    argv = ["--policy", f"mine={user_module}:Straight", "--compare-to", str(published)]
+    capsys.readouterr()
+    assert main([*argv, "--no-plots", "--workers", "1", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "mine: rank 2 against the published benchmark" in printed  # below ppc, tied last
+    with (out / "results.csv").open() as f:
+        ran = list(csv.DictReader(f))
+    assert {r["policy"] for r in ran} == {"mine"} and len(ran) == 3  # the laws did not run
+    text = (out / "comparison.md").read_text()
+    assert "| study_c | ppc | 0/3" in text and "| 1 | ppc | 1.000 |" in text
+
+    document = json.loads(published.read_text())
+    document["code"] = "0" * 64
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps(document))
+    with pytest.raises(SystemExit):
+        main([*argv[:2], "--compare-to", str(other), "--out", str(tmp_path / "c")])
+    assert "made by other code" in capsys.readouterr().err
+    for extra in (["--sensor-profile", "aruco"], ["--scenario", "study_a"]):
+        with pytest.raises(SystemExit):
+            main([*argv, *extra, "--out", str(tmp_path / "d")])
+    with pytest.raises(SystemExit):
+        main(["--compare-to", str(published), "--out", str(tmp_path / "e")])
+    assert "give --policy" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists() and not (tmp_path / "e").exists()
+
+
+def test_malformed_published_files_are_refused(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.json"
+    for text, match in (
+        ("not json", "not a readable"),
+        ('{"format": "x"}', "not a published-rows file"),
+        (json.dumps({"format": FORMAT, "version": 1, "rows": []}), "non-empty list"),
+        (json.dumps({"format": FORMAT, "version": 1, "rows": [{"seed": 1}]}), "row 0 lacks"),
+    ):
+        bad.write_text(text)
+        with pytest.raises(PublishedError, match=match):
+            load_published(bad)

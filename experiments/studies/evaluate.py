@@ -96,6 +96,16 @@ from experiments.policies import (
     default_models_dir,
     shipped_models,
 )
+from experiments.published import (
+    PUBLISHED,
+    PublishedError,
+    PublishedRows,
+    check_compatible,
+    comparison_markdown,
+    git_state,
+    load_published,
+    write_published,
+)
 from experiments.report import (
     file_stem,
     format_value,
@@ -625,6 +635,20 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     add_batch_option(parser)
     parser.add_argument("--no-plots", action="store_true", help="skip plots and GIFs")
     parser.add_argument(
+        "--compare-to",
+        metavar="published|FILE",
+        default=None,
+        help="rank the --policy entries against the published per-episode rows of the default "
+        "benchmark (experiments/data/published_benchmark.json, or FILE) on their scenarios and "
+        "seeds, without re-running the baselines: writes OUT/comparison.md",
+    )
+    parser.add_argument(
+        "--publish",
+        action="store_true",
+        help="(maintainers) after the default benchmark at a clean commit, write its rows to "
+        "experiments/data/published_benchmark.json for --compare-to",
+    )
+    parser.add_argument(
         "--claim-timeout",
         type=number,
         default=DEFAULT_CLAIM_TIMEOUT,
@@ -685,6 +709,18 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error("--out must name an output folder, not the working directory")
     if args.models is not None and not args.models.is_dir():
         parser.error(f"--models {args.models}: no such folder")
+    args.published = None
+    if args.compare_to is not None:
+        args.published = _compare_to(parser, args)
+    if args.publish:
+        given = [f for f in ("policy", "scenario", "suite", "models", "sensor_profile",
+                             "set_options", *REALISM_BLOCKS) if getattr(args, f)]  # fmt: skip
+        if given or args.episodes != DEFAULT_EPISODES or args.seed or args.every_seed:
+            parser.error("--publish writes the default benchmark's rows: give no other option "
+                         "than --out, --workers, --batch and --no-plots")  # fmt: skip
+        commit, clean = git_state()
+        if not clean:
+            parser.error(f"--publish needs a clean checkout (commit {commit} has changes)")
     if args.policy is None:
         args.policy = default_policies(args.models)
         if not any(p.kind == MODEL for p in args.policy):
@@ -756,6 +792,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     except (ScenarioError, TypeError, OSError, ValueError) as exc:
         detail = str(exc) if isinstance(exc, ScenarioError | TypeError) else f"{exc}"
         parser.error(f"{detail}")
+    if args.published is not None:
+        fingerprints = {rc.cell.scenario: rc.key.scenario for rc in args.cells}
+        try:
+            check_compatible(args.published, fingerprints, seeds)
+        except PublishedError as exc:
+            parser.error(f"--compare-to {args.compare_to}: {exc}")
     args.scenario = _distinct_scenarios(args.cells, scenarios)
     args.policy = _distinct_policies(args.cells, args.policy)
     args.configurations = configurations(args.policy)
@@ -792,6 +834,30 @@ def episode_seeds(
         for k, (_, name) in enumerate(sorted(members)):
             out[name] = seeds[k * n // r : (k + 1) * n // r] if n >= r else [seeds[k % n]]
     return out
+
+
+def _compare_to(parser: argparse.ArgumentParser, args: argparse.Namespace) -> PublishedRows:
+    """The published rows ``--compare-to`` names, read and checked against the options: the
+    user's own policies (``--policy``) on the published scenarios and seeds (the defaults when
+    not given) with no realism flags (the published run had none)."""
+    source = args.compare_to
+    try:
+        published = load_published(PUBLISHED if source == "published" else Path(source))
+    except PublishedError as exc:
+        parser.error(f"--compare-to {source}: {exc}")
+    if args.policy is None:
+        parser.error("--compare-to ranks the policies you name: give --policy NAME=module:Class "
+                     "(or a model, or a law)")  # fmt: skip
+    flags = [f for f in ("suite", "sensor_profile", "set_options", *REALISM_BLOCKS)
+             if getattr(args, f)]  # fmt: skip
+    if flags:
+        parser.error(f"--compare-to: the published rows have no such condition: drop "
+                     f"{', '.join('--' + f.replace('_', '-') for f in flags)}")  # fmt: skip
+    if args.scenario is None:
+        args.scenario = list(published.scenarios)
+    if args.episodes == DEFAULT_EPISODES and args.seed == 0:
+        args.episodes = len(published.seeds)
+    return published
 
 
 def _distinct_scenarios(cells: Sequence[ResolvedCell], given: Sequence[str]) -> list[str]:
@@ -1058,6 +1124,16 @@ def _run(
 
     write_summary(None)  # the results are there even if a plot fails
     print(summary)
+    if args.published is not None:
+        text, ranks = comparison_markdown(_csv_strings(rows), args.published)
+        _write_text(out / "comparison.md", text)
+        for name, rank in ranks.items():
+            print(f"{name}: rank {rank} against the published benchmark (see "
+                  f"{out / 'comparison.md'})")  # fmt: skip
+    if args.publish and not result.failed:
+        commit, _ = git_state()
+        made = {"commit": commit, "date": time.strftime("%Y-%m-%d"), "by": f"{_TOOL} --publish"}
+        print(f"wrote {write_published(_csv_strings(rows), PUBLISHED, made)}")
     if not args.no_plots:
         before = time.perf_counter()
         _plots(args, result, out / "plots", png_metadata(stamp))
