@@ -137,6 +137,7 @@ __all__ = [
     "default_policies",
     "episode_seeds",
     "export_rows",
+    "headline",
     "main",
     "mean_ci",
     "nest_assignments",
@@ -309,6 +310,38 @@ def summarise(rows: Iterable[dict[str, str]]) -> str:
     return "\n\n".join(
         f"### realism: {label}\n\n{_summary_table(rs)}" for label, rs in sorted(by_realism.items())
     )
+
+
+def headline(rows: Iterable[dict[str, str]]) -> str:
+    """``headline.md``: one markdown table, a row per analytic law and learned configuration
+    (training seeds pooled) and a column per scenario (and realism label, when there are
+    several), each cell the successes ``k/n``; the last column the mean success rate over the
+    columns. Rows in the order they first appear (the laws first, by default), failed episodes
+    left out (as in ``summary.md``)."""
+    done = [r for r in rows if r.get("status") == "done"]
+    labels = sorted({r.get("realism_label", "") or "none" for r in done})
+    counts: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 0])
+    columns: list[str] = []
+    entries: list[str] = []
+    for r in done:
+        label = r.get("realism_label", "") or "none"
+        column = r["scenario"] + (f" ({label})" if len(labels) > 1 else "")
+        columns += [] if column in columns else [column]
+        entries += [] if r["configuration"] in entries else [r["configuration"]]
+        cell = counts[(r["configuration"], column)]
+        cell[0] += str(r["success"]).lower() == "true"
+        cell[1] += 1
+    lines = [
+        "| policy | " + " | ".join(columns) + " | mean success |",
+        "|---|" + "---:|" * (len(columns) + 1),
+    ]
+    for entry in entries:
+        cells = [counts.get((entry, c)) for c in columns]
+        rates = [k / n for k, n in (c for c in cells if c and c[1])]
+        shown = [f"{c[0]}/{c[1]}" if c and c[1] else "–" for c in cells]
+        mean = f"{sum(rates) / len(rates):.2f}" if rates else "–"
+        lines.append(f"| {entry} | " + " | ".join(shown) + f" | {mean} |")
+    return "\n".join(lines) + "\n"
 
 
 #: What the columns of :func:`summarise` hold (written under the tables of ``summary.md``).
@@ -1123,6 +1156,7 @@ def _run(
         return wall
 
     write_summary(None)  # the results are there even if a plot fails
+    _write_text(out / "headline.md", headline(_csv_strings(rows)))
     print(summary)
     if args.published is not None:
         text, ranks = comparison_markdown(_csv_strings(rows), args.published)
