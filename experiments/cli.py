@@ -110,7 +110,7 @@ def add_models_option(parser: argparse.ArgumentParser, use: str) -> None:
         type=Path,
         default=None,
         help=f"folder of models (DIR/*/model.zip) {use}; default: the source checkout's "
-        "models/, else ./models",
+        "models/ (never ./models unless named: loading a model unpickles code)",
     )
 
 

@@ -482,14 +482,15 @@ def build_policy(
 
 
 def default_models_dir() -> Path | None:
-    """The folder of shipped models when none is named: the source checkout's ``models/``
-    (a clone), else ``./models`` in the working directory; None when neither holds a model
-    (an installed wheel run elsewhere: pass ``--models DIR``, e.g. a clone's ``models/``)."""
-    candidates = [REPO_ROOT / "models"] if (REPO_ROOT / ".git").exists() else []
-    for folder in (*candidates, Path("models")):
-        if any(folder.glob("*/model.zip")):
-            return folder
-    return None
+    """The folder of shipped models when none is named: the source checkout's ``models/`` (a
+    clone, where the package is installed in editable mode), or None (an installed wheel:
+    pass ``--models DIR``). Never the working directory's ``./models``: loading a model
+    unpickles code, so nothing is loaded from a path the user did not name or the project
+    does not ship."""
+    if not (REPO_ROOT / ".git").exists():
+        return None
+    folder = REPO_ROOT / "models"
+    return folder if any(folder.glob("*/model.zip")) else None
 
 
 def shipped_models(models_dir: Path) -> list[PolicySpec]:

@@ -202,11 +202,50 @@ def _proc_state(pid: int) -> str:
     return text.rsplit(")", 1)[1].split()[0]
 
 
+def _expected_columns() -> dict[str, list[tuple[Any, ...]]]:
+    """Each table's ``PRAGMA table_info`` rows as :data:`_SCHEMA` creates them."""
+    db = sqlite3.connect(":memory:")
+    try:
+        db.executescript(_SCHEMA)
+        names = [r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
+        return {n: [tuple(r) for r in db.execute(f"PRAGMA table_info({n})")] for n in names}
+    finally:
+        db.close()
+
+
+def _foreign_objects(db: sqlite3.Connection) -> list[str]:
+    """The schema objects of ``db`` that this module does not create: triggers, views and
+    indexes (SQLite's own ``sqlite_autoindex_*`` excepted), and store tables whose columns
+    differ from :data:`_SCHEMA`'s (a trigger or a column default runs SQL the store did not
+    write: such a file is refused, never used)."""
+    out: list[str] = []
+    expected = _expected_columns()
+    for kind, name in db.execute("SELECT type, name FROM sqlite_master"):
+        if kind == "table" and name in TABLES:
+            if name in expected:
+                found = [tuple(r) for r in db.execute(f"PRAGMA table_info({name})")]
+                if found != expected[name]:
+                    out.append(f"table {name} (other columns)")
+        elif kind == "index" and str(name).startswith("sqlite_autoindex_"):
+            continue
+        elif kind != "table":
+            out.append(f"{kind} {name}")
+    return out
+
+
 def _check_own(db: sqlite3.Connection, path: Path) -> None:
     """Refuse, before anything is written, a database that is not an evaluation store (another
-    program's tables) or is damaged (``PRAGMA quick_check``). Only reads."""
+    program's tables, or any schema object the store does not create: :func:`_foreign_objects`)
+    or is damaged (``PRAGMA quick_check``). Only reads."""
     tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
     foreign = sorted(tables - TABLES)
+    if not foreign:
+        alien = _foreign_objects(db)
+        if alien:
+            raise StoreError(
+                f"{path}: not an evaluation store as this code writes it: it holds "
+                f"{', '.join(alien[:5])}; it was left untouched: give another path"
+            )
     if tables and not foreign:
         try:
             versioned = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()

@@ -758,8 +758,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.policy = default_policies(args.models)
         if not any(p.kind == MODEL for p in args.policy):
             print(
-                "note: no trained models found (looked in the source checkout's models/ and "
-                "./models); running the analytic policies only: pass --models DIR to add them",
+                "note: no trained models found (looked in the source checkout's models/; the "
+                "working directory's is never read unasked); running the analytic policies "
+                "only: pass --models DIR to add them",
                 file=sys.stderr,
             )
     elif args.models is not None:

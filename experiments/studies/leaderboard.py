@@ -630,7 +630,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if models is None or not models.is_dir():
         print(
             f"platoon-leaderboard: error: no models folder "
-            f"({args.models or 'none found in the checkout or ./models'}); pass --models DIR",
+            f"({args.models or 'none found in the source checkout'}); pass --models DIR",
             file=sys.stderr,
         )
         return 2

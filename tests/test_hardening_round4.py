@@ -1,0 +1,64 @@
+"""Hardening, round 4 (nothing runs that was not asked for): a store file carrying a schema
+object the store does not create is refused untouched, and no model is loaded from the working
+directory's ``./models`` unless it is named."""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+
+import pytest
+
+from experiments import policies
+from experiments.store import Store, StoreError
+
+
+def _store(tmp_path: Path) -> Path:
+    path = tmp_path / "results.sqlite"
+    with Store(path):
+        pass
+    return path
+
+
+@pytest.mark.parametrize(
+    "sql",
+    [
+        "CREATE TRIGGER t AFTER INSERT ON episodes BEGIN UPDATE episodes SET status = 'done'; END",
+        "CREATE VIEW v AS SELECT * FROM episodes",
+        "CREATE INDEX i ON episodes (seed)",
+        "ALTER TABLE episodes ADD COLUMN extra TEXT DEFAULT 'x'",
+    ],
+)
+def test_a_store_with_a_foreign_schema_object_is_refused_untouched(
+    tmp_path: Path, sql: str
+) -> None:
+    path = _store(tmp_path)
+    db = sqlite3.connect(path)
+    db.execute(sql)
+    db.commit()
+    db.close()
+    before = path.read_bytes()
+    with pytest.raises(StoreError, match="not an evaluation store as this code writes it"):
+        Store(path)
+    assert path.read_bytes() == before
+
+
+def test_a_clean_store_still_opens(tmp_path: Path) -> None:
+    path = _store(tmp_path)
+    with Store(path) as store:
+        assert store.path == path
+
+
+def test_models_are_never_read_from_the_working_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A ``./models/x/model.zip`` in the working directory is not a default: outside a source
+    checkout there is no default folder at all."""
+    (tmp_path / "models" / "x").mkdir(parents=True)
+    (tmp_path / "models" / "x" / "model.zip").write_bytes(b"PK")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(policies, "REPO_ROOT", tmp_path / "not_a_checkout")
+    assert policies.default_models_dir() is None
+    monkeypatch.setattr(policies, "REPO_ROOT", Path(__file__).resolve().parents[1])
+    found = policies.default_models_dir()
+    assert found is None or found.resolve() != (tmp_path / "models").resolve()
