@@ -62,3 +62,34 @@ def test_models_are_never_read_from_the_working_directory(
     monkeypatch.setattr(policies, "REPO_ROOT", Path(__file__).resolve().parents[1])
     found = policies.default_models_dir()
     assert found is None or found.resolve() != (tmp_path / "models").resolve()
+
+
+class _Payload:
+    def __reduce__(self) -> tuple[object, tuple[str]]:
+        return (print, ("pwned",))
+
+
+def test_init_from_reads_weights_without_unpickling_code(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--init-from`` reads the zip's ``policy.pth`` as tensors only: a pickled object there is
+    a ``ValueError`` naming the file, and its code never runs; the ``data`` entry (SB3's
+    cloudpickled objects) is not read at all."""
+    import pickle
+    import zipfile
+
+    pytest.importorskip("torch")
+    from training.fast_ppo import initial_weights
+
+    bad = tmp_path / "bad.zip"
+    with zipfile.ZipFile(bad, "w") as archive:
+        archive.writestr("data", pickle.dumps(_Payload()).hex())
+        archive.writestr("policy.pth", pickle.dumps({"x": _Payload()}, protocol=2))
+    with pytest.raises(ValueError, match=r"init_from: .*bad\.zip"):
+        initial_weights(bad, None)  # type: ignore[arg-type]
+    assert "pwned" not in capsys.readouterr().out
+    empty = tmp_path / "empty.zip"
+    with zipfile.ZipFile(empty, "w") as archive:
+        archive.writestr("data", "{}")
+    with pytest.raises(ValueError, match="holds no SB3 policy parameters"):
+        initial_weights(empty, None)  # type: ignore[arg-type]

@@ -96,12 +96,15 @@ import csv
 import dataclasses
 import datetime as dt
 import hashlib
+import io
 import json
 import math
 import os
+import pickle
 import sys
 import time
 import warnings
+import zipfile
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -115,7 +118,6 @@ import torch
 from gymnasium import spaces
 from numpy.typing import NDArray
 from stable_baselines3 import PPO
-from stable_baselines3.common.save_util import load_from_zip_file
 from torch import nn
 from tqdm.auto import tqdm
 
@@ -849,12 +851,22 @@ def train_fast(
 def initial_weights(path: str | os.PathLike[str], net: ActorCritic) -> dict[str, Any]:
     """Load the policy parameters of the SB3 ``PPO`` zip ``path`` into ``net``, all but
     ``log_std`` (``init_from``); returns what ``model.json`` records of the file (its path
-    and SHA-256). ``ValueError`` naming ``init_from`` if it is missing or does not fit."""
+    and SHA-256). ``ValueError`` naming ``init_from`` if it is missing or does not fit.
+
+    Only the zip's ``policy.pth`` is read, with ``torch.load(weights_only=True)``: tensors,
+    never pickled code (the zip's ``data`` entry, which SB3 fills with cloudpickled objects, is
+    not read)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"init_from: no model at {path}")
-    _data, params, _variables = load_from_zip_file(path, device="cpu", print_system_info=False)
-    policy = (params or {}).get("policy")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            raw = archive.read("policy.pth")
+        policy = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+    except KeyError:
+        raise ValueError(f"init_from: {path} holds no SB3 policy parameters") from None
+    except (zipfile.BadZipFile, OSError, RuntimeError, pickle.UnpicklingError) as exc:
+        raise ValueError(f"init_from: {path} is not a readable SB3 model zip ({exc})") from None
     if not isinstance(policy, Mapping):
         raise ValueError(f"init_from: {path} holds no SB3 policy parameters")
     mine = net.sb3_state_dict()
