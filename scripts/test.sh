@@ -6,9 +6,9 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export MPLBACKEND=Agg
 echo "== ruff"
-.venv/bin/ruff check platoon_env baselines training experiments tests benchmarks scripts
-.venv/bin/ruff format --check platoon_env baselines training experiments tests benchmarks scripts
+.venv/bin/ruff check platoon_env baselines training experiments tests benchmarks scripts examples
+.venv/bin/ruff format --check platoon_env baselines training experiments tests benchmarks scripts examples
 echo "== mypy"
-.venv/bin/mypy platoon_env baselines training experiments
+.venv/bin/mypy platoon_env baselines training experiments examples
 echo "== pytest"
 .venv/bin/python -m pytest -n 2 "$@"

@@ -13,7 +13,7 @@ export MPLBACKEND=Agg
 unset RAY_ADDRESS
 if [ "${RLLIB_PYTEST:-1}" != "0" ]; then
   echo "== pytest (rllib)"
-  .venv-rllib/bin/python -m pytest -p no:cacheprovider tests/test_rllib.py "$@"
+  .venv-rllib/bin/python -m pytest -p no:cacheprovider tests/test_rllib.py tests/test_examples.py::test_rllib_example "$@"
 fi
 
 if [ "${RLLIB_CLUSTER:-1}" = "0" ]; then
