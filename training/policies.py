@@ -537,18 +537,20 @@ class FastActor:
         self.high = high
         self._clip = "" if low is None or high is None else f"{low.tolist()}{high.tolist()}"
         self._module = module
+        self._parameters = [] if module is None else list(module.parameters())
         self._versions = self._read_versions()
 
     def _read_versions(self) -> tuple[int, ...]:
-        if self._module is None:
-            return ()
-        return tuple(p._version for p in self._module.parameters())
+        """The version counters of the module's parameters (as listed when built: a parameter
+        replaced by another object, rather than changed in place, is not seen)."""
+        return tuple(p._version for p in self._parameters)
 
     def _sync(self) -> MLPForward:
         """The forward of the module's current weights."""
         if self._module is not None:
             versions = self._read_versions()
             if versions != self._versions:
+                self._parameters = list(self._module.parameters())
                 rebuilt = sb3_forward(self._module)
                 if rebuilt is not None:
                     self.forward = rebuilt
@@ -1035,32 +1037,54 @@ class LearnedPolicy:
     ) -> list[dict[str, NDArray[np.float32]]]:
         """What ``[p.act(o) for p, o in zip(policies, observations)]`` returns, with one
         network call for all the policies that compute the same network (equal
-        :attr:`FastActor.key`, e.g. the copies of one model in a chunk of the batched
-        evaluator, :mod:`experiments.batched_eval`). The results are those of each ``act`` to
-        the bit: the forward pass does not depend on the batch (:mod:`training.forward`)."""
+        :attr:`FastActor.key`, residual law, action range and previous-command input, e.g. the
+        copies of one model in a chunk of the batched evaluator,
+        :mod:`experiments.batched_eval`), and the element-wise steps of :meth:`_commands` (a
+        residual's law added, the clip, the physical range) done once on the stacked rows; a
+        residual's law itself still acts per policy (it keeps its own state). The results are
+        those of each ``act`` to the bit: the forward pass does not depend on the batch
+        (:mod:`training.forward`) and the rest is element-wise."""
         if len(policies) != len(observations):
             raise ValueError(
                 f"act_group needs one observation dict per policy, got {len(observations)} "
                 f"for {len(policies)}"
             )
         out: list[dict[str, NDArray[np.float32]] | None] = [None] * len(policies)
-        groups: dict[tuple[str, str], list[tuple[int, list[str], NDArray[np.float32]]]] = {}
+        groups: dict[tuple[Any, ...], list[tuple[int, list[str], NDArray[np.float32]]]] = {}
         for i, (policy, obs) in enumerate(zip(policies, observations, strict=True)):
             fast = policy._fast_actor()
             agents, inputs = policy._model_input(obs)
             if fast is None or not agents:
                 out[i] = policy.act(obs)
                 continue
-            groups.setdefault(fast.key, []).append((i, agents, inputs))
+            key = (*fast.key, policy.residual, policy.previous_command, repr(policy.action_range))
+            groups.setdefault(key, []).append((i, agents, inputs))
         for members in groups.values():
-            first = policies[members[0][0]]._fast_actor()
-            assert first is not None  # grouped by its key
-            actions = first(np.concatenate([inputs for _, _, inputs in members]))
+            first = policies[members[0][0]]
+            fast = first._fast_actor()
+            assert fast is not None  # grouped by its key
+            actions = fast(np.concatenate([inputs for _, _, inputs in members]))
+            if first.residual is not None:  # each copy's own law, added in one batch
+                laws = []
+                for i, agents, _ in members:
+                    law = policies[i]._law
+                    if law is None:
+                        raise policies[i]._unbound()
+                    acted = law.act(observations[i])
+                    laws.append(np.stack([acted[a] for a in agents]))
+                assert first.action_range is not None  # checked at construction
+                base, _ = to_normalised(np.concatenate(laws), first.action_range)
+                actions = np.clip(actions + base, -1.0, 1.0)
+            physical = (
+                actions if first.action_range is None else (first.action_range.to_physical(actions))
+            )
             start = 0
             for i, agents, _ in members:
-                rows = actions[start : start + len(agents)]
-                start += len(agents)
-                out[i] = policies[i]._commands(agents, observations[i], rows)
+                stop = start + len(agents)
+                if first.previous_command:
+                    policies[i]._sent = {a: actions[start + k].copy() for k, a in enumerate(agents)}
+                out[i] = {a: physical[start + k].copy() for k, a in enumerate(agents)}
+                start = stop
         return [o if o is not None else {} for o in out]
 
     def _model_input(
