@@ -118,3 +118,29 @@ def test_the_option_belongs_to_the_fast_engine() -> None:
     assert any("previous-command" in p and "bc_ppo" in p for p in problems)
     with pytest.raises(ValueError, match="previous_command must be True or False"):
         FastPPOConfig(**{**TINY, "previous_command": 1})
+
+
+def test_act_group_keeps_each_policys_previous_command(run_path: Path) -> None:
+    """Copies acting through ``act_group`` (the batched evaluator's one network call) send and
+    remember the same commands, to the bit, as copies acting alone."""
+    import copy
+
+    template = LearnedPolicy.load(run_path)
+    envs = [platoon_env.make("study_c", control_period=template.control_period) for _ in range(3)]
+    obs = [env.reset(seed=seed)[0] for seed, env in enumerate(envs)]
+    grouped = [copy.deepcopy(template) for _ in envs]
+    alone = [copy.deepcopy(template) for _ in envs]
+    for p in (*grouped, *alone):
+        p.reset()
+    for _ in range(20):
+        together = LearnedPolicy.act_group(grouped, obs)
+        for k in range(3):
+            single = alone[k].act(obs[k])
+            for agent in single:
+                assert np.array_equal(together[k][agent], single[agent])
+            assert grouped[k]._sent.keys() == alone[k]._sent.keys()
+            for agent in single:
+                assert np.array_equal(grouped[k]._sent[agent], alone[k]._sent[agent])
+        obs = [env.step(cmd)[0] for env, cmd in zip(envs, together, strict=True)]
+        if not all(obs):
+            break
