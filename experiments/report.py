@@ -12,9 +12,11 @@ import hashlib
 import math
 import os
 import re
-from collections.abc import Iterable, Mapping, Sequence
+import tempfile
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -23,6 +25,7 @@ from experiments.stamp import stamp_markdown
 from experiments.store import EpisodeRecord, Store
 
 __all__ = [
+    "atomic_file",
     "file_stem",
     "format_value",
     "markdown_table",
@@ -32,6 +35,7 @@ __all__ = [
     "wilson",
     "write_csv",
     "write_csv_stamp",
+    "write_text_atomic",
 ]
 
 
@@ -122,21 +126,44 @@ def format_value(value: Any) -> str:
     return str(value)
 
 
-def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Mapping[str, Any]]) -> int:
-    """Write ``rows`` to ``path`` atomically (a temporary file, fsync, rename); returns the
-    number of rows. Missing values are empty cells."""
+@contextmanager
+def atomic_file(path: Path, newline: str | None = None) -> Iterator[TextIO]:
+    """A text file (UTF-8) that appears at ``path`` whole or not at all: written to a temporary
+    file in the same folder, flushed to disk, then renamed over ``path``. A symbolic link at
+    ``path`` is replaced by the file, never followed; an error (a full disk, an exception in
+    the ``with`` block) removes the temporary file and leaves ``path`` as it was."""
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline=newline) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; outputs are meant to be shared
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_text_atomic(path: Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through :func:`atomic_file`; returns ``path``."""
+    with atomic_file(path) as f:
+        f.write(text)
+    return Path(path)
+
+
+def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Mapping[str, Any]]) -> int:
+    """Write ``rows`` to ``path`` atomically (:func:`atomic_file`); returns the number of
+    rows. Missing values are empty cells."""
     n = 0
-    with tmp.open("w", newline="") as f:
+    with atomic_file(path, newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(columns), extrasaction="ignore")
         writer.writeheader()
         for row in rows:
             writer.writerow({k: format_value(row.get(k)) for k in columns})
             n += 1
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
     return n
 
 
@@ -157,10 +184,7 @@ def write_csv_stamp(
         "runs": {str(k): runs[k] for k in used if k in runs},
     }
     path = csv_path.with_name(csv_path.name + ".meta.json")
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-    os.replace(tmp, path)
-    return path
+    return write_text_atomic(path, json.dumps(meta, indent=2, sort_keys=True) + "\n")
 
 
 def provenance_markdown(store: Store, records: Iterable[EpisodeRecord], this_run: int) -> str:

@@ -93,3 +93,24 @@ def test_init_from_reads_weights_without_unpickling_code(
         archive.writestr("data", "{}")
     with pytest.raises(ValueError, match="holds no SB3 policy parameters"):
         initial_weights(empty, None)  # type: ignore[arg-type]
+
+
+def test_atomic_writes_replace_links_and_leave_nothing_half_written(tmp_path: Path) -> None:
+    """Every file the drivers write for the user goes through ``atomic_file``: a symbolic link
+    at the destination is replaced (its target untouched), a failure mid-write leaves the old
+    file whole and no temporary file behind."""
+    from experiments.report import atomic_file, write_text_atomic
+
+    target = tmp_path / "outside.txt"
+    target.write_text("keep me")
+    link = tmp_path / "README.md"
+    link.symlink_to(target)
+    write_text_atomic(link, "new")
+    assert not link.is_symlink() and link.read_text() == "new"
+    assert target.read_text() == "keep me"
+
+    with pytest.raises(RuntimeError, match="disk full"), atomic_file(link) as f:
+        f.write("half")
+        raise RuntimeError("disk full")
+    assert link.read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["README.md", "outside.txt"]

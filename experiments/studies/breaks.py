@@ -70,6 +70,7 @@ from experiments.axes import profile_overrides
 from experiments.cli import add_grid_options, failed_episodes, new_parser
 from experiments.grid import Cell, store_file, store_path
 from experiments.names import by_name
+from experiments.report import write_text_atomic
 from experiments.stamp import png_metadata
 from experiments.studies import frontiers
 from experiments.studies.frontiers import CONTROLLERS, Point, episode_overrides
@@ -858,7 +859,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         + run.provenance
         + "\n"
     )
-    (out / "breaks.md").write_text(header + body + "\n")
+    write_text_atomic(out / "breaks.md", header + body + "\n")
     print(body)
     print(f"wrote {out / 'breaks.csv'}, {out / 'breaks.md'}, " + ", ".join(map(str, paths)))
     return failed_episodes(result)

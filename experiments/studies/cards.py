@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from experiments.report import wilson
+from experiments.report import wilson, write_text_atomic
 from experiments.studies.sweep import CONFIGS
 from experiments.suites import LEADERBOARD_SUITES as SUITES
 from platoon_env.observation import OBS_NAMES_SCALE_FREE, OBS_NAMES_TASK
@@ -321,9 +321,9 @@ def write_cards(board: Board, models: Path, curves: Path, metadata: Mapping[str,
         for i, spec in enumerate(e.runs):
             assert spec.path is not None
             folder = spec.path.parent
-            (folder / "README.md").write_text(card_markdown(board, e, i, summaries[e.name]))
+            write_text_atomic(folder / "README.md", card_markdown(board, e, i, summaries[e.name]))
             if (folder / "progress.csv").is_file():
                 progress.setdefault(e.name, []).append(folder / "progress.csv")
-    (Path(models) / "README.md").write_text(index_markdown(board, summaries))
+    write_text_atomic(Path(models) / "README.md", index_markdown(board, summaries))
     if progress:
         plot_learning_curves(progress, curves, metadata=metadata)

@@ -60,7 +60,7 @@ import platoon_env
 from experiments.cli import add_grid_options, failed_episodes, new_parser, open_store
 from experiments.grid import Cell, GridResult, run_grid
 from experiments.policies import PolicySpec, analytic_policies, build_policy
-from experiments.report import mean_ci, provenance_markdown, wilson
+from experiments.report import mean_ci, provenance_markdown, wilson, write_text_atomic
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store
 from platoon_env.geometry.sensing import (
@@ -725,7 +725,7 @@ def main(argv: Sequence[str] | None = None) -> str:
     trace = trace_figure(first["study_c"]["last-seen [32]"], out, png_metadata(stamp))
     tqdm.write(f"wrote {trace}")
     table = comparison_table(_groups(result))
-    (out / "comparison.md").write_text(header + table + "\n")
+    write_text_atomic(out / "comparison.md", header + table + "\n")
     print(table)
     if failed_episodes(result):
         raise SystemExit(1)
@@ -768,7 +768,7 @@ def _fig15(
         f"{first_loss_rows(rows, corners)}\n\nWhat the tables show:\n\n"
         f"{fig15_findings(groups, corners)}\n"
     )
-    (out / FIG15_FILE).write_text(text)
+    write_text_atomic(out / FIG15_FILE, text)
     tqdm.write(f"wrote {out / FIG15_FILE}")
     print(text, end="")
     if failed_episodes(result):

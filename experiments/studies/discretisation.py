@@ -21,6 +21,7 @@ from tqdm import tqdm
 import platoon_env
 from baselines.ppc import PPCPolicy
 from experiments.cli import add_grid_options, count, new_parser, number
+from experiments.report import write_text_atomic
 from experiments.suites import STUDIES
 from platoon_env.rollout import episode_metrics, run_episode
 
@@ -90,7 +91,7 @@ def main(argv: list[str] | None = None) -> None:
     print(table)
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(table + "\n")
+        write_text_atomic(args.out, table + "\n")
 
 
 if __name__ == "__main__":

@@ -115,6 +115,7 @@ from experiments.report import (
     wilson,
     write_csv,
     write_csv_stamp,
+    write_text_atomic,
 )
 from experiments.significance import mean_success
 from experiments.stamp import metadata_stamp, png_metadata
@@ -1270,10 +1271,8 @@ def _notes_markdown(args: argparse.Namespace) -> str:
 
 
 def _write_text(path: Path, text: str) -> None:
-    """Write ``path`` atomically (a reader never sees half a file)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    """Write ``path`` atomically (a reader never sees half a file): :func:`write_text_atomic`."""
+    write_text_atomic(path, text)
 
 
 def _failures(result: GridResult) -> str:

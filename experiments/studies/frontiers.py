@@ -68,6 +68,7 @@ from experiments.report import (
     wilson,
     write_csv,
     write_csv_stamp,
+    write_text_atomic,
 )
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.suites import STUDIES
@@ -844,7 +845,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         + provenance
         + "\n"
     )
-    (out / "frontiers.md").write_text(header + table + "\n")
+    write_text_atomic(out / "frontiers.md", header + table + "\n")
     paths = [
         plot_study(
             rows,

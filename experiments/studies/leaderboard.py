@@ -74,7 +74,7 @@ import numpy as np
 from experiments.cli import add_batch_option, add_models_option, add_workers_option, count
 from experiments.grid import run_grid, store_file
 from experiments.policies import default_models_dir
-from experiments.report import markdown_table, provenance_markdown
+from experiments.report import markdown_table, provenance_markdown, write_text_atomic
 from experiments.significance import Comparison, compare, mean_success, task_rate
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.stats import (
@@ -541,7 +541,7 @@ def splice_readme(readme: Path, text: str) -> None:
         raise ValueError(f"{readme} has no {start} ... {end} markers")
     head, rest = body.split(start, 1)
     _, tail = rest.split(end, 1)
-    readme.write_text(f"{head}{start}\n{text}{end}{tail}")
+    write_text_atomic(readme, f"{head}{start}\n{text}{end}{tail}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -758,7 +758,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ]
     if board.missing:
         doc.append(f"\n**{board.missing} episode(s) failed or are missing**: re-run to retry.\n")
-    (args.docs / "leaderboard.md").write_text("\n".join(doc))
+    write_text_atomic(args.docs / "leaderboard.md", "\n".join(doc))
     if not args.no_cards:
         write_cards(board, models, figures / "learning_curves.png", meta)
     if not args.no_readme:

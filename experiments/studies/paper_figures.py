@@ -26,7 +26,7 @@ from baselines.ppc import PPCPolicy
 from experiments.cli import add_grid_options, new_parser, open_store
 from experiments.grid import Cell, run_grid
 from experiments.policies import PolicySpec
-from experiments.report import provenance_markdown, seed_ranges, wilson
+from experiments.report import provenance_markdown, seed_ranges, wilson, write_text_atomic
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.store import Store
 from experiments.suites import STUDIES
@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> None:
                 tqdm.write(f"wrote {path}")
         table = record(studies, args.seeds, store, args.workers, argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "ppc_record.md").write_text(table + "\n")
+    write_text_atomic(args.out / "ppc_record.md", table + "\n")
     print(table)
 
 

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from experiments.cli import count
+from experiments.report import write_text_atomic
 from experiments.stamp import metadata_stamp, png_metadata, stamp_markdown
 
 __all__ = ["ENGINES", "VARIANTS", "main", "tail_success", "train_args", "wall_time"]
@@ -270,7 +271,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     out = Path(args.out)
     plot_learning_curves(progress, out / "parity.png", metadata=png_metadata(stamp))
-    (out / "parity.md").write_text(report(rates, args.seeds, args, stamp, walls), encoding="utf-8")
+    write_text_atomic(out / "parity.md", report(rates, args.seeds, args, stamp, walls))
     print(f"wrote {out / 'parity.md'}, {out / 'parity.png'}")
     return 0
 

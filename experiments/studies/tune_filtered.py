@@ -56,6 +56,7 @@ from baselines.filtered_ppc_drive import DEFAULT_TABLE, TABLE_KEYS, load_drive_t
 from experiments.cli import count
 from experiments.grid import Cell, run_grid, store_path
 from experiments.policies import PolicySpec
+from experiments.report import write_text_atomic
 from experiments.significance import compare, task_rate
 from experiments.stamp import metadata_stamp
 from experiments.studies.tune_ppc import TIE_BREAK, check_training_scenario, objective_value
@@ -221,7 +222,7 @@ def run_report(args: argparse.Namespace) -> int:
             f"{c.verdict} |"
         )
     text = "\n".join(lines) + "\n"
-    (args.out / "report.md").write_text(text)
+    write_text_atomic(args.out / "report.md", text)
     print(text)
     return 1 if result.failed or result.interrupted else 0
 
@@ -318,14 +319,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         "max_episode_steps": args.max_steps,
         "wall_time_s": round(result.wall_time, 1),
     }
-    args.table.write_text(table_text(provenance, params, grid))
+    write_text_atomic(args.table, table_text(provenance, params, grid))
     load_drive_table(args.table)  # what was written validates
     summary = (
         f"Grid of the drive-aware filtered PPC under `{PROFILE}` on training layouts "
         f"({episodes} seeds per scenario; made by `{COMMAND}`). Best: tau_r = {best[0]:g} s, "
         f"phi = {best[1]:g}.\n\n" + "\n".join(lines) + "\n"
     )
-    (args.out / "tune_filtered.md").write_text(summary)
+    write_text_atomic(args.out / "tune_filtered.md", summary)
     print(summary)
     print(f"table written to {args.table}")
     return 0

@@ -58,6 +58,7 @@ from baselines.ppc_tuned import DEFAULT_TABLE, TUNED_KEYS, formation_geometry, t
 from experiments.cli import count, number
 from experiments.grid import Cell, run_grid, store_path
 from experiments.policies import REGISTRY, PolicySpec
+from experiments.report import write_text_atomic
 from experiments.significance import task_rate
 from experiments.stamp import REPO_ROOT, metadata_stamp
 from experiments.suites import STUDIES, suite
@@ -289,7 +290,7 @@ def run_search(args: argparse.Namespace, argv: Sequence[str]) -> int:
         "wall_time_s": round(wall, 1),
     }
     rows = {r["name"]: r["row"] for r in results}
-    args.out.write_text(table_text(provenance, rows))
+    write_text_atomic(args.out, table_text(provenance, rows))
     _log(args.log, f"wrote {args.out} ({wall:.0f} s)")
     return 0
 
@@ -433,7 +434,7 @@ def _rewrite_block(doc: Path, command: str, text: str) -> None:
     head, found, rest = doc.read_text().partition(begin)
     if not found or end not in rest:
         raise ValueError(f"{doc}: no block {begin} ... {end}")
-    doc.write_text(head + begin + "\n" + text + "\n" + end + rest.split(end, 1)[1])
+    write_text_atomic(doc, head + begin + "\n" + text + "\n" + end + rest.split(end, 1)[1])
 
 
 # ----------------------------------------------------------------------------------------------
