@@ -53,6 +53,15 @@ if REWARD_TERMS != _UNPACKED_REWARD_TERMS:  # pragma: no cover - guards a refact
 #: same keys at reset and at every step, for array-minded libraries such as TorchRL).
 INFO_VIEWS: tuple[str, ...] = ("rich", "numeric")
 
+
+def steps_per_second(control_period: float) -> float:
+    """``metadata["render_fps"]`` of an env that steps every ``control_period`` seconds: its steps
+    per second (an ``int`` when whole: 100 for the shipped 0.01 s), so that a video of one frame
+    per step (``gymnasium.wrappers.RecordVideo``) plays in real time, not in slow motion."""
+    fps = 1.0 / control_period
+    return int(fps) if fps.is_integer() else fps
+
+
 #: The keywords of ``make()`` that configure the env rather than its scenario (the scenario's
 #: are :data:`~platoon_env.scenarios.options.OVERRIDE_OPTIONS`).
 ENV_OPTIONS: tuple[str, ...] = ("render_mode", "diagnostics", "info_view")
@@ -197,10 +206,12 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
     **Version history**: v0 — initial release.
     """
 
+    #: ``render_fps`` here is the shipped scenarios' rate (0.01 s steps); each instance holds
+    #: its own copy with its scenario's :func:`steps_per_second`.
     metadata: dict[str, Any] = {
         "name": "platoon_v0",
         "render_modes": ["human", "rgb_array"],
-        "render_fps": 25,
+        "render_fps": 100,
         "is_parallelizable": True,
     }
 
@@ -232,6 +243,9 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         self.possible_agents = [f"follower_{i}" for i in range(1, core.n_followers + 1)]
         self.agents: list[str] = []
         self.control_period = cfg.simulation.control_period
+        # One frame per step: render_fps is this scenario's steps per second (a copy of the
+        # class's metadata, so that envs of different control periods do not share one).
+        self.metadata = {**self.metadata, "render_fps": steps_per_second(self.control_period)}
         self.physics_substeps = cfg.simulation.physics_substeps
         self.terminate_on = frozenset(cfg.safety.terminate_on)
         # One space object per agent: seeding one agent's space must not seed another's.

@@ -15,6 +15,24 @@ Every id also has a vector entry point: ``gymnasium.make_vec(id, num_envs)`` bui
 :class:`~platoon_env.gym_vector.SingleFollowerVectorEnv` (the batched core: all envs stepped by
 one compiled call). ``normalize_actions=True`` (both forms) makes the action space
 ``Box(-1, 1, (2,))``, mapped to ``[u, omega]`` by an :class:`~platoon_env.action_range.ActionRange`.
+
+**Episode length.** The env ends its own episodes (``truncated`` when the leader has arrived
+and settled, or at the scenario's step limit). ``gymnasium.spec(id).max_episode_steps`` is
+:data:`GYM_STEP_LIMITS`: for a study, its step limit; for a procedural family (each layout
+has its own limit, from its path's length), the limit of the longest path it draws (40 m) at
+its slowest leader, at or above every layout's own limit, so that libraries that read the
+spec get a horizon. ``gymnasium.make(id)`` therefore adds Gymnasium's ``TimeLimit`` at that
+value: it ends no episode earlier than the env does with the id's own options (a study: the
+same step; ``tests/test_gym_vector_wrappers.py``). Options that make episodes longer in steps
+(a shorter ``control_period``, a slower ``leader``) may need ``gymnasium.make(id,
+max_episode_steps=-1)`` (no ``TimeLimit``) or a larger ``max_episode_steps``, as for any
+Gymnasium id. ``gymnasium.make_vec(id)`` (the vector entry point) keeps each episode's own
+limit: the ids' kwargs hold ``max_episode_steps=None``, which stops ``make_vec`` passing the
+spec's limit on as a scenario option.
+
+**Rendering.** ``metadata["render_fps"]`` is the env's steps per second
+(:func:`~platoon_env.env.steps_per_second`: 100 for 0.01 s steps), per instance, so that a
+video of one frame per step (``gymnasium.wrappers.RecordVideo``) plays in real time.
 """
 
 from __future__ import annotations
@@ -77,6 +95,38 @@ GYM_IDS: dict[str, dict[str, Any]] = {
 }
 
 
+#: The ``max_episode_steps`` of every Gymnasium id of a shipped scenario (``gymnasium.spec(id)``;
+#: its ``-Aruco`` id's too, the profile does not change it), with one follower and the
+#: scenario's own options. A study: its step limit (``Scenario.max_episode_steps``: twice the
+#: slowest leader's driving time, its settle time and 10 s). A procedural family: that rule at
+#: its longest path (40 m, ``platoon_env.scenarios._layout``) and its slowest leader (the
+#: drawn speed range's low end, times ``1 - speed_variation``); a layout's own limit is at or
+#: below it, and its episode ends (arrival and settle) long before. Constants, so that
+#: ``import platoon_env`` builds no scenario; ``tests/test_gym_vector_wrappers.py`` recomputes
+#: them.
+GYM_STEP_LIMITS: dict[str, int] = {
+    "study_a": 28700,
+    "study_b": 20175,
+    "study_c": 42050,
+    **{
+        f"procedural_{tier}_{split}": 33200
+        for tier in ("easy", "medium", "hard")
+        for split in GENERATOR_SPLITS
+    },
+    **{
+        f"procedural_{tier}_{split}": 41200
+        for tier in ("sharp", "paper")
+        for split in GENERATOR_SPLITS
+    },
+    **{f"procedural_formations_{split}": 33200 for split in GENERATOR_SPLITS},
+    **{
+        f"procedural_formations_{tier}_{split}": 41200
+        for tier in ("sharp", "paper")
+        for split in GENERATOR_SPLITS
+    },
+}
+
+
 def single_follower(
     overrides: dict[str, Any], scenario: SourceLike | None = None
 ) -> dict[str, Any]:
@@ -120,7 +170,12 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
     **Observation**, **reward**, **episode end**, **info**: the follower's in
     :class:`~platoon_env.env.PlatoonParallelEnv` (``terminated``: a violation in
     ``terminate_on``; ``truncated``: the leader arrived and settled, or ``max_episode_steps``).
-    ``reset(seed, options)`` as the parallel env's (options ``perturb``, ``poses``).
+    ``reset(seed, options)`` as the parallel env's (options ``perturb``, ``poses``). The info
+    is the rich view by default (cause names, None when nothing happened, ``reward_terms`` a
+    dict); libraries that turn infos into tensors fail on it deep inside (TorchRL's ``GymEnv``
+    with an info reader: "'NoneType' object has no attribute 'dtype'"; ``torch.as_tensor``:
+    "Could not infer dtype of NoneType"): pass ``info_view="numeric"`` (numbers only, the same
+    keys at reset and every step).
 
     Args:
         scenario: as :func:`platoon_env.make`.
@@ -134,7 +189,9 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
             :data:`GYM_OPTIONS`).
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
+    #: ``render_fps``: the shipped scenarios' steps per second; each instance holds its own copy
+    #: with its scenario's (the parallel env's, :func:`~platoon_env.env.steps_per_second`).
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}
 
     def __init__(
         self,
@@ -156,6 +213,7 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
         )
         self.action_space = physical if self.action_range is None else normalised_action_space()
         self.render_mode = self.parallel.render_mode
+        self.metadata = {**self.metadata, "render_fps": self.parallel.metadata["render_fps"]}
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -182,13 +240,20 @@ class SingleFollowerEnv(gym.Env[np.ndarray, np.ndarray]):
 
 def register_gym_ids() -> None:
     """Register :data:`GYM_IDS` with Gymnasium (idempotent), each with its vector entry point
-    (:class:`~platoon_env.gym_vector.SingleFollowerVectorEnv`)."""
+    (:class:`~platoon_env.gym_vector.SingleFollowerVectorEnv`) and its scenario's
+    :data:`GYM_STEP_LIMITS` as ``max_episode_steps``.
+
+    The kwargs add ``max_episode_steps=None`` (a scenario option left as it is): without the
+    key, ``gymnasium.make_vec`` would pass the spec's limit to the vector env as a scenario
+    option, fixing every procedural layout's limit to it; ``gymnasium.make`` takes its own
+    ``max_episode_steps`` (the ``TimeLimit``) before the kwargs reach the env.
+    """
     for env_id, kwargs in GYM_IDS.items():
         if env_id not in gym.registry:
             gym.register(
                 id=env_id,
                 entry_point="platoon_env.gym_env:SingleFollowerEnv",
                 vector_entry_point="platoon_env.gym_vector:SingleFollowerVectorEnv",
-                kwargs=dict(kwargs),
-                max_episode_steps=None,
+                kwargs={**kwargs, "max_episode_steps": None},
+                max_episode_steps=GYM_STEP_LIMITS[kwargs["scenario"]],
             )

@@ -8,6 +8,40 @@
 Sub-env ``i`` reset with seed ``s`` and fed the same actions returns exactly what
 ``gymnasium.make(id)`` reset with ``s`` returns (``tests/test_gym_vector.py``), including the
 infos, batched as Gymnasium's own vector envs batch them.
+
+**Autoreset mode** (``envs.autoreset_mode``, also ``envs.metadata["autoreset_mode"]``), as
+Gymnasium's ``SyncVectorEnv`` takes it: ``AutoresetMode.NEXT_STEP`` (the default, Gymnasium's
+own: the step after an episode's end only resets that sub-env), ``SAME_STEP`` (the reset within
+the ending step, the final observation and info under ``final_obs``/``final_info``) or
+``DISABLED``. Choose it with the keyword ``gymnasium.make_vec(id, n,
+autoreset_mode=AutoresetMode.SAME_STEP)``: Gymnasium 1.4's ``make_vec`` refuses
+``vector_kwargs`` for a vector entry point ("Custom vector environment can be passed arguments
+only through kwargs"), which takes keywords only; ``vector_kwargs={"autoreset_mode": ...}``
+works with ``vectorization_mode="sync"``, Gymnasium's ``SyncVectorEnv`` over
+``gymnasium.make(id)``. The default was ``SAME_STEP`` (until issue 45); it is ``NEXT_STEP``
+so that ``gymnasium.make_vec(id, n)`` as it comes works under Gymnasium's vector wrappers:
+its observation wrappers refuse ``SAME_STEP`` (``TransformObservation`` and every
+``VectorObservationWrapper``: "Expected autoreset_mode to be NEXT_STEP or DISABLED";
+``NormalizeObservation``: NEXT_STEP only), and loops written for Gymnasium 1.x (CleanRL's)
+assume NEXT_STEP. ``RecordEpisodeStatistics``, ``NormalizeReward`` and ``ClipAction`` take
+any mode (``tests/test_gym_vector_wrappers.py``). TorchRL's ``GymWrapper`` (0.14) reads the
+``autoreset_mode`` attribute and takes only ``DISABLED`` (its preference: it resets ended
+sub-envs itself, by ``reset_mask``) or ``SAME_STEP``, refusing NEXT_STEP with its own
+RuntimeError; without the attribute it failed with an AttributeError. For TorchRL:
+``GymWrapper(gymnasium.make_vec(id, n, info_view="numeric",
+autoreset_mode=AutoresetMode.DISABLED))`` (``docs/ecosystem.md``).
+
+**Infos for array libraries**: the default ``info_view="rich"`` (as ``gymnasium.make(id)``'s)
+holds object arrays (cause names with None, tuples of causes) and a nested ``reward_terms``;
+TorchRL and BenchMARL turn info values into tensors and fail on them deep inside
+(``torch.as_tensor``: "Could not infer dtype of NoneType", "can't convert np.ndarray of type
+numpy.object_"; TorchRL's ``GymWrapper``: an IndexError in SAME_STEP, "'dict' object has no
+attribute 'dtype'" with an info reader). Pass ``info_view="numeric"``: the same information as
+int64 and float64 arrays under fixed keys; with ``NEXT_STEP`` or ``DISABLED`` the infos then
+hold nothing else (``SAME_STEP`` adds ``final_obs``, an object array, and the nested
+``final_info``). The default stays rich so that ``make_vec(id)`` keeps equal to Gymnasium's
+vectorisation of ``gymnasium.make(id)``, whose rich infos PettingZoo and Gymnasium users read
+by name (``info["violation"] is None``).
 """
 
 from __future__ import annotations
@@ -27,7 +61,7 @@ from platoon_env.action_range import (
     physical_actions,
 )
 from platoon_env.batched import BatchedPlatoon
-from platoon_env.env import _check_seed, check_env_keywords
+from platoon_env.env import _check_seed, check_env_keywords, steps_per_second
 from platoon_env.geometry.sensing import SENSE_NAMES, SENSE_VISIBLE
 from platoon_env.gym_env import GYM_OPTIONS, single_follower
 from platoon_env.observation import ACT_SIZE
@@ -40,7 +74,7 @@ __all__ = ["VECTOR_OPTIONS", "SingleFollowerVectorEnv", "sub_env_seeds"]
 
 #: The keywords of :class:`SingleFollowerVectorEnv` (``gymnasium.make_vec(id, ...)``) that
 #: configure the env rather than its scenario: the single env's, then the vector env's own.
-VECTOR_OPTIONS: tuple[str, ...] = (*GYM_OPTIONS, "n_threads")
+VECTOR_OPTIONS: tuple[str, ...] = (*GYM_OPTIONS, "n_threads", "autoreset_mode")
 
 
 def _objects(values: Sequence[Any]) -> np.ndarray:
@@ -91,14 +125,23 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
     ``violation_mask``, ``cost``, the diagnostics with ``visible`` as 0/1, ``reward_<term>``
     flat and 0.0 at reset), the same keys at reset and at every step.
 
-    **Autoreset**: ``AutoresetMode.SAME_STEP`` (``metadata["autoreset_mode"]``). A sub-env
-    whose episode ends in a step is reset within that step, continuing its own RNG (no
-    reseeding; as ``env.reset()`` without a seed): its row of the returned observations is
-    the first observation of the next episode and its row of ``infos`` that reset's info;
-    ``infos["final_obs"]`` (an object array, None for the others) and ``infos["final_info"]``
-    (a dict of arrays) hold the ended episode's last observation and info, masked by
-    ``infos["_final_obs"]`` and ``infos["_final_info"]``. Its reward, ``terminated`` and
-    ``truncated`` are the ended episode's last ones. There is never a step that only resets.
+    **Autoreset** (:attr:`autoreset_mode`, ``metadata["autoreset_mode"]``; the module doc says
+    how to choose it), as Gymnasium's ``SyncVectorEnv`` does it. A sub-env is reset
+    continuing its own RNG (no reseeding; as ``env.reset()`` without a seed).
+
+    * ``NEXT_STEP`` (the default): the step that ends an episode returns its last observation,
+      reward, flags and info, as any step. The next ``step`` resets that sub-env instead of
+      stepping it (its action is ignored): its row holds the reset's observation and info,
+      reward 0.0, ``terminated`` and ``truncated`` False; the others step as usual.
+    * ``SAME_STEP``: a sub-env whose episode ends in a step is reset within that step: its row
+      of the returned observations is the first observation of the next episode and its row of
+      ``infos`` that reset's info; ``infos["final_obs"]`` (an object array, None for the
+      others) and ``infos["final_info"]`` (a dict of arrays) hold the ended episode's last
+      observation and info, masked by ``infos["_final_obs"]`` and ``infos["_final_info"]``.
+      Its reward, ``terminated`` and ``truncated`` are the ended episode's last ones. There is
+      never a step that only resets.
+    * ``DISABLED``: no reset by ``step``; stepping a sub-env whose episode ended is a
+      ``RuntimeError`` until ``reset`` restarts it (``options["reset_mask"]``).
 
     **reset(seed, options)**: ``seed`` None continues each sub-env's RNG; a list gives one seed
     (or None) per sub-env, exactly as ``gymnasium.make(id).reset(seed=...)`` would take it; one
@@ -111,7 +154,8 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
     warning, as the single env does.
 
     **render()**: with ``render_mode="rgb_array"``, a tuple of one ``(H, W, 3)`` frame per
-    sub-env.
+    sub-env. ``metadata["render_fps"]`` is the scenario's steps per second (one frame per
+    step; :func:`~platoon_env.env.steps_per_second`).
 
     Args:
         num_envs: number of sub-envs.
@@ -121,19 +165,24 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
             ``violations`` and ``cost``; in the numeric view ``violation``,
             ``violation_mask`` and ``cost``).
         info_view: ``"rich"`` (the default) or ``"numeric"``, as :func:`platoon_env.make`'s
-            (:data:`~platoon_env.env.INFO_VIEWS`).
+            (:data:`~platoon_env.env.INFO_VIEWS`); ``"numeric"`` for TorchRL, BenchMARL and
+            other libraries that turn infos into tensors (the module doc).
         normalize_actions, action_range: as :class:`~platoon_env.gym_env.SingleFollowerEnv`.
         n_threads: numba threads stepping the sub-envs (1: a serial loop); results do not
             depend on it.
+        autoreset_mode: an ``AutoresetMode`` or its value (``"NextStep"``, ``"SameStep"``,
+            ``"Disabled"``), as ``SyncVectorEnv`` takes it; default ``NEXT_STEP``.
         **overrides: the scenario options of :func:`platoon_env.make` (``followers`` is
             forced to 1). Any other keyword is a ``TypeError`` worded as Python words it
             (``make_vec() got an unexpected keyword argument ...``), listing the valid ones.
     """
 
+    #: The class's defaults; each instance holds a copy with its own ``render_fps`` (its
+    #: scenario's steps per second) and ``autoreset_mode``.
     metadata: dict[str, Any] = {
         "render_modes": ["rgb_array"],
-        "render_fps": 25,
-        "autoreset_mode": AutoresetMode.SAME_STEP,
+        "render_fps": 100,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
     }
 
     def __init__(
@@ -147,9 +196,12 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         normalize_actions: bool = False,
         action_range: ActionRange | Mapping[str, float] | None = None,
         n_threads: int = 1,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         **overrides: Any,
     ) -> None:
         check_env_keywords("make_vec()", overrides, VECTOR_OPTIONS, info_view)  # as make()
+        #: When an ended sub-env is reset (see the class doc).
+        self.autoreset_mode = _autoreset_mode(autoreset_mode)
         #: The view of ``infos``: ``"rich"`` or ``"numeric"`` (see the class doc).
         self.info_view = info_view
         if render_mode not in (None, *self.metadata["render_modes"]):
@@ -161,6 +213,11 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         )
         self.num_envs = self.batch.batch_size
         self.render_mode = render_mode
+        self.metadata = {
+            **self.metadata,
+            "render_fps": steps_per_second(self.batch.control_period),
+            "autoreset_mode": self.autoreset_mode,
+        }
         self.single_observation_space = self.batch.single_observation_space
         physical = self.batch.single_action_space
         #: The map of normalised actions to ``[u, omega]`` (None: actions are physical).
@@ -174,6 +231,9 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         # Violation masks of the state on show (the last step's, zero after a reset): render().
         self._masks = np.zeros(self.num_envs, dtype=np.int64)
+        # Sub-envs whose episode ended in the last step and that are not reset yet (NEXT_STEP:
+        # the next step resets them; DISABLED: they may not step).
+        self._ended = np.zeros(self.num_envs, dtype=bool)
         # Each sub-env's d_des (info["e_d"]); a procedural layout sets its own at reset.
         self._d_des = np.zeros(self.num_envs)
         self._renderers: list[Any] = [None] * self.num_envs
@@ -209,14 +269,23 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         idx = np.flatnonzero(mask)
         obs = self.batch.reset([seeds[i] for i in idx], envs=idx, perturb=perturb)
         self._restarted(idx)
+        self._ended[idx] = False
         return obs[:, 0], _masked(self._info_values(self._masks), mask)
 
     def step(
         self, actions: Any
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Advance every sub-env by one control period (``actions``: ``(num_envs, 2)``);
-        sub-envs whose episode ends are reset in the same step (see the class doc)."""
+        """Advance every sub-env by one control period (``actions``: ``(num_envs, 2)``); a
+        sub-env whose episode ended is reset as :attr:`autoreset_mode` says (the class doc)."""
         shape = (self.num_envs, ACT_SIZE)
+        if self.autoreset_mode is AutoresetMode.NEXT_STEP and self._ended.any():
+            return self._step_next(actions, shape)
+        if self.autoreset_mode is AutoresetMode.DISABLED and self._ended.any():
+            raise RuntimeError(
+                f"sub-env(s) {np.flatnonzero(self._ended).tolist()} ended their episode and "
+                "autoreset_mode is DISABLED: reset them first (reset(options={'reset_mask': "
+                "...}))"
+            )
         act = physical_actions(actions, shape, self.action_range, "actions")
         obs, rewards, terminated, truncated, step_info = self.batch.step(
             act.reshape(self.num_envs, 1, ACT_SIZE)
@@ -226,8 +295,10 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         values = self._info_values(masks, self.batch.reward_terms[:, 0])
         self._masks[:] = masks
         ended = terminated | truncated
-        if not ended.any():
-            return obs, rewards[:, 0], terminated, truncated, _masked(values, ~ended)
+        if not ended.any() or self.autoreset_mode is not AutoresetMode.SAME_STEP:
+            self._ended[:] = ended  # NEXT_STEP resets them at the next step; DISABLED: reset()
+            every = np.ones(self.num_envs, dtype=bool)
+            return obs, rewards[:, 0], terminated, truncated, _masked(values, every)
         # SAME_STEP: the ended sub-envs' final observation and info, then their reset's.
         idx = np.flatnonzero(ended)
         final_obs = _objects([obs[i] if end else None for i, end in enumerate(ended.tolist())])
@@ -238,6 +309,45 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         infos["final_obs"], infos["_final_obs"] = final_obs, ended.copy()
         infos["final_info"], infos["_final_info"] = final_info, ended.copy()
         return obs, rewards[:, 0], terminated, truncated, infos
+
+    def _step_next(
+        self, actions: Any, shape: tuple[int, int]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """A NEXT_STEP step while some sub-envs' episodes have ended, as ``SyncVectorEnv``
+        does it: the others are stepped, then the ended ones reset (their actions ignored:
+        reward 0.0, not terminated or truncated, the reset's observation and info). The step
+        comes first so that a bad action raises before any state changes."""
+        resetting = self._ended.copy()
+        stepped = ~resetting
+        given = np.asarray(actions)
+        if given.shape == shape and given.dtype.kind in "fiu":
+            given = given.copy()
+            given[resetting] = 0.0  # ignored: a NaN there must not raise
+        act = physical_actions(given, shape, self.action_range, "actions")
+        rewards = np.zeros(self.num_envs)
+        terminated = np.zeros(self.num_envs, dtype=bool)
+        truncated = np.zeros(self.num_envs, dtype=bool)
+        masks = np.zeros(self.num_envs, dtype=np.int64)
+        terms = None
+        if stepped.any():
+            _, all_rewards, all_terminated, all_truncated, step_info = self.batch.step(
+                act.reshape(self.num_envs, 1, ACT_SIZE), envs=stepped
+            )
+            rewards[stepped] = all_rewards[stepped, 0]
+            terminated[stepped] = all_terminated[stepped]
+            truncated[stepped] = all_truncated[stepped]
+            masks[stepped] = step_info["violations"][stepped, 0]
+            terms = self.batch.reward_terms[:, 0].copy()
+        idx = np.flatnonzero(resetting)
+        obs = self.batch.reset([None] * len(idx), envs=idx)[:, 0]
+        self._restarted(idx)
+        self._masks[:] = masks
+        self._ended[:] = terminated | truncated
+        infos = _merged(
+            _masked(self._info_values(masks, terms), stepped),
+            _masked(self._info_values(masks), resetting),
+        )
+        return obs, rewards, terminated, truncated, infos
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         """One ``rgb_array`` frame per sub-env (None, with a warning, without a render_mode)."""
@@ -371,6 +481,20 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
                 np.zeros(self.num_envs) if terms is None else terms[:, k].astype(np.float64)
             )
         return values
+
+
+def _autoreset_mode(mode: Any) -> AutoresetMode:
+    """``mode`` as an ``AutoresetMode`` (an ``AutoresetMode`` or its value, as
+    ``SyncVectorEnv`` takes it), else ``ValueError`` listing the modes."""
+    if isinstance(mode, AutoresetMode):
+        return mode
+    try:
+        return AutoresetMode(mode)
+    except (ValueError, TypeError):
+        modes = ", ".join(f"AutoresetMode.{m.name} ({m.value!r})" for m in AutoresetMode)
+        raise ValueError(
+            f"make_vec(): autoreset_mode: expected one of {modes}, got {mode!r}"
+        ) from None
 
 
 def _masked(values: dict[str, Any], rows: np.ndarray) -> dict[str, Any]:

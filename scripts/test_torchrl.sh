@@ -10,4 +10,4 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh .venv-torchrl plot,dev,torchrl
 export MPLBACKEND=Agg
 echo "== pytest (torchrl)"
-.venv-torchrl/bin/python -m pytest -p no:cacheprovider tests/test_torchrl.py "$@"
+.venv-torchrl/bin/python -m pytest -p no:cacheprovider tests/test_torchrl.py tests/test_gym_vector_wrappers.py::test_torchrl_gym_wrapper_route "$@"

@@ -125,9 +125,7 @@ def assert_predict(policy: LearnedPolicy, obs: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("n", BATCHES)
-def test_shipped_ppo_fast_path_is_predict(
-    n: int, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_shipped_ppo_fast_path_is_predict(n: int, monkeypatch: pytest.MonkeyPatch) -> None:
     policy = LearnedPolicy.load(shipped_model())
     assert fast_actor(policy.model) is not None
     calls = count_predict(monkeypatch, policy.model)
@@ -156,9 +154,7 @@ def test_shipped_ppo_act_matches_predict_through_the_scaling() -> None:
 
 
 @pytest.mark.parametrize("n", BATCHES)
-def test_tiny_ppo_fast_path_is_predict_and_clips(
-    n: int, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_tiny_ppo_fast_path_is_predict_and_clips(n: int, monkeypatch: pytest.MonkeyPatch) -> None:
     model = tiny_ppo()
     policy = policy_of(model)
     assert policy.observation_size == 13

@@ -6,7 +6,9 @@ the checks its own test suite applies to ``SyncVectorEnv``/``AsyncVectorEnv``
 (``tests/vector/test_vector_env.py``: batched spaces, reset/step types, seeded determinism,
 final observation and info, partial reset) are written here, plus the strongest one: step for
 step equality with Gymnasium's ``SyncVectorEnv`` of ``gymnasium.make(id)`` envs in the same
-autoreset mode, infos included.
+autoreset mode, infos included. These tests pin ``AutoresetMode.SAME_STEP`` (the default until
+issue 45); the default ``NEXT_STEP`` and Gymnasium's vector wrappers are
+``tests/test_gym_vector_wrappers.py``'s.
 """
 
 from __future__ import annotations
@@ -53,9 +55,11 @@ def assert_same(ours: tuple[Any, ...], theirs: tuple[Any, ...], where: str) -> N
 def run_against_single(
     env_id: str, seeds: list[int], actions: list[np.ndarray], **kwargs: Any
 ) -> list[dict[str, Any]]:
-    """Step ``make_vec(env_id)`` and Gymnasium's vectorised single envs side by side, asserting
-    equality at every step; returns our infos."""
-    ours = gym.make_vec(env_id, num_envs=len(seeds), **kwargs)
+    """Step ``make_vec(env_id)`` and Gymnasium's vectorised single envs side by side (SAME_STEP),
+    asserting equality at every step; returns our infos."""
+    ours = gym.make_vec(
+        env_id, num_envs=len(seeds), autoreset_mode=AutoresetMode.SAME_STEP, **kwargs
+    )
     theirs = single_envs(env_id, len(seeds), **kwargs)
     assert_same(ours.reset(seed=seeds), theirs.reset(seed=seeds), "reset")
     infos = []
@@ -84,7 +88,7 @@ def test_make_vec_every_id(env_id: str) -> None:
     assert envs.single_action_space == single.action_space
     assert envs.observation_space == batch_space(single.observation_space, 2)
     assert envs.action_space == batch_space(single.action_space, 2)
-    assert envs.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
+    assert envs.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP  # Gymnasium's default
 
     obs, info = envs.reset(seed=[1, 2])
     assert obs in envs.observation_space and isinstance(info, dict)
@@ -123,7 +127,9 @@ def test_same_step_autoreset() -> None:
     next episode's first observation and reset info, the last observation and info under
     ``final_*``; the sub-env then continues with its own RNG (as ``env.reset()``), and the
     others are untouched."""
-    envs = gym.make_vec(STUDY_C, num_envs=2, max_episode_steps=3)
+    envs = gym.make_vec(
+        STUDY_C, num_envs=2, max_episode_steps=3, autoreset_mode=AutoresetMode.SAME_STEP
+    )
     single = gym.make(STUDY_C, max_episode_steps=3)
     other = gym.make(STUDY_C, max_episode_steps=3)
     envs.reset(seed=[5, 6])
@@ -234,7 +240,9 @@ def test_partial_reset_keeps_the_other_sub_envs() -> None:
 def test_returned_data_not_reused() -> None:
     """A later step or reset does not change arrays returned before (Gymnasium's
     ``check_returned_data_not_reused``, for a vector env)."""
-    envs = gym.make_vec(STUDY_C, num_envs=2, max_episode_steps=2)
+    envs = gym.make_vec(
+        STUDY_C, num_envs=2, max_episode_steps=2, autoreset_mode=AutoresetMode.SAME_STEP
+    )
     obs0, info0 = envs.reset(seed=[1, 2])
     kept = (obs0.copy(), {k: np.copy(v) for k, v in info0.items() if k != "reward_terms"})
     action = np.full((2, 2), 0.3, dtype=np.float32)
@@ -464,7 +472,12 @@ def test_numeric_info_view_holds_the_rich_views_values(diagnostics: bool) -> Non
     the same sub-envs report, and each value is the rich one's as a number (the violation as
     its VIOLATION_CODE_NAMES code, the causes as their bit mask, visible as 0/1, the reward
     terms flat), in the step infos and the final infos."""
-    kwargs = {"num_envs": 2, "max_episode_steps": 30, "diagnostics": diagnostics}
+    kwargs: dict[str, Any] = {
+        "num_envs": 2,
+        "max_episode_steps": 30,
+        "diagnostics": diagnostics,
+        "autoreset_mode": AutoresetMode.SAME_STEP,
+    }
     rich = gym.make_vec(STUDY_C, **kwargs)
     num = gym.make_vec(STUDY_C, info_view="numeric", **kwargs)
     pairs = [(rich.reset(seed=[5, 6])[1], num.reset(seed=[5, 6])[1])]
@@ -497,7 +510,7 @@ def test_unknown_keyword_is_pythons_type_error() -> None:
         assert message.startswith(f"{where} got an unexpected keyword argument 'frameskip' ")
         listed = message.split("(valid keywords: ", 1)[1].split(")", 1)[0].split(", ")
         assert listed == [*OVERRIDE_OPTIONS, *own]
-    assert VECTOR_OPTIONS == (*GYM_OPTIONS, "n_threads")
+    assert VECTOR_OPTIONS == (*GYM_OPTIONS, "n_threads", "autoreset_mode")
     with pytest.raises(TypeError, match=r"'fps' \(and 'speed'\) \(valid keywords: "):
         SingleFollowerVectorEnv(2, "study_c", fps=25, speed=1)
     with pytest.raises(ScenarioError, match=r"^make_vec\(\): info_view: expected one of "):
