@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -59,20 +60,38 @@ def number(text: str) -> float:
     return value
 
 
-def count(minimum: int = 1, name: str = "count") -> Callable[[str], int]:
-    """An argparse ``type``: a whole number ``>= minimum`` (``20``, ``2e1`` and ``20.0`` read 20;
-    ``2.5`` is refused)."""
+#: The largest integer a count may be: SQLite's (and the store's) signed 64-bit integers.
+INT64_MAX = 2**63 - 1
+
+
+def count(minimum: int = 1, name: str = "count", maximum: int = INT64_MAX) -> Callable[[str], int]:
+    """An argparse ``type``: a whole number in ``[minimum, maximum]`` (``20``, ``2e1`` and
+    ``20.0`` read 20; ``2.5`` is refused). An integer literal is read as an integer, never
+    through a float (``9007199254740993`` stays itself); a float form is taken only where
+    floats are exact (below 2**53)."""
 
     def parse(text: str) -> int:
-        try:
-            value = number(text)
-        except argparse.ArgumentTypeError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-        if value != int(value):
-            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number")
+        stripped = text.strip().replace("_", "")
+        literal = re.fullmatch(r"[+-]?[0-9]+", stripped) is not None
+        if literal:
+            value = int(stripped)
+        else:
+            try:
+                as_float = number(text)
+            except argparse.ArgumentTypeError:
+                raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+            if as_float != int(as_float):
+                raise argparse.ArgumentTypeError(f"{text!r} is not a whole number")
+            if abs(as_float) >= 2**53:
+                raise argparse.ArgumentTypeError(
+                    f"{text!r}: write integers this large in digits (a float is not exact)"
+                )
+            value = int(as_float)
         if value < minimum:
             raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {text}")
-        return int(value)
+        if value > maximum:
+            raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {text}")
+        return value
 
     parse.__name__ = name  # argparse names the type in its messages
     return parse

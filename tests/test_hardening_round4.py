@@ -114,3 +114,34 @@ def test_atomic_writes_replace_links_and_leave_nothing_half_written(tmp_path: Pa
         raise RuntimeError("disk full")
     assert link.read_text() == "new"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["README.md", "outside.txt"]
+
+
+def test_counts_are_integers_never_floats_and_stay_in_int64() -> None:
+    import argparse
+
+    from experiments.cli import INT64_MAX, count
+
+    parse = count(0, "seed")
+    assert parse("9007199254740993") == 9007199254740993  # 2**53 + 1: not through a float
+    assert parse("2e1") == 20 and parse("1_000") == 1000
+    assert parse(str(INT64_MAX)) == INT64_MAX
+    for bad, match in (
+        (str(INT64_MAX + 1), "must be <="),
+        ("1e300", "write integers this large in digits"),
+        ("²", "not an integer"),
+        ("2.5", "not a whole number"),
+    ):
+        with pytest.raises(argparse.ArgumentTypeError, match=match):
+            parse(bad)
+
+
+def test_a_grid_too_large_to_plan_is_a_usage_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from experiments.studies.evaluate import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "ppc", "--episodes", "1e9", "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    assert "more than the 1,000,000 one run plans" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

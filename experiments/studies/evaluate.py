@@ -69,6 +69,7 @@ from tqdm import tqdm
 
 import platoon_env
 from experiments.cli import (
+    INT64_MAX,
     add_batch_option,
     add_models_option,
     add_workers_option,
@@ -155,6 +156,8 @@ DEFAULT_SCENARIOS = ("study_a", "study_b", "study_c")
 #: Episodes (seeds) per policy and scenario by default: every table on the studies is over at
 #: least 20 seeds (each draws its own leader speed factor and start perturbation).
 DEFAULT_EPISODES = 20
+#: The most episodes one run plans (every cell is resolved before the first episode runs).
+MAX_GRID_EPISODES = 1_000_000
 #: The scenario blocks the realism flags override, and record (resolved) with every row.
 REALISM_BLOCKS: tuple[str, ...] = ("camera", "proximity", "robot")
 #: Columns of the ``results.csv`` export.
@@ -811,8 +814,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     # the same scenario given twice (a name, a path to the same content) runs once.
     default = the_suite.scenarios if the_suite is not None else DEFAULT_SCENARIOS
     scenarios = list(dict.fromkeys(args.scenario or default))
+    if args.seed + args.episodes - 1 > INT64_MAX:
+        parser.error(f"--seed {args.seed} + --episodes {args.episodes} pass the largest seed "
+                     f"the store holds ({INT64_MAX})")  # fmt: skip
     seeds = range(args.seed, args.seed + args.episodes)
     played = episode_seeds(configurations(args.policy), seeds, every_seed=args.every_seed)
+    planned = len(conditions) * len(scenarios) * sum(len(played[p.name]) for p in args.policy)
+    if planned > MAX_GRID_EPISODES:
+        parser.error(f"the grid has {planned:,} episodes, more than the {MAX_GRID_EPISODES:,} "
+                     "one run plans: lower --episodes, or split the run (--seed)")  # fmt: skip
     cells = [
         Cell.of(spec, s, seed, cond.overrides)
         for cond in conditions
