@@ -6,8 +6,8 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export MPLBACKEND=Agg
 echo "== ruff"
-.venv/bin/ruff check platoon_env baselines training experiments tests benchmarks scripts examples
-.venv/bin/ruff format --check platoon_env baselines training experiments tests benchmarks scripts examples
+.venv/bin/ruff check platoon_env baselines training experiments tests benchmarks scripts examples docs/conf.py docs/gen_env_pages.py
+.venv/bin/ruff format --check platoon_env baselines training experiments tests benchmarks scripts examples docs/conf.py docs/gen_env_pages.py
 echo "== mypy"
 .venv/bin/mypy platoon_env baselines training experiments examples
 echo "== pytest"
