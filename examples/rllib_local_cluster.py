@@ -43,7 +43,8 @@ def main() -> int:
     # one PPO iteration: 64 steps x 1 env x K runners x 2 followers transitions
     argv = ["--engine", "rllib", "--scenario", args.scenario, "--timesteps", str(args.timesteps)]
     argv += ["--num-env-runners", str(args.env_runners), "--n-envs", "1", "--n-steps", "64"]
-    argv += ["--batch-size", "128", "--n-epochs", "2", "--log-every", "128"]
+    # one minibatch per iteration: RLlib needs minibatch <= the iteration's batch (64 x K)
+    argv += ["--batch-size", str(64 * args.env_runners), "--n-epochs", "2", "--log-every", "128"]
     argv += ["--checkpoint-every", "0", "--no-progress-bar", "--seed", "0", "--out", str(out)]
     argv += ["--address", args.address] if args.address else []
     status = platoon_train(argv)
