@@ -35,7 +35,12 @@ import platoon_env  # noqa: E402
 from platoon_env.action_range import ActionRange  # noqa: E402
 from platoon_env.config import ScenarioConfig  # noqa: E402
 from platoon_env.env import ENV_OPTIONS, PlatoonParallelEnv  # noqa: E402
-from platoon_env.gym_env import GYM_IDS, GYM_OPTIONS, GYM_STEP_LIMITS  # noqa: E402
+from platoon_env.gym_env import (  # noqa: E402
+    GYM_IDS,
+    GYM_OPTIONS,
+    GYM_STEP_LIMITS,
+    VERSION_HISTORY,
+)
 from platoon_env.gym_vector import VECTOR_OPTIONS  # noqa: E402
 from platoon_env.observation import OBS_NAMES  # noqa: E402
 from platoon_env.reward import REWARD_TERMS  # noqa: E402
@@ -652,14 +657,18 @@ def section_version(fam: Family, fs: Sequence[Facts]) -> str:
     )
     sections = _changelog_sections()
     listed = f" (its sections: {', '.join(f'*{name}*' for name in sections)})" if sections else ""
+    history = "\n".join(
+        f"- **{version}** (platoon_env {package}): {what}."
+        for version, package, what in VERSION_HISTORY
+    )
     return (
-        f"- **v0**: platoon_env is at version {platoon_env.__version__}, and {ids} "
+        f"{history}\n\nplatoon_env is at version {platoon_env.__version__}, and {ids} "
         f'(`PlatoonParallelEnv.metadata["name"]` is '
-        f"`{PlatoonParallelEnv.metadata['name']}`): no environment has been given a new "
-        "version since the first release. Every change of the package is listed in the "
-        f"repository's [CHANGELOG.md](../../CHANGELOG.md){listed}. A scenario's content "
-        "fingerprint (`platoon_env.scenarios.fingerprint`) names exactly what an episode "
-        "ran on."
+        f"`{PlatoonParallelEnv.metadata['name']}`). An older id is refused by "
+        "`gymnasium.make` with Gymnasium's `DeprecatedEnv`, which names the current one; the "
+        "policy is in [versioning](../versioning.md). Every change of the package is listed in "
+        f"the repository's [CHANGELOG.md](../../CHANGELOG.md){listed}. A scenario's content "
+        "fingerprint (`platoon_env.scenarios.fingerprint`) names exactly what an episode ran on."
     )
 
 

@@ -4,8 +4,8 @@ Research code uses:
 
 * :func:`make` / :func:`parallel_env` — the PettingZoo ``ParallelEnv``; :func:`env` — its AEC form;
 * :func:`list_scenarios`, :func:`load_scenario` — shipped workspaces, YAML files or dicts;
-* Gymnasium ids ``platoon_env/SingleFollower-Study{A,B,C}[-Aruco]-v0`` and the procedural
-  tiers ``...-Procedural{Easy,Medium,Hard}{Train,Test}[-Aruco]-v0``, registered on import, each
+* Gymnasium ids ``platoon_env/SingleFollower-Study{A,B,C}[-Aruco]-v1`` and the procedural
+  tiers ``...-Procedural{Easy,Medium,Hard}{Train,Test}[-Aruco]-v1``, registered on import, each
   with a vector entry point (``gymnasium.make_vec``: the batched core,
   :mod:`platoon_env.gym_vector`) and ``normalize_actions=True`` for actions in ``[-1, 1]``.
 """
@@ -30,7 +30,7 @@ from platoon_env.scenarios import (
 )
 from platoon_env.scenarios.source import SourceLike
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 
 def make(scenario: SourceLike = "study_c", **overrides: Any) -> PlatoonParallelEnv:

@@ -1,8 +1,8 @@
 """Gymnasium single-agent view: one follower behind the scripted leader.
 
 Registered on ``import platoon_env`` (see :data:`GYM_IDS`) as
-``platoon_env/SingleFollower-<Scenario>-v0`` and, with the ``aruco`` sensor profile,
-``platoon_env/SingleFollower-<Scenario>-Aruco-v0``, where ``<Scenario>`` is the shipped
+``platoon_env/SingleFollower-<Scenario>-v1`` and, with the ``aruco`` sensor profile,
+``platoon_env/SingleFollower-<Scenario>-Aruco-v1``, where ``<Scenario>`` is the shipped
 scenario's name in CamelCase: the paper's studies (``StudyA``, ``StudyB``, ``StudyC``) and the
 procedural difficulty tiers, each split (``ProceduralEasyTrain``, ``ProceduralEasyTest``, ...,
 ``ProceduralHardTest``: a new layout of that tier and split on every reset, built for the one
@@ -82,11 +82,31 @@ def _camel(name: str) -> str:
     return "".join(part.capitalize() for part in name.split("_"))
 
 
+#: The version every Gymnasium id ends in. A change of what an id's episode gives for the same
+#: seed and actions (dynamics, sensing, observations, rewards, episode end, spaces, metadata
+#: that wrappers read) bumps it (docs/versioning.md); an older id is not registered, so
+#: ``gymnasium.make`` refuses it with Gymnasium's ``DeprecatedEnv`` naming the current one.
+ENV_VERSION = "v1"
+
+#: ``(id version, package version, what changed)``, newest first: the env pages' version history.
+VERSION_HISTORY: tuple[tuple[str, str, str], ...] = (
+    (
+        "v1",
+        "0.2.0",
+        "the vector env (`make_vec`) autoresets next step by default (was same step); "
+        "`metadata['render_fps']` is the steps per second (100 at the shipped 0.01 s, was 25); "
+        "every spec has `max_episode_steps`; and the changes of the env since 0.1.0 that "
+        "kept the v0 ids (metrics, procedural maps and tiers, task-aware and scale-free "
+        "observations, realism profiles: CHANGELOG.md)",
+    ),
+    ("v0", "0.1.0", "the first release"),
+)
+
 #: Gymnasium id -> keyword arguments of :class:`SingleFollowerEnv`: the shipped scenario the
 #: single follower drives in (:data:`GYM_SCENARIOS`), with ideal sensors or the ``aruco``
 #: sensor profile (``docs/realism.md``).
 GYM_IDS: dict[str, dict[str, Any]] = {
-    f"platoon_env/SingleFollower-{_camel(scenario)}{suffix}-v0": {
+    f"platoon_env/SingleFollower-{_camel(scenario)}{suffix}-{ENV_VERSION}": {
         "scenario": scenario,
         **({} if profile is None else {"sensor_profile": profile}),
     }

@@ -1,6 +1,6 @@
 """Gymnasium's vector API over the batched core: the vector entry point of every Gymnasium id.
 
-``gymnasium.make_vec("platoon_env/SingleFollower-StudyC-v0", num_envs=8)`` (the default
+``gymnasium.make_vec("platoon_env/SingleFollower-StudyC-v1", num_envs=8)`` (the default
 ``vectorization_mode`` for these ids is ``"vector_entry_point"``) builds a
 :class:`SingleFollowerVectorEnv`: ``num_envs`` copies of the id's single env
 (:class:`~platoon_env.gym_env.SingleFollowerEnv`) held by one

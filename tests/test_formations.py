@@ -238,7 +238,7 @@ def test_sb3_adapters_refuse_a_variable_formation() -> None:
 def test_gymnasium_ids_draw_one_follower() -> None:
     import gymnasium as gym
 
-    env = gym.make("platoon_env/SingleFollower-ProceduralFormationsTrain-v0")
+    env = gym.make("platoon_env/SingleFollower-ProceduralFormationsTrain-v1")
     for seed in range(3):
         obs, _ = env.reset(seed=seed)
         assert env.observation_space.contains(obs)

@@ -32,9 +32,9 @@ from platoon_env.scenarios import ScenarioError
 from platoon_env.scenarios.options import OVERRIDE_OPTIONS
 from platoon_env.violations import VIOLATION_CODE_NAMES, mask_to_causes
 
-STUDY_C = "platoon_env/SingleFollower-StudyC-v0"
+STUDY_C = "platoon_env/SingleFollower-StudyC-v1"
 #: A procedural tier with the aruco profile: layouts and sensor noise drawn from each env's RNG.
-PROCEDURAL_ARUCO = "platoon_env/SingleFollower-ProceduralEasyTrain-Aruco-v0"
+PROCEDURAL_ARUCO = "platoon_env/SingleFollower-ProceduralEasyTrain-Aruco-v1"
 
 
 def single_envs(env_id: str, num_envs: int, **kwargs: Any) -> SyncVectorEnv:

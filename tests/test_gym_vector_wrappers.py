@@ -30,10 +30,10 @@ from platoon_env.gym_vector import SingleFollowerVectorEnv
 from platoon_env.scenarios.source import scenario_source
 from platoon_env.scenarios.validate import default_max_steps, formation_limits
 
-STUDY_C = "platoon_env/SingleFollower-StudyC-v0"
-STUDY_B = "platoon_env/SingleFollower-StudyB-v0"
+STUDY_C = "platoon_env/SingleFollower-StudyC-v1"
+STUDY_B = "platoon_env/SingleFollower-StudyB-v1"
 #: A procedural tier with the aruco profile: layouts and sensor noise drawn from each env's RNG.
-PROCEDURAL_ARUCO = "platoon_env/SingleFollower-ProceduralEasyTrain-Aruco-v0"
+PROCEDURAL_ARUCO = "platoon_env/SingleFollower-ProceduralEasyTrain-Aruco-v1"
 #: Sub-env 0 spins in place (out_of_fov ends its episodes after about 20 steps on study_c).
 _SPIN = np.array([0.0, 2.0], dtype=np.float32)
 

@@ -128,7 +128,7 @@ def test_rich_view_is_the_default(corridor: dict[str, Any]) -> None:
 
 
 def test_numeric_view_through_the_gymnasium_ids() -> None:
-    env = gym.make("platoon_env/SingleFollower-StudyC-v0", info_view="numeric")
+    env = gym.make("platoon_env/SingleFollower-StudyC-v1", info_view="numeric")
     _, info = env.reset(seed=0)
     keys = list(info)
     assert info["violation"] == 0 and all(_numeric(v) for v in info.values())
@@ -192,7 +192,7 @@ def test_several_unknown_keywords_are_all_named() -> None:
 
 def test_unknown_keyword_through_gymnasium_and_the_aec_env() -> None:
     with pytest.raises(TypeError, match=r"make\(\) got an unexpected keyword argument 'frameskip'"):
-        gym.make("platoon_env/SingleFollower-StudyC-v0", frameskip=4)
+        gym.make("platoon_env/SingleFollower-StudyC-v1", frameskip=4)
     with pytest.raises(TypeError, match=r"make\(\) got an unexpected keyword argument 'fps'"):
         platoon_env.env("study_c", fps=3)
 

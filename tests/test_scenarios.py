@@ -231,7 +231,7 @@ def test_gymnasium_check_env(env_id: str) -> None:
 
 
 def test_gymnasium_rollout() -> None:
-    env = gym.make("platoon_env/SingleFollower-StudyC-v0")
+    env = gym.make("platoon_env/SingleFollower-StudyC-v1")
     obs, info = env.reset(seed=0)
     assert env.observation_space.contains(obs)
     obs, _reward, terminated, truncated, info = env.step(np.zeros(2, dtype=np.float32))

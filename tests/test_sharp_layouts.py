@@ -217,7 +217,7 @@ def test_shipped_files_and_gym_ids(tier: str, split: str) -> None:
         study_c.leader, path=(), speed=0.25
     )
     stem = f"platoon_env/SingleFollower-Procedural{tier.capitalize()}{split.capitalize()}"
-    assert platoon_env.GYM_IDS[f"{stem}-v0"] == {"scenario": name}
+    assert platoon_env.GYM_IDS[f"{stem}-v1"] == {"scenario": name}
     env = platoon_env.make(name)
     env.reset(seed=1)
     assert same_layout(env.scenario, generate_scenario(cfg, env.layout_index))

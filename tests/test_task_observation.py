@@ -318,7 +318,7 @@ def test_aec_and_gymnasium_forms() -> None:
         aec.step(np.array([0.2, 0.0], dtype=np.float32))
     from gymnasium.utils.env_checker import check_env
 
-    env = gym.make("platoon_env/SingleFollower-StudyC-v0", **TASK)
+    env = gym.make("platoon_env/SingleFollower-StudyC-v1", **TASK)
     assert env.observation_space.shape == (OBS_SIZE_TASK,)
     check_env(env.unwrapped, skip_render_check=True)
     obs, _ = env.reset(seed=0)

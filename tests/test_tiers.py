@@ -320,18 +320,18 @@ def test_gym_ids_of_the_tiers() -> None:
         for split in GENERATOR_SPLITS:
             stem = f"platoon_env/SingleFollower-Procedural{tier.capitalize()}{split.capitalize()}"
             name = f"procedural_{tier}_{split}"
-            assert platoon_env.GYM_IDS[f"{stem}-v0"] == {"scenario": name}
+            assert platoon_env.GYM_IDS[f"{stem}-v1"] == {"scenario": name}
             aruco = {"scenario": name, "sensor_profile": "aruco"}
-            assert platoon_env.GYM_IDS[f"{stem}-Aruco-v0"] == aruco
-            assert f"{stem}-v0" in gym.registry and f"{stem}-Aruco-v0" in gym.registry
+            assert platoon_env.GYM_IDS[f"{stem}-Aruco-v1"] == aruco
+            assert f"{stem}-v1" in gym.registry and f"{stem}-Aruco-v1" in gym.registry
 
 
 @pytest.mark.parametrize(
     ("env_id", "tier", "split"),
     [
-        ("platoon_env/SingleFollower-ProceduralEasyTest-v0", "easy", "test"),
-        ("platoon_env/SingleFollower-ProceduralMediumTrain-v0", "medium", "train"),
-        ("platoon_env/SingleFollower-ProceduralHardTest-Aruco-v0", "hard", "test"),
+        ("platoon_env/SingleFollower-ProceduralEasyTest-v1", "easy", "test"),
+        ("platoon_env/SingleFollower-ProceduralMediumTrain-v1", "medium", "train"),
+        ("platoon_env/SingleFollower-ProceduralHardTest-Aruco-v1", "hard", "test"),
     ],
 )
 def test_gym_make_and_check_env(env_id: str, tier: str, split: str) -> None:

@@ -29,7 +29,7 @@ from torchrl.envs.utils import check_env_specs
 import platoon_env
 from platoon_env.violations import VIOLATION_CAUSES, VIOLATION_CODE_NAMES, violation_code
 
-STUDY_C_ID = "platoon_env/SingleFollower-StudyC-v0"
+STUDY_C_ID = "platoon_env/SingleFollower-StudyC-v1"
 
 
 def _wrapped(scenario: str = "study_c", **kwargs: Any) -> PettingZooWrapper:
