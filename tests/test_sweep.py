@@ -467,3 +467,29 @@ def test_curves_draws_the_runs_that_have_a_progress_file(
     assert "platoon-sweep" in Image.open(png).info["Description"]
     # no run of any configuration: nothing drawn, a failure
     assert main(["--config", "bc_ppo_sharp", "--runs", str(tmp_path), "--curves", str(png)]) == 1
+
+
+def test_ship_checks_the_zip_and_never_writes_through_a_link(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run whose zip is not the one its model.json records is not shipped; a link at the
+    destination is replaced by the shipped folder (its target untouched), and the folder
+    appears whole: nothing of an earlier copy is left in it, no temporary folder beside it."""
+    import hashlib
+
+    runs, models = tmp_path / "runs", tmp_path / "models"
+    digest = hashlib.sha256(b"zip ppo_ta_aruco 0").hexdigest()
+    fake_run(runs, "ppo_ta_aruco", 0, timesteps=10, timesteps_requested=10, zip_sha256=digest)
+    fake_run(runs, "ppo_ta_aruco", 1, timesteps=10, timesteps_requested=10, zip_sha256="0" * 64)
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "model.zip").write_bytes(b"keep")
+    models.mkdir()
+    (models / "ppo_ta_aruco_s0").symlink_to(outside, target_is_directory=True)
+    shipped = ship(runs, models, ["ppo_ta_aruco"], [0, 1])
+    assert shipped == [models / "ppo_ta_aruco_s0"]
+    assert "skip ppo_ta_aruco s1: model.zip has SHA-256" in capsys.readouterr().err
+    dst = models / "ppo_ta_aruco_s0"
+    assert not dst.is_symlink() and sorted(p.name for p in dst.iterdir()) == sorted(SHIPPED)
+    assert (outside / "model.zip").read_bytes() == b"keep"
+    assert sorted(p.name for p in models.iterdir()) == ["ppo_ta_aruco_s0"]

@@ -26,9 +26,11 @@ evaluates them).
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -368,9 +370,14 @@ def ship(runs: Path, models: Path, configs: Sequence[str], seeds: Sequence[int])
 
     A run is shipped when :func:`unshippable` finds nothing against it: its ``model.json`` is
     readable, not ``interrupted``, has trained the timesteps it was asked for, records the
-    options of its configuration and seed, and the run holds every one of
-    :data:`SHIPPED_FILES`. Any other run is skipped with a note on stderr naming the reason
-    (nothing of it is copied), and the others are still shipped.
+    options of its configuration and seed, the run holds every one of :data:`SHIPPED_FILES`,
+    and its ``model.zip`` is the one its ``model.json`` records (SHA-256). Any other run is
+    skipped with a note on stderr naming the reason (nothing of it is copied), and the others
+    are still shipped.
+
+    A shipped folder appears whole or not at all (:func:`_replace_folder`): the files are
+    copied into a temporary folder beside it, checked again, then renamed into place; a
+    folder or a link already there is moved aside and removed, never written through.
     """
     shipped = []
     for name in configs:
@@ -381,17 +388,52 @@ def ship(runs: Path, models: Path, configs: Sequence[str], seeds: Sequence[int])
                 print(f"skip {name} s{seed}: {reason}", file=sys.stderr)
                 continue
             dst = Path(models) / file_stem(f"{name}_s{seed}")
-            dst.mkdir(parents=True, exist_ok=True)
-            for f in SHIPPED_FILES:
-                shutil.copy2(src / f, dst / f)
+            _replace_folder(dst, [src / f for f in SHIPPED_FILES])
             shipped.append(dst)
     return shipped
 
 
+def _replace_folder(dst: Path, files: Sequence[Path]) -> None:
+    """Make ``dst`` a folder holding copies of ``files``, all at once: they are copied into a
+    temporary folder in ``dst``'s parent (the zip checked against its JSON once copied), which
+    is renamed to ``dst`` after whatever was at ``dst`` (a folder, a file, a symbolic link:
+    the link itself, not its target) has been renamed aside; the old one is then removed. A
+    failure leaves ``dst`` as it was and removes the temporary folder."""
+    import json
+
+    from training.policies import zip_mismatch
+
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=dst.parent, prefix=f".{dst.name}.", suffix=".tmp"))
+    try:
+        for f in files:
+            shutil.copyfile(f, tmp / f.name)
+        meta = tmp / "model.json"
+        if meta.is_file():
+            problem = zip_mismatch(tmp / "model.zip", json.loads(meta.read_text()))
+            if problem:
+                raise RuntimeError(f"{dst.name}: the copied {problem}")
+        os.chmod(tmp, 0o755)
+        old = None
+        if dst.is_symlink() or dst.exists():
+            old = dst.with_name(f".{dst.name}.{os.getpid()}.old")
+            os.rename(dst, old)
+        os.rename(tmp, dst)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if old is not None:
+        if old.is_symlink() or old.is_file():
+            old.unlink()
+        else:
+            shutil.rmtree(old, ignore_errors=True)
+
+
 def unshippable(config: Config, seed: int, src: Path) -> str | None:
     """Why the run in ``src`` is not a finished run of ``config`` with ``seed`` (None if it
-    is): a missing or unreadable ``model.json``, an unfinished run, a missing file, or options
-    other than the configuration's (each difference named, recorded vs configured)."""
+    is): a missing or unreadable ``model.json``, an unfinished run, a missing file, a
+    ``model.zip`` other than the one ``model.json`` records (its SHA-256), or options other than
+    the configuration's (each difference named, recorded vs configured)."""
     import json
 
     meta_path = src / "model.json"
@@ -410,6 +452,11 @@ def unshippable(config: Config, seed: int, src: Path) -> str | None:
     absent = [f for f in SHIPPED_FILES if not (src / f).is_file()]
     if absent:
         return f"no {', '.join(absent)} in {src}"
+    from training.policies import zip_mismatch
+
+    mismatch = zip_mismatch(src / "model.zip", meta)
+    if mismatch:
+        return mismatch
     differences = option_differences(config, seed, meta)
     if differences:
         return (
