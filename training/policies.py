@@ -682,6 +682,7 @@ class LearnedPolicy:
         self._law: Any = None
         self._fast: FastActor | None = None
         self._fast_checked = False
+        self._group_key: tuple[Any, ...] | None = None
         n = len(self.observation_layout)
         if self.obs_scale is not None and self.obs_scale.shape != (n,):
             raise ValueError(
@@ -1057,7 +1058,10 @@ class LearnedPolicy:
             if fast is None or not agents:
                 out[i] = policy.act(obs)
                 continue
-            key = (*fast.key, policy.residual, policy.previous_command, repr(policy.action_range))
+            if policy._group_key is None:  # what else must match for one batch (fixed)
+                policy._group_key = (policy.residual, policy.previous_command,
+                                     repr(policy.action_range))  # fmt: skip
+            key = (*fast.key, *policy._group_key)
             groups.setdefault(key, []).append((i, agents, inputs))
         for members in groups.values():
             first = policies[members[0][0]]
