@@ -5,7 +5,6 @@ and the command line. No training is run here."""
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -389,12 +388,15 @@ def test_train_runs_platoon_train_with_one_torch_thread_and_logs(
 ) -> None:
     seen: dict[str, Any] = {}
 
-    def fake_run(cmd: list[str], **kwargs: Any) -> subprocess.CompletedProcess[bytes]:
-        seen["cmd"], seen["kwargs"] = cmd, kwargs
-        kwargs["stdout"].write("trained\n")
-        return subprocess.CompletedProcess(cmd, 0)
+    class FakePopen:
+        def __init__(self, cmd: list[str], **kwargs: Any) -> None:
+            seen["cmd"], seen["kwargs"] = cmd, kwargs
+            kwargs["stdout"].write("trained\n")
 
-    monkeypatch.setattr(sweep.subprocess, "run", fake_run)
+        def wait(self, timeout: float | None = None) -> int:
+            return 0
+
+    monkeypatch.setattr(sweep.subprocess, "Popen", FakePopen)
     monkeypatch.chdir(tmp_path)
     out = Path("runs") / "ppo_ta_aruco" / "s0"  # relative: the caller's working directory
     name, rc, wall = sweep._train(CONFIG, 0, out)
@@ -493,3 +495,36 @@ def test_ship_checks_the_zip_and_never_writes_through_a_link(
     assert not dst.is_symlink() and sorted(p.name for p in dst.iterdir()) == sorted(SHIPPED)
     assert (outside / "model.zip").read_bytes() == b"keep"
     assert sorted(p.name for p in models.iterdir()) == ["ppo_ta_aruco_s0"]
+
+
+def test_a_stopped_sweep_leaves_no_training_behind(tmp_path: Path) -> None:
+    """SIGTERM to the sweep (here: its handler's KeyboardInterrupt) stops and reaps every
+    running training, starts no other, and exits 130; no child outlives it."""
+    import os
+    import signal
+    import threading
+
+    started = tmp_path / "started"
+    sleeper = [sys.executable, "-c", f"open({str(started)!r}, 'a').write('x'); "
+               "import time; time.sleep(120)"]  # fmt: skip
+
+    def fake_train(config: Any, seed: int, out: Path) -> tuple[str, int, float]:
+        out.mkdir(parents=True, exist_ok=True)
+        return f"{config.name} s{seed}", *sweep._run_child(sleeper, out / "train.log")
+
+    jobs = [(CONFIG, seed, tmp_path / f"s{seed}") for seed in range(3)]
+    original = sweep._train
+    sweep._train = fake_train  # type: ignore[assignment]
+    try:
+        timer = threading.Timer(3.0, os.kill, (os.getpid(), signal.SIGTERM))
+        timer.start()
+        try:
+            assert sweep._run_jobs(jobs, 2) == 130
+        finally:
+            timer.cancel()
+    finally:
+        sweep._train = original  # type: ignore[assignment]
+    assert not sweep._CHILDREN
+    assert len(started.read_text()) == 2  # two ran, the third never started
+    logs = [(tmp_path / f"s{seed}" / "train.log") for seed in range(3)]
+    assert not logs[2].exists() or "not started" in logs[2].read_text()

@@ -26,11 +26,15 @@ evaluates them).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import ctypes
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -347,18 +351,85 @@ def run_args(config: Config, seed: int, out: Path) -> list[str]:
     return args
 
 
+#: The trainings running now (each ``_train`` registers its child), for :func:`stop_children`.
+_CHILDREN: set[subprocess.Popen[bytes]] = set()
+_CHILDREN_LOCK = threading.Lock()
+#: Set by :func:`stop_children`: no training starts after it (a job whose thread was about to
+#: start one returns 130 instead).
+_STOPPING = threading.Event()
+#: How long :func:`stop_children` waits for a training to end after SIGTERM before SIGKILL.
+STOP_GRACE = 30.0
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
+    """In a training child (Linux): SIGTERM when the sweep dies, even by SIGKILL."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def _train(config: Config, seed: int, out: Path) -> tuple[str, int, float]:
     out.mkdir(parents=True, exist_ok=True)
     args = run_args(config, seed, out)
     cmd = [sys.executable, "-m", "training.train", *args, "--torch-threads", "1"]
+    return f"{config.name} s{seed}", *_run_child(cmd, out / "train.log")
+
+
+def _run_child(cmd: Sequence[str], log_path: Path) -> tuple[int, float]:
+    """Run ``cmd`` with its output appended to ``log_path``; its exit status and wall time.
+    The child is registered for :func:`stop_children` and, on Linux, gets SIGTERM if this
+    process dies (``PR_SET_PDEATHSIG``), so no training outlives the sweep."""
     t0 = time.perf_counter()
-    with (out / "train.log").open("a") as log:
+    with log_path.open("a") as log:
         log.write("$ " + " ".join(cmd) + "\n")
         log.flush()
         # the caller's working directory: a relative --out (or scenario path) names the
         # same place for the child as for the log written here
-        rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT).returncode
-    return f"{config.name} s{seed}", rc, time.perf_counter() - t0
+        linux = sys.platform.startswith("linux")
+        with _CHILDREN_LOCK:
+            if _STOPPING.is_set():
+                log.write("not started: the sweep is stopping\n")
+                return 130, time.perf_counter() - t0
+            proc = subprocess.Popen(
+                list(cmd),
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                preexec_fn=_die_with_parent if linux else None,
+            )
+            _CHILDREN.add(proc)
+        try:
+            rc = proc.wait()
+        finally:
+            with _CHILDREN_LOCK:
+                _CHILDREN.discard(proc)
+    return rc, time.perf_counter() - t0
+
+
+def stop_children(grace: float = STOP_GRACE) -> int:
+    """SIGTERM every running training, SIGKILL those still running after ``grace`` seconds,
+    and reap them all; returns how many there were. A training stopped so leaves its run
+    folder as a crash would: the next sweep resumes it from its last checkpoint (or starts
+    it over)."""
+    with _CHILDREN_LOCK:
+        _STOPPING.set()
+        children = list(_CHILDREN)
+    for proc in children:
+        with contextlib.suppress(ProcessLookupError):
+            proc.terminate()
+    deadline = time.monotonic() + grace
+    for proc in children:
+        try:
+            proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return len(children)
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
 
 
 #: What :func:`ship` copies of a finished run.
@@ -598,13 +669,31 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0 if shipped else 1
     jobs = [(CONFIGS[n], s, run_dir(runs, n, s)) for n in a.config for s in a.seeds]
     print(f"{len(jobs)} runs, {a.jobs} at a time, into {runs}/", flush=True)
+    return _run_jobs(jobs, a.jobs)
+
+
+def _run_jobs(jobs: Sequence[tuple[Config, int, Path]], parallel: int) -> int:
+    """Train ``jobs`` ``parallel`` at a time; 0, 1 if one failed, 130 on SIGINT or SIGTERM
+    (every running training is stopped and reaped first: :func:`stop_children`)."""
     failed = 0
-    with ThreadPoolExecutor(a.jobs) as pool:
+    _STOPPING.clear()
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    pool = ThreadPoolExecutor(parallel)
+    try:
         for future in as_completed([pool.submit(_train, *j) for j in jobs]):
             name, rc, wall = future.result()
             status = "done" if rc == 0 else f"FAILED (exit {rc}; see its train.log)"
             print(f"{name}: {status} in {wall / 60:.1f} min", flush=True)
             failed += rc != 0
+    except KeyboardInterrupt:
+        pool.shutdown(wait=False, cancel_futures=True)
+        stopped = stop_children()
+        pool.shutdown(wait=True)
+        print(f"interrupted: {stopped} training(s) stopped; re-run to resume them", flush=True)
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    pool.shutdown(wait=True)
     return 1 if failed else 0
 
 
