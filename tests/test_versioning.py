@@ -4,7 +4,10 @@ version, and the package's version is the same in every place that states it."""
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
@@ -40,3 +43,20 @@ def test_the_package_version_is_stated_once_everywhere() -> None:
     assert f"version: {platoon_env.__version__}" in cff
     changelog = (ROOT / "CHANGELOG.md").read_text()
     assert f"## {platoon_env.__version__}" in changelog
+
+
+def test_the_module_id_form_registers_the_ids_itself() -> None:
+    """CleanRL's and RL Zoo's ``--env-id platoon_env:platoon_env/...``: Gymnasium imports the
+    module before it looks the id up (checked in a fresh process, where nothing imported
+    platoon_env before)."""
+    code = (
+        "import gymnasium\n"
+        f"env = gymnasium.make('platoon_env:platoon_env/SingleFollower-StudyC-{ENV_VERSION}')\n"
+        "print(env.spec.id, env.spec.max_episode_steps)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+        env={**os.environ, "PLATOON_ENV_QUIET": "1"},
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith(f"platoon_env/SingleFollower-StudyC-{ENV_VERSION} ")
