@@ -12,7 +12,8 @@ reports (``docs/realism.md``), per follower and control step ``k``:
    nothing (flag 0, zeros);
 3. **noise**: a reported position ``(x~, y~)`` gets independent Gaussian noise of std
    ``position + position_per_m * d`` per axis and is then rotated by an angle of std
-   ``bearing``;
+   ``bearing``; the result is clipped to ``x~ in [0, d_con]``, ``y~ in [-d_con, d_con]`` (the
+   observation space's bounds: a noisy reading never leaves it);
 4. **latency**: the frame taken at step ``k`` is delivered at step ``k + latency_steps``;
    between deliveries the observation holds the last delivered frame. At the reset the history
    is filled with the first frame (the platoon stood still before it started);
@@ -107,6 +108,10 @@ def capture(
         a = p.noise_bearing * normal(ep)
         c, s = math.cos(a), math.sin(a)
         x, y = c * x - s * y, s * x + c * y
+    # A reading stays inside the camera's reach and the observation space: x~ in [0, d_con],
+    # y~ in [-d_con, d_con] (noise may carry it past the range, or behind the camera).
+    x = min(max(x, 0.0), p.d_con)
+    y = min(max(y, -p.d_con), p.d_con)
     return 1.0, x, y
 
 

@@ -145,3 +145,43 @@ def test_a_grid_too_large_to_plan_is_a_usage_error(
     assert exc.value.code == 2
     assert "more than the 1,000,000 one run plans" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    "camera",
+    [
+        {"noise": {"position": 5.0}},
+        {"noise": {"position": 1e300}},
+        {"noise": {"bearing": 1e3}},
+        {"noise": {"position_per_m": 10.0}, "latency": 0.05, "frame_rate": 30.0},
+    ],
+)
+def test_noisy_observations_stay_inside_their_space(camera: dict) -> None:
+    """A noisy reading is clipped to the camera's reach (x~ in [0, d_con], y~ in [-d_con,
+    d_con]): every observation lies in the observation space, scale-free ones too."""
+    import numpy as np
+
+    import platoon_env
+
+    for scale_free in (False, True):
+        env = platoon_env.make(
+            "study_c",
+            camera=camera,
+            terminate_on=(),
+            observation={"task_aware": scale_free, "scale_free": scale_free},
+        )
+        obs, _ = env.reset(seed=0)
+        space = env.observation_space("follower_1")
+        for _ in range(100):
+            assert all(space.contains(o) for o in obs.values())
+            obs, *_ = env.step({a: np.zeros(2, np.float32) for a in env.agents})
+
+
+def test_a_range_beyond_float32_is_refused() -> None:
+    import platoon_env
+    from platoon_env.scenarios import ScenarioError
+
+    with pytest.raises(ScenarioError, match=r"camera.range: d_con must be <= 1e\+06 m"):
+        platoon_env.make("study_c", camera={"range": 1e300})
+    with pytest.raises(ScenarioError, match=r"proximity.range"):
+        platoon_env.make("study_c", proximity={"range": 1e300})

@@ -412,6 +412,12 @@ def _check_sensing_and_formation(cfg: ScenarioConfig, path: str) -> None:
         f"beta_con must satisfy 0 < beta_con < pi/2, got {bc!r}",
     )
     require(dcon > 0, f"{path}.camera.range", f"d_con must be > 0, got {dcon!r}")
+    require(
+        dcon <= MAX_COORDINATE,
+        f"{path}.camera.range",
+        f"d_con must be <= {MAX_COORDINATE:g} m (the observation space's bound, float32), "
+        f"got {dcon!r}",
+    )
     dcol, ddes = cfg.safety.d_col, cfg.formation.d_des
     require(
         dcol >= 2 * r - 1e-12,
@@ -449,6 +455,11 @@ def _check_safety(cfg: ScenarioConfig, path: str) -> None:
     r = cfg.robot.radius
     require(
         prox > r, f"{path}.proximity.range", f"must exceed the robot radius {r:g}, got {prox!r}"
+    )
+    require(
+        prox <= MAX_COORDINATE,
+        f"{path}.proximity.range",
+        f"must be <= {MAX_COORDINATE:g} m (the observation space's bound, float32), got {prox!r}",
     )
     sector = cfg.proximity.half_angle
     require(
