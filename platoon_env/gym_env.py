@@ -95,7 +95,8 @@ VERSION_HISTORY: tuple[tuple[str, str, str], ...] = (
         "0.2.0",
         "the vector env (`make_vec`) autoresets next step by default (was same step); "
         "`metadata['render_fps']` is the steps per second (100 at the shipped 0.01 s, was 25); "
-        "every spec has `max_episode_steps`; and the changes of the env since 0.1.0 that "
+        "every spec has `max_episode_steps`; a noisy camera reading is clipped to the "
+        "observation space; and the changes of the env since 0.1.0 that "
         "kept the v0 ids (metrics, procedural maps and tiers, task-aware and scale-free "
         "observations, realism profiles: CHANGELOG.md)",
     ),
