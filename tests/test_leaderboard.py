@@ -296,3 +296,20 @@ def test_paper_runs_split_the_seeds_and_a_law_plays_them_all(tmp_path: Path) -> 
     # fewer layouts than runs: a run would play none
     with pytest.raises(ValueError, match="fewer than the 3 runs"):
         lb.cells([law, config], [lb.Task("heldout", "procedural_easy_test", "ideal", 2)])
+
+
+def test_a_readme_that_cannot_be_spliced_is_refused_before_any_episode(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--readme`` is checked first (exit 2, no store made): not after hours of board."""
+    page = tmp_path / "page.md"
+    page.write_text("no markers here\n")
+    store = tmp_path / "store"
+    code = lb.main(["--store", str(store), "--readme", str(page), "--docs", str(tmp_path)])
+    assert code == 2
+    assert "has no" in capsys.readouterr().err and not store.exists()
+    assert lb.readme_problem(tmp_path / "missing.md") is not None
+    page.write_text(f"a\n{lb.MARKERS[0]}\nold\n{lb.MARKERS[1]}\nb\n")
+    assert lb.readme_problem(page) is None
+    shipped = Path(__file__).resolve().parents[1] / "docs" / "benchmark.md"
+    assert lb.readme_problem(shipped) is None  # the default page holds the markers

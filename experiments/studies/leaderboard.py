@@ -63,6 +63,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -533,8 +534,23 @@ def goal_markdown(goals: Sequence[Mapping[str, Any]]) -> str:
     return markdown_table(header, rows) + "\n"
 
 
+def readme_problem(readme: Path) -> str | None:
+    """Why :func:`splice_readme` could not splice ``readme`` (None: it can): checked before
+    the board runs, so a wrong ``--readme`` is not found after hours of episodes."""
+    try:
+        body = readme.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        return f"cannot read it ({exc})"
+    start, end = MARKERS
+    if start not in body or end not in body.split(start, 1)[1]:
+        return f"it has no {start} ... {end} markers"
+    if not os.access(readme.parent, os.W_OK):
+        return f"its folder {readme.parent} is not writable"
+    return None
+
+
 def splice_readme(readme: Path, text: str) -> None:
-    """Replace what lies between the README's markers with ``text``."""
+    """Replace what lies between the page's markers with ``text``."""
     body = readme.read_text()
     start, end = MARKERS
     if start not in body or end not in body:
@@ -592,11 +608,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--readme",
         type=Path,
-        default=Path("README.md"),
-        help="the README whose table (between its leaderboard markers) is replaced "
-        "(default: ./README.md)",
+        default=Path("docs/benchmark.md"),
+        help="the page whose table (between its leaderboard markers) is replaced "
+        "(default: ./docs/benchmark.md); checked before any episode runs",
     )
-    p.add_argument("--no-readme", action="store_true", help="leave the README alone")
+    p.add_argument("--no-readme", action="store_true", help="leave that page alone")
     p.add_argument(
         "--allow-mixed",
         action="store_true",
@@ -633,6 +649,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"({args.models or 'none found in the source checkout'}); pass --models DIR",
             file=sys.stderr,
         )
+        return 2
+    problem = None if args.no_readme else readme_problem(args.readme)
+    if problem:
+        print(f"platoon-leaderboard: error: --readme {args.readme}: {problem} (or --no-readme)",
+              file=sys.stderr)  # fmt: skip
         return 2
     try:  # before any work: a file that is not a store, or not ours, is refused untouched
         store = Store(store_file(args.store))
