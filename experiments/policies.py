@@ -22,6 +22,7 @@ import hashlib
 import importlib
 import io
 import json
+import math
 import os
 import re
 import sys
@@ -239,6 +240,31 @@ def load_user_class(factory: str) -> Any:
     return target
 
 
+def _checked_metadata(meta: Any, path: Path) -> dict[str, Any]:
+    """``meta`` (a model's JSON) if the fields the evaluator reads before loading the model have
+    their types; else a ``ValueError`` naming ``path`` and the field."""
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: not a JSON object (got {type(meta).__name__})")
+    period = meta.get("control_period")
+    if period is not None and (
+        isinstance(period, bool)
+        or not isinstance(period, int | float)
+        or not math.isfinite(period)
+        or period <= 0
+    ):
+        raise ValueError(f"{path}: control_period must be a positive number, got {period!r}")
+    config = meta.get("scenario_config")
+    if config is not None and not isinstance(config, dict):
+        raise ValueError(f"{path}: scenario_config must be an object, got {type(config).__name__}")
+    observation = (config or {}).get("observation")
+    if observation is not None and not isinstance(observation, dict):
+        raise ValueError(
+            f"{path}: scenario_config.observation must be an object, got "
+            f"{type(observation).__name__}"
+        )
+    return meta
+
+
 def _source_sha256(factory: str) -> str | None:
     """SHA-256 of the source file of ``factory``'s module (None: none, e.g. a built-in)."""
     module = sys.modules.get(factory.partition(":")[0])
@@ -356,7 +382,11 @@ class PolicySpec:
 
     def model_metadata(self) -> dict[str, Any]:
         """A model's metadata: ``X.json`` beside ``X.zip`` (``model.json``, ``checkpoint.json``;
-        {} if absent or not a model)."""
+        {} if absent or not a model). A file that is not a JSON object, or whose fields the
+        evaluator reads before loading the model are of the wrong type (``control_period`` a
+        positive number, ``scenario_config`` and its ``observation`` objects), is a
+        ``ValueError`` naming the file and the field (a usage error); the rest is checked by
+        :meth:`training.LearnedPolicy.load`."""
         if self.path is None:
             return {}
         if "meta" not in self._memo:
@@ -365,9 +395,11 @@ class PolicySpec:
                 self._memo["meta"] = {}
             else:
                 try:
-                    self._memo["meta"] = json.loads(meta_path.read_text())
-                except (OSError, ValueError) as exc:
-                    raise ValueError(f"{meta_path}: not readable JSON ({exc})") from None
+                    meta = json.loads(meta_path.read_text())
+                except (OSError, ValueError, RecursionError) as exc:
+                    detail = "nested too deep" if isinstance(exc, RecursionError) else exc
+                    raise ValueError(f"{meta_path}: not readable JSON ({detail})") from None
+                self._memo["meta"] = _checked_metadata(meta, meta_path)
         out: dict[str, Any] = self._memo["meta"]
         return out
 

@@ -185,3 +185,31 @@ def test_a_range_beyond_float32_is_refused() -> None:
         platoon_env.make("study_c", camera={"range": 1e300})
     with pytest.raises(ScenarioError, match=r"proximity.range"):
         platoon_env.make("study_c", proximity={"range": 1e300})
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ('{"a":' * 100_000 + "1" + "}" * 100_000, "nested too deep"),
+        ("[1, 2]", "not a JSON object"),
+        ('{"control_period": "abc"}', "control_period must be a positive number"),
+        ('{"control_period": 0.025, "scenario_config": [1]}', "scenario_config must be an obj"),
+    ],
+)
+def test_a_malformed_model_json_is_one_usage_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, match: str
+) -> None:
+    import shutil
+
+    from experiments.studies.evaluate import main
+
+    shipped = Path(__file__).resolve().parents[1] / "models" / "ppo_ta_aruco_s0"
+    if not shipped.is_dir():
+        pytest.skip("no shipped model")
+    model = shutil.copytree(shipped, tmp_path / "m")
+    (model / "model.json").write_text(text)
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", str(model), "--scenario", "study_c", "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert match in err and "Traceback" not in err

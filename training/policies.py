@@ -753,6 +753,8 @@ class LearnedPolicy:
             meta = json.loads(meta_file.read_text())
         except (UnicodeDecodeError, json.JSONDecodeError) as e:
             raise ValueError(f"{meta_file} is not valid JSON: {e}") from None
+        except RecursionError:
+            raise ValueError(f"{meta_file} is not valid JSON: nested too deep") from None
         if not isinstance(meta, dict) or meta.get("format") != METADATA_FORMAT:
             raise ValueError(f"{meta_file} is not a {METADATA_FORMAT} file")
         version = meta.get("format_version", 0)
