@@ -190,6 +190,9 @@ def _resolve(factory: str) -> Any:
     return getattr(importlib.import_module(module), attr)
 
 
+#: What a policy's display name may hold (it names rows, files and markdown table cells).
+_NAME = re.compile(r"[A-Za-z0-9_.-]{1,80}")
+
 #: A user's policy class on the command line: ``module:Class`` (a dotted module path).
 _USER_FACTORY = re.compile(r"^[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*$")
 
@@ -346,7 +349,13 @@ class PolicySpec:
         if not found:
             raise ValueError(f"no model file at {zip_path}")
         zip_path = zip_path.resolve()
-        return cls(name or zip_path.parent.name, MODEL, zip_path)
+        name = name or zip_path.parent.name
+        if not _NAME.fullmatch(name):
+            raise ValueError(
+                f"the model folder's name {name!r} holds characters other than letters, "
+                "digits, '_', '.' and '-': name it, NAME=PATH"
+            )
+        return cls(name, MODEL, zip_path)
 
     @classmethod
     def parse(cls, text: str) -> PolicySpec:
@@ -359,6 +368,11 @@ class PolicySpec:
             raise argparse.ArgumentTypeError("--policy needs a value")
         if sep and not name:
             raise argparse.ArgumentTypeError(f"--policy {text!r}: empty NAME before '='")
+        if name and not _NAME.fullmatch(name):
+            raise argparse.ArgumentTypeError(
+                f"--policy {text!r}: NAME may hold letters, digits, '_', '.' and '-' only (it "
+                "names rows, files and table cells)"
+            )
         if rest in REGISTRY:
             return cls.of(rest, name or None)
         if _USER_FACTORY.match(rest) and not Path(rest).exists():

@@ -213,3 +213,13 @@ def test_a_malformed_model_json_is_one_usage_line(
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert match in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("name", ["a|b", "a\nb", "\x1b[31mred", "", "x" * 81])
+def test_policy_names_that_break_tables_are_refused(name: str) -> None:
+    import argparse
+
+    from experiments.policies import PolicySpec
+
+    with pytest.raises(argparse.ArgumentTypeError):
+        PolicySpec.parse(f"{name}=ppc")
