@@ -70,8 +70,11 @@ class Cell:
         overrides: Mapping[str, Any] | None = None,
         **options: Any,
     ) -> Cell:
-        """A cell with ``overrides`` given as a mapping."""
-        return cls(policy, scenario, int(seed), canonical_json(dict(overrides or {})), **options)
+        """A cell with ``overrides`` given as a mapping (numbers canonical: a float with a whole
+        value is that integer, so ``accel_max=1`` and ``accel_max=1.0`` are one cell and one
+        episode in the store)."""
+        canonical = canonical_json(_whole_numbers(dict(overrides or {})))
+        return cls(policy, scenario, int(seed), canonical, **options)
 
     def make_kwargs(self) -> dict[str, Any]:
         """The keyword arguments of ``platoon_env.make`` for this cell: the policy's own
@@ -80,6 +83,18 @@ class Cell:
         both (a model evaluated at another control period than it was trained at would be
         another policy, stored under its fingerprint)."""
         return merge_overrides(self.policy, json.loads(self.overrides))
+
+
+def _whole_numbers(value: Any) -> Any:
+    """``value`` with every finite float of a whole value (``1.0``) as an int (``1``), inside
+    mappings and lists; booleans and other values unchanged."""
+    if isinstance(value, float) and value.is_integer() and abs(value) < 2**53:
+        return int(value)
+    if isinstance(value, Mapping):
+        return {k: _whole_numbers(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_whole_numbers(v) for v in value]
+    return value
 
 
 def merge_overrides(policy: PolicySpec, overrides: Mapping[str, Any]) -> dict[str, Any]:

@@ -223,3 +223,17 @@ def test_policy_names_that_break_tables_are_refused(name: str) -> None:
 
     with pytest.raises(argparse.ArgumentTypeError):
         PolicySpec.parse(f"{name}=ppc")
+
+
+def test_a_whole_float_and_its_integer_are_one_episode(tmp_path: Path) -> None:
+    """``--robot accel_max=1`` and ``accel_max=1.0`` resolve to one cell: one key, one episode
+    in the store."""
+    from experiments.cells import Cell
+    from experiments.grid import resolve_cells
+
+    spec = policies.PolicySpec.of("ppc")
+    one = resolve_cells([Cell.of(spec, "study_c", 0, {"robot": {"accel_max": 1}})])[0]
+    other = resolve_cells([Cell.of(spec, "study_c", 0, {"robot": {"accel_max": 1.0}})])[0]
+    assert one.key == other.key
+    half = resolve_cells([Cell.of(spec, "study_c", 0, {"robot": {"accel_max": 1.5}})])[0]
+    assert half.key != one.key
