@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shlex
 import socket
@@ -124,6 +125,29 @@ CREATE TABLE IF NOT EXISTS episodes (
 TABLES: frozenset[str] = frozenset(
     {"meta", "runs", "policies", "scenarios", "overrides", "episodes", "sqlite_sequence"}
 )
+
+
+#: How a metric that is not a finite number is stored: JSON has no inf or NaN (SQLite's
+#: ``json_extract`` refuses Python's ``Infinity``), so such a float is the string given here and
+#: read back as the float. Rows written before hold ``Infinity``, which still reads.
+NONFINITE: dict[str, float] = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
+
+
+def _encode_nonfinite(metrics: Mapping[str, Any]) -> dict[str, Any]:
+    """``metrics`` with every non-finite float as its :data:`NONFINITE` string."""
+    out: dict[str, Any] = {}
+    for k, v in metrics.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            v = "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
+        out[k] = v
+    return out
+
+
+def _decode_nonfinite(metrics: Mapping[str, Any]) -> dict[str, Any]:
+    """The inverse of :func:`_encode_nonfinite`."""
+    return {
+        k: NONFINITE[v] if isinstance(v, str) and v in NONFINITE else v for k, v in metrics.items()
+    }
 
 
 class StoreError(RuntimeError):
@@ -604,7 +628,7 @@ class Store:
         already finished is kept (returns False); else the row is written (True)."""
         if status not in STATUSES or status == "running":
             raise ValueError(f"status must be one of done, failed, refused, got {status!r}")
-        text = json.dumps(dict(metrics or {}), sort_keys=True)
+        text = json.dumps(_encode_nonfinite(dict(metrics or {})), sort_keys=True, allow_nan=False)
         with self.transaction() as db:
             cur = db.execute(
                 "INSERT INTO episodes (policy, scenario, overrides, seed, measure, status, run_id, "
@@ -649,6 +673,7 @@ class Store:
             metrics = self._json(r["metrics"], what) or {}
             if not isinstance(metrics, dict):
                 raise StoreError(f"{self.path}: {what} are not a JSON object: {r['metrics']!r}")
+            metrics = _decode_nonfinite(metrics)
             out[key] = EpisodeRecord(
                 key=key,
                 status=r["status"],

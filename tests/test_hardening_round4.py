@@ -237,3 +237,40 @@ def test_a_whole_float_and_its_integer_are_one_episode(tmp_path: Path) -> None:
     assert one.key == other.key
     half = resolve_cells([Cell.of(spec, "study_c", 0, {"robot": {"accel_max": 1.5}})])[0]
     assert half.key != one.key
+
+
+def test_store_metrics_are_json_and_keep_inf_and_nan(tmp_path: Path) -> None:
+    """A metric that is not a finite number is stored as a string JSON can hold (``"inf"``),
+    which SQLite's ``json_extract`` reads, and comes back as the float; a row written as
+    before (``Infinity``) still reads."""
+    import json
+    import math
+
+    from experiments.store import EpisodeKey
+
+    path = tmp_path / "s.sqlite"
+    key = EpisodeKey("p", "s", "o", 0, "m")
+    old = EpisodeKey("p", "s", "o", 1, "m")
+    with Store(path) as store:
+        store.register({"p": ("ppc", {})}, {"s": {}}, {"o": {}})
+        run = store.begin_run("t", {"tool": "test"})
+        names = {key: ("p", "s"), old: ("p", "s")}
+        store.claim(list(names), run, names)
+        metrics = {"time_to_violation": math.inf, "low": -math.inf, "x": math.nan, "y": 1.5}
+        assert store.record(key, run, "done", metrics=metrics, names=("p", "s"))
+        assert store.record(old, run, "done", metrics={"y": 2.0}, names=("p", "s"))
+    db = sqlite3.connect(path)
+    raw = db.execute("SELECT metrics FROM episodes WHERE seed = 0").fetchone()[0]
+    json.loads(raw, parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
+    extracted = db.execute(
+        "SELECT json_extract(metrics, '$.time_to_violation') FROM episodes WHERE seed = 0"
+    ).fetchone()[0]
+    assert extracted == "inf"
+    db.execute("UPDATE episodes SET metrics = ? WHERE seed = 1", ('{"t": Infinity}',))
+    db.commit()
+    db.close()
+    with Store(path) as store:
+        got = store.episodes()
+    m = got[key].metrics
+    assert m["time_to_violation"] == math.inf and m["low"] == -math.inf and math.isnan(m["x"])
+    assert m["y"] == 1.5 and got[old].metrics == {"t": math.inf}
