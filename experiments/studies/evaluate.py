@@ -1315,9 +1315,24 @@ def _plots(
                 slug += "_"
             slugs[(s, c.label)] = slug
     shown = _representatives(args.configurations)
-    for key in tqdm(list(slugs), desc="plots", unit="plot set"):
-        if groups[key]:
-            plot_scenario(key[0], groups[key], out, slugs[key], metadata, overlaid=shown)
+    sets = [key for key in slugs if groups[key]]
+    jobs = [(key[0], groups[key], out, slugs[key], metadata, shown) for key in sets]
+    workers = min(int(getattr(args, "workers", 1) or 1), len(jobs))
+    bar = tqdm(total=len(jobs), desc="plots", unit="plot set")
+    if workers <= 1:
+        for job in jobs:
+            _plot_set(job)
+            bar.update()
+    else:  # each scenario's figures and GIFs in its own process (matplotlib is serial)
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(workers, mp_context=context) as pool:
+            for future in as_completed([pool.submit(_plot_set, job) for job in jobs]):
+                future.result()
+                bar.update()
+    bar.close()
     for c in args.conditions:
         several = len(args.conditions) > 1
         panels = [
@@ -1337,6 +1352,14 @@ def _plots(
         stem = "trajectories" + (f"_{file_stem(c.label)}" if several else "")
         if any(eps for _, eps in panels):
             plot_overview(panels, out / f"{stem}.png", title, metadata)
+
+
+def _plot_set(job: tuple[str, dict[str, Episode], Path, str, dict[str, str], list[str]]) -> None:
+    """One scenario's plots and GIFs (:func:`plot_scenario`), in a worker process of
+    :func:`_plots` or in this one."""
+    scenario, episodes, out, slug, metadata, shown = job
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    plot_scenario(scenario, episodes, out, slug, metadata, overlaid=shown)
 
 
 def _representatives(configs: Mapping[str, tuple[str, int | None]]) -> list[str]:
