@@ -1056,9 +1056,12 @@ class LearnedPolicy:
         groups: dict[tuple[Any, ...], list[tuple[int, list[str], NDArray[np.float32]]]] = {}
         for i, (policy, obs) in enumerate(zip(policies, observations, strict=True)):
             fast = policy._fast_actor()
-            agents, inputs = policy._model_input(obs)
-            if fast is None or not agents:
+            if fast is None:  # predict's path: the policy alone
                 out[i] = policy.act(obs)
+                continue
+            agents, inputs = policy._model_input(obs)
+            if not agents:
+                out[i] = {}
                 continue
             if policy._group_key is None:  # what else must match for one batch (fixed)
                 policy._group_key = (policy.residual, policy.previous_command,
@@ -1070,27 +1073,17 @@ class LearnedPolicy:
             fast = first._fast_actor()
             assert fast is not None  # grouped by its key
             actions = fast(np.concatenate([inputs for _, _, inputs in members]))
-            if first.residual is not None:  # each copy's own law, added in one batch
-                laws = []
-                for i, agents, _ in members:
-                    law = policies[i]._law
-                    if law is None:
-                        raise policies[i]._unbound()
-                    acted = law.act(observations[i])
-                    laws.append(np.stack([acted[a] for a in agents]))
-                assert first.action_range is not None  # checked at construction
-                base, _ = to_normalised(np.concatenate(laws), first.action_range)
-                actions = np.clip(actions + base, -1.0, 1.0)
-            physical = (
-                actions if first.action_range is None else (first.action_range.to_physical(actions))
-            )
+            laws = (
+                None
+                if first.residual is None  # each copy's own law; added in one batch below
+                else np.concatenate([policies[i]._law_rows(agents, observations[i])
+                                     for i, agents, _ in members])
+            )  # fmt: skip
+            actions, physical = first._finish(actions, laws)
             start = 0
             for i, agents, _ in members:
-                stop = start + len(agents)
-                if first.previous_command:
-                    policies[i]._sent = {a: actions[start + k].copy() for k, a in enumerate(agents)}
-                out[i] = {a: physical[start + k].copy() for k, a in enumerate(agents)}
-                start = stop
+                out[i] = policies[i]._keep(agents, actions[start:], physical[start:])
+                start += len(agents)
         return [o if o is not None else {} for o in out]
 
     def _model_input(
@@ -1125,15 +1118,40 @@ class LearnedPolicy:
     ) -> dict[str, NDArray[np.float32]]:
         """The physical commands of the model's normalised ``actions`` (one row per agent):
         a residual policy's law added, the previous commands kept."""
-        if self.residual is not None:
-            if self._law is None:
-                raise self._unbound()
+        laws = None if self.residual is None else self._law_rows(agents, observations)
+        actions, physical = self._finish(actions, laws)
+        return self._keep(agents, actions, physical)
+
+    def _law_rows(
+        self, agents: list[str], observations: Mapping[str, NDArray[Any]]
+    ) -> NDArray[Any]:
+        """A residual policy's law's commands for ``agents`` (one row each; the law acts, so
+        its state moves on)."""
+        if self._law is None:
+            raise self._unbound()
+        law = self._law.act(observations)
+        return np.stack([law[a] for a in agents])
+
+    def _finish(
+        self, actions: NDArray[np.float32], laws: NDArray[Any] | None
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """The normalised and the physical commands of the model's ``actions``, the law's rows
+        ``laws`` (physical) added for a residual policy, then clipped to ``[-1, 1]``.
+        Element-wise: the rows of several policies of one :meth:`act_group` batch come out as
+        each policy's alone would."""
+        if laws is not None:
             assert self.action_range is not None  # checked at construction
-            law = self._law.act(observations)
-            base, _ = to_normalised(np.stack([law[a] for a in agents]), self.action_range)
+            base, _ = to_normalised(laws, self.action_range)
             actions = np.clip(actions + base, -1.0, 1.0)
+        if self.action_range is None:
+            return actions, actions
+        return actions, self.action_range.to_physical(actions)
+
+    def _keep(
+        self, agents: list[str], actions: NDArray[np.float32], physical: NDArray[np.float32]
+    ) -> dict[str, NDArray[np.float32]]:
+        """``{agent: command}`` from the first ``len(agents)`` rows, remembering the normalised
+        ones as the previous commands when the model reads them."""
         if self.previous_command:
             self._sent = {a: actions[i].copy() for i, a in enumerate(agents)}
-        if self.action_range is not None:
-            actions = self.action_range.to_physical(actions)
-        return {a: actions[i].copy() for i, a in enumerate(agents)}
+        return {a: physical[i].copy() for i, a in enumerate(agents)}
