@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -317,20 +316,3 @@ def comparison_markdown(
             )
         lines.append("")
     return "\n".join(lines), ranks
-
-
-def git_state(root: Path | None = None) -> tuple[str, bool]:
-    """The checkout's commit (short) and whether its tree is clean (``unknown``, False outside
-    a git checkout)."""
-    root = root or Path(__file__).resolve().parents[1]
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "--short=12", "HEAD"], cwd=root, capture_output=True, text=True,
-            check=True,
-        ).stdout.strip()  # fmt: skip
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True, check=True
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown", False
-    return commit, not dirty

@@ -103,7 +103,6 @@ from experiments.published import (
     PublishedRows,
     check_compatible,
     comparison_markdown,
-    git_state,
     load_published,
     write_published,
 )
@@ -119,7 +118,7 @@ from experiments.report import (
     write_text_atomic,
 )
 from experiments.significance import mean_success
-from experiments.stamp import metadata_stamp, png_metadata
+from experiments.stamp import code_version, metadata_stamp, png_metadata
 from experiments.store import Store, StoreError
 from experiments.suites import SUITES, Condition, suite
 from platoon_env.extras import MissingExtraError, require_extra
@@ -755,9 +754,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         if given or args.episodes != DEFAULT_EPISODES or args.seed or args.every_seed:
             parser.error("--publish writes the default benchmark's rows: give no other option "
                          "than --out, --workers, --batch and --no-plots")  # fmt: skip
-        commit, clean = git_state()
-        if not clean:
-            parser.error(f"--publish needs a clean checkout (commit {commit} has changes)")
+        version = code_version()
+        if not version or version["modified"]:
+            changed = ", ".join(version.get("modified", [])) or "not a git checkout"
+            parser.error(f"--publish needs a clean checkout of a commit (changed: {changed})")
     if args.policy is None:
         args.policy = default_policies(args.models)
         if not any(p.kind == MODEL for p in args.policy):
@@ -1177,7 +1177,7 @@ def _run(
             print(f"{name}: rank {rank} against the published benchmark (see "
                   f"{out / 'comparison.md'})")  # fmt: skip
     if args.publish and not result.failed:
-        commit, _ = git_state()
+        commit = str(code_version().get("commit", "unknown"))[:12]
         made = {"commit": commit, "date": time.strftime("%Y-%m-%d"), "by": f"{_TOOL} --publish"}
         print(f"wrote {write_published(_csv_strings(rows), PUBLISHED, made)}")
     if not args.no_plots:
