@@ -29,7 +29,7 @@ platoon moves as in a real episode; the policy's own cost is not timed), with
 reset inside the timed loop. MPE and VMAS get constant pre-sampled random actions.
 
 Writes ``results.md`` (the tables, as quoted in the README), ``results.json`` and
-``scaling.png`` to ``--out`` (default ``/tmp/platoon_bench``).
+``scaling.png`` to ``--out`` (default: ``platoon_bench`` in the temporary directory).
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ import os
 import platform
 import statistics
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -454,7 +455,11 @@ def plot(scaling: list[Row], mpe: Row | None, vmas: list[Row], path: Path) -> No
 # ------------------------------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", default="/tmp/platoon_bench", help="output directory")
+    parser.add_argument(
+        "--out",
+        default=os.path.join(tempfile.gettempdir(), "platoon_bench"),
+        help="output directory (default: platoon_bench in the temporary directory)",
+    )
     parser.add_argument("--seconds", type=float, default=1.5, help="timed seconds per number")
     parser.add_argument("--threads", type=int, default=2, help="numba threads (batched API)")
     parser.add_argument("--quick", action="store_true", help="a small smoke run")

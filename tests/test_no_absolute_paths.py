@@ -40,7 +40,19 @@ def _published_files() -> list[str]:
         pytest.skip("not a git checkout")
     listing = ["ls-files", "--cached", "--others", "--exclude-standard", "-z"]
     out = subprocess.run(
-        ["git", "-C", str(ROOT), *listing, "--", "docs", "README.md", "CHANGELOG.md"],
+        [
+            "git",
+            "-C",
+            str(ROOT),
+            *listing,
+            "--",
+            "docs",
+            "README.md",
+            "CHANGELOG.md",
+            "benchmarks/README.md",
+            "models/README.md",
+            "examples/README.md",
+        ],
         capture_output=True,
         text=True,
         check=True,
