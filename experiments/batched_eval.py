@@ -198,6 +198,17 @@ class CopyEnv:
         return out
 
     @property
+    def applied_velocities(self) -> np.ndarray:
+        """The copy's applied ``[u, omega]`` ``(n, 2)`` of its last step (a copy)."""
+        out: np.ndarray = self._core.applied_velocities[self._index, : len(self.agents)]
+        return out
+
+    def snapshot(self) -> Any:
+        """The copy's whole state (:meth:`~platoon_env.batched.BatchedPlatoon.snapshot`): what
+        the privileged oracle (:mod:`baselines.oracle`) plans from."""
+        return self._core.snapshot(self._index)
+
+    @property
     def violation_masks(self) -> np.ndarray:
         """The copy's violation bit masks ``(N,)`` of its last step (a copy)."""
         return self._core._core.violations[self._index].copy()  # type: ignore[no-any-return]

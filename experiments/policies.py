@@ -67,13 +67,18 @@ class PolicyKind:
     processes); ``signals`` says whether the policy records internal signals worth keeping
     (PPC's performance functions: the frontiers diagnose its failures from them); ``label`` is
     its name in tables and figures; ``studies`` names the drivers that run it by default
-    (:data:`STUDY_DRIVERS`), so that each driver's list of policies is derived from here."""
+    (:data:`STUDY_DRIVERS`), so that each driver's list of policies is derived from here;
+    ``privileged`` marks a policy that reads the true state (the oracle)."""
 
     factory: str
     description: str
     signals: bool = False
     label: str = ""
     studies: frozenset[str] = frozenset()
+    #: The policy reads ground truth (the env's true state), not the followers' sensors: an
+    #: upper reference (``docs/feasibility.md``), kept out of the pairwise comparisons and the
+    #: goal, labelled *privileged* wherever it is shown.
+    privileged: bool = False
 
     def __post_init__(self) -> None:
         unknown = set(self.studies) - set(STUDY_DRIVERS)
@@ -133,6 +138,14 @@ REGISTRY: dict[str, PolicyKind] = {
         signals=True,
         label="tuned PPC",
         studies=frozenset({"frontiers", "leaderboard", "evaluate"}),
+    ),
+    "oracle": PolicyKind(
+        "baselines.oracle:OraclePolicy",
+        "PRIVILEGED: a receding-horizon planner on the true state, with the simulation itself "
+        "as its exact model (every robot's pose and velocity, the leader's timed future, the "
+        "free space); an upper reference of what is achievable, not a competitor",
+        label="oracle (privileged)",
+        privileged=True,
     ),
 }
 

@@ -18,6 +18,7 @@ from pettingzoo.utils.env import AECEnv
 
 # First of the package's modules: keys numba's kernel cache on the source (see the module).
 import platoon_env._numba_cache  # noqa: F401
+from platoon_env.core import CoreSnapshot
 from platoon_env.env import PlatoonParallelEnv
 from platoon_env.gym_env import GYM_IDS, SingleFollowerEnv, register_gym_ids
 from platoon_env.scenarios import (
@@ -75,6 +76,7 @@ register_gym_ids()
 
 __all__ = [
     "GYM_IDS",
+    "CoreSnapshot",
     "VIOLATION_CAUSES",
     "PlatoonParallelEnv",
     "Scenario",

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from platoon_env.core import PlatoonCore
+from platoon_env.core import CoreSnapshot, PlatoonCore
 from platoon_env.observation import action_space, observation_space
 from platoon_env.realism import drawn_keys, realism_table
 from platoon_env.scenarios.scenario import Scenario
@@ -154,6 +154,13 @@ class BatchedPlatoon:
     def sensed(self) -> np.ndarray:
         """Ground-truth sensing ``(B, N, SENSE_SIZE)`` of the last step (a copy)."""
         return self._core.sensed.copy()
+
+    @property
+    def applied_velocities(self) -> np.ndarray:
+        """The velocities ``[u, omega]`` ``(B, N, 2)`` each follower's actuators applied in the
+        last step (the commands through ``lag``, ``accel_max``, ``alpha_max``; as the env's
+        :attr:`~platoon_env.env.PlatoonParallelEnv.applied_velocities`). A copy."""
+        return self._core.applied.copy()
 
     @property
     def reward_terms(self) -> np.ndarray:
@@ -328,6 +335,27 @@ class BatchedPlatoon:
             if active is not None:
                 info["reset"] &= active
         return core.obs.copy(), rewards, terminated, truncated, info
+
+    def snapshot(self, env: int = 0) -> CoreSnapshot:
+        """Env ``env``'s whole state now (:class:`~platoon_env.core.CoreSnapshot`): restored
+        into any env of a ``BatchedPlatoon`` or ``PlatoonParallelEnv`` of the same scenario
+        (:meth:`restore`), it continues exactly as ``env`` does, fed the same actions."""
+        return self._core.snapshot(env)
+
+    def restore(
+        self, snapshot: CoreSnapshot, envs: Sequence[int] | np.ndarray | None = None
+    ) -> np.ndarray:
+        """Put ``snapshot`` (:meth:`snapshot`) into each of ``envs`` (a ``(B,)`` bool mask or
+        indices; default: all): e.g. ``B`` copies of one moment of an episode, to try ``B``
+        action sequences from it (:mod:`baselines.oracle`). A snapshot of an ended episode
+        leaves those envs needing a reset, as the original. Returns the observations
+        ``(B, N, K)`` (a copy)."""
+        mask = np.ones(self.batch_size, dtype=bool) if envs is None else self._env_mask(envs)
+        for b in np.flatnonzero(mask).tolist():
+            self._core.restore(b, snapshot)
+        self._finished[mask] = snapshot.ended
+        self._needs_reset = bool(self._finished.any())
+        return self._core.obs.copy()
 
     # ----------------------------------------------------------------------------------------
     # Internals

@@ -149,6 +149,13 @@ class LeaderConfig:
     settle_time: float = identity(2.0)  # [s] after the leader stops, the episode is truncated
     #: relative half-range v of the episode's speed factor f in [1 - v, 1 + v]
     speed_variation: float = 0.0
+    #: Whether the leader keeps the robots' drive (``robot.u_max``, ``omega_max``,
+    #: ``accel_max``, ``alpha_max``; the leader is one of the robots): ``"free"`` (the
+    #: default: only a trajectory's speed is held to ``u_max``), ``"check"`` (refused unless it
+    #: does, the error naming the field) or ``"retime"`` (slowed until it does: a trajectory's
+    #: sample times stretched by one factor, a path's speed and turn rate lowered), see
+    #: :func:`platoon_env.scenarios.trajectory.fit_leader_to_drive`.
+    drive: str = "free"
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,9 @@ seen so far (the arrays grow when a bigger layout arrives).
 
 from __future__ import annotations
 
+import copy
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numba
@@ -60,6 +62,7 @@ from platoon_env.records import (
 )
 from platoon_env.reward import REWARD_TERMS
 from platoon_env.safety import causes_to_mask
+from platoon_env.scenarios.fingerprint import config_fingerprint
 from platoon_env.scenarios.scenario import Scenario
 from platoon_env.scenarios.schema import (
     ScenarioConfig,
@@ -143,6 +146,62 @@ def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
     p["scale_free"] = cfg.observation.scale_free
     p["n_followers"] = cfg.followers
     return p
+
+
+#: The per-env rows of :class:`PlatoonCore` that a :class:`CoreSnapshot` copies (row ``b`` of
+#: each): the buffers, the perception frames, the ``t_unseen`` counts and the live slots.
+_SNAPSHOT_ROWS = (
+    "poses",
+    "actions",
+    "applied",
+    "violations",
+    "sensed",
+    "obs",
+    "terms",
+    "rewards",
+    "frames",
+    "unseen",
+    "live",
+)
+
+
+@dataclass(frozen=True, eq=False)
+class CoreSnapshot:
+    """One env's whole state at one moment (:meth:`PlatoonCore.snapshot`): what
+    :meth:`PlatoonCore.restore` writes back into any env of a core of the same source, so that
+    planners (the privileged oracle, :mod:`baselines.oracle`) and curricula can branch from any
+    moment of an episode.
+
+    Attributes:
+        scenario: the env's scenario (the object, shared, not copied: scenarios are immutable).
+        params: ``(1,)`` :data:`~platoon_env.records.PARAMS_DTYPE`, the env's parameters.
+        episode: ``(1,)`` :data:`~platoon_env.records.EPISODE_DTYPE`: the leader's progress,
+            speed factor and last velocity, time, steps, arrival, the last step's outcome and
+            the perception noise stream's state (its map slot is the restoring env's own).
+        rows: the env's row of each array in :data:`_SNAPSHOT_ROWS` (poses, commands, applied
+            velocities, violation masks, ground-truth sensing, observations, reward terms and
+            rewards, camera frames in flight, ``t_unseen`` counts, live follower slots).
+        rng_state: the state of the env's RNG (``bit_generator.state``).
+        realism: the realism drawn at the episode's reset.
+    """
+
+    scenario: Scenario
+    params: np.ndarray
+    episode: np.ndarray
+    rows: dict[str, np.ndarray]
+    rng_state: dict[str, Any]
+    realism: dict[str, float]
+
+    @property
+    def ended(self) -> bool:
+        """Whether the episode had ended (terminated or truncated) at the snapshot."""
+        ep = self.episode[0]
+        return bool(ep["terminated"] or ep["truncated"])
+
+    @property
+    def sim_time(self) -> float:
+        """[s] The episode's time at the snapshot."""
+        return float(self.episode[0]["sim_time"])
 
 
 class _MapSlots:
@@ -541,6 +600,66 @@ class PlatoonCore:
         if self.task_aware and ended >= 0:
             self.observe_task(active, n_substeps > 0)
         return ended
+
+    # ----------------------------------------------------------------------------------------
+    def snapshot(self, b: int) -> CoreSnapshot:
+        """Env ``b``'s whole state at this moment (:class:`CoreSnapshot`, a deep copy): restored
+        into any env of a core of the same scenario source (:meth:`restore`), it continues
+        exactly as env ``b`` does from here, bit for bit, fed the same actions."""
+        b = self._check_env(b)
+        return CoreSnapshot(
+            scenario=self.scenarios[b],
+            params=self.params[b : b + 1].copy(),
+            episode=self.episode[b : b + 1].copy(),
+            rows={name: getattr(self, name)[b].copy() for name in _SNAPSHOT_ROWS},
+            rng_state=copy.deepcopy(self.rngs[b].bit_generator.state),
+            realism=dict(self.realism[b]),
+        )
+
+    def restore(self, b: int, snap: CoreSnapshot) -> None:
+        """Make env ``b``'s state ``snap``'s (:meth:`snapshot`, of this core or another of the
+        same scenario source): its scenario (a procedural env installs the snapshot's layout in
+        its own map slot), parameters, episode record, per-follower buffers, perception frames,
+        ``t_unseen`` counts and its RNG (a fresh generator in the snapshot's state: the copies
+        never share one). ``ValueError`` for a snapshot of another scenario source or buffer
+        shape; nothing changes then."""
+        b = self._check_env(b)
+        if not isinstance(snap, CoreSnapshot):
+            raise TypeError(f"restore() takes a CoreSnapshot, got {type(snap).__name__}")
+        for name in _SNAPSHOT_ROWS:
+            have, got = getattr(self, name)[b].shape, snap.rows[name].shape
+            if have != got:
+                raise ValueError(
+                    f"snapshot does not fit this core: its {name} row has shape {got}, this "
+                    f"core's {have} (another scenario, formation or realism)"
+                )
+        if snap.scenario is not self.scenarios[b]:
+            if self.source.procedural:
+                self._samplers[b] = self._install(b, snap.scenario)
+            elif config_fingerprint(snap.scenario.config) != config_fingerprint(
+                self.scenarios[b].config
+            ):
+                raise ValueError(
+                    f"snapshot of scenario {snap.scenario.name!r} cannot be restored into a "
+                    f"core of scenario {self.scenarios[b].name!r} (fingerprints differ)"
+                )
+        slot = self.episode[b]["map_slot"]
+        self.params[b] = snap.params[0]
+        self.episode[b] = snap.episode[0]
+        self.episode[b]["map_slot"] = slot
+        for name in _SNAPSHOT_ROWS:
+            getattr(self, name)[b] = snap.rows[name]
+        rng = np.random.Generator(type(self.rngs[b].bit_generator)())
+        rng.bit_generator.state = copy.deepcopy(snap.rng_state)
+        self.rngs[b] = rng
+        self.realism[b] = dict(snap.realism)
+
+    def _check_env(self, b: Any) -> int:
+        if isinstance(b, bool) or not isinstance(b, int | np.integer):
+            raise TypeError(f"env index must be an integer, got {b!r}")
+        if not 0 <= b < self.batch_size:
+            raise ValueError(f"env index must be in [0, {self.batch_size}), got {b}")
+        return int(b)
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)

@@ -18,7 +18,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from platoon_env.config import ScenarioError
-from platoon_env.core import PlatoonCore, compiled_entry
+from platoon_env.core import CoreSnapshot, PlatoonCore, compiled_entry
 from platoon_env.geometry.sensing import (
     SENSE_BETA,
     SENSE_CLEARANCE,
@@ -482,6 +482,26 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         if self.render_mode == "human":
             self.render()
         return observations, rewards, terminations, truncations, infos
+
+    def snapshot(self) -> CoreSnapshot:
+        """The env's whole state now (:class:`~platoon_env.core.CoreSnapshot`: poses, applied
+        velocities, the leader's progress and time, perception buffers, RNG): :meth:`restore`
+        it here or into any env of the same scenario (also a
+        :class:`~platoon_env.batched.BatchedPlatoon` row) and the episode continues exactly as
+        from this moment, fed the same actions."""
+        return self._core.snapshot(0)
+
+    def restore(self, snapshot: CoreSnapshot) -> dict[str, np.ndarray]:
+        """Continue from ``snapshot`` (:meth:`snapshot`); returns the observations at it (an
+        ended episode's snapshot leaves the env needing a reset, as the original)."""
+        had_map = self.scenario
+        self._core.restore(0, snapshot)
+        self._views()
+        if self.scenario is not had_map and self._renderer is not None:
+            self.close()
+        self.agents = [] if snapshot.ended else self.possible_agents[: self._n_live]
+        obs = self._obs.copy()
+        return {a: obs[i] for i, a in enumerate(self.possible_agents[: self._n_live])}
 
     def render(self) -> np.ndarray | None:
         """Draw the workspace, robots, fields of view and lines of sight (``render_mode``)."""

@@ -68,7 +68,7 @@ def test_ideal_is_the_schema_defaults() -> None:
 
 def test_aruco_sets_only_realism_fields() -> None:
     blocks = load_profile("aruco")
-    assert set(blocks) == set(PROFILE_BLOCKS)
+    assert set(blocks) == set(PROFILE_BLOCKS) - {"leader"}
     realism = {
         "camera": {"noise", "detection", "detection_edge", "frame_rate", "latency"},
         "proximity": {"noise"},
@@ -84,11 +84,23 @@ def test_aruco_sets_only_realism_fields() -> None:
 def test_every_profile_merges_into_every_shipped_scenario(scenario: str, profile: str) -> None:
     base = load_config(scenario)
     blocks = load_profile(profile)
+    drive = blocks.get("leader", {}).get("drive", "free")
+    if drive != "free" and not base.leader.trajectory and blocks["robot"].get("accel_max"):
+        # a profile that makes the leader one of its robots refuses a pure-pursuit leader
+        # under acceleration limits (tests/test_drive_profile.py)
+        with pytest.raises(ScenarioError, match=r"leader\.path: a pure-pursuit leader"):
+            apply_overrides(base, blocks)
+        return
     cfg = apply_overrides(base, blocks)
     _assert_merged(cfg, blocks)
-    # A profile changes only the blocks it names; the geometry and the rest stay.
-    for name in ("workspace", "leader", "safety", "formation", "simulation", "reward"):
+    # A profile changes only the blocks it names; the geometry and the rest stay (the
+    # leader's motion too, unless it is slowed to the profile's drive).
+    for name in ("workspace", "safety", "formation", "simulation", "reward"):
         assert getattr(cfg, name) == getattr(base, name)
+    if drive == "free":
+        assert cfg.leader == base.leader
+    else:
+        assert cfg.leader.drive == drive and cfg.leader.path == base.leader.path
     assert cfg.camera.half_angle == base.camera.half_angle
     assert cfg.camera.range == base.camera.range
     if profile == "ideal":
@@ -181,7 +193,7 @@ def test_content_must_be_a_mapping(tmp_path: Path, text: str, got: str) -> None:
         load_profile(path)
     message = str(err.value)
     assert str(path) in message
-    assert "expected a mapping of blocks (some of camera, proximity, robot)" in message
+    assert "expected a mapping of blocks (some of camera, proximity, robot, leader)" in message
     assert got in message
 
 
@@ -192,7 +204,7 @@ def test_unknown_block(tmp_path: Path, block: str) -> None:
         load_profile(path)
     message = str(err.value)
     assert f"unknown block {block!r}" in message
-    assert "a profile may set only camera, proximity, robot" in message
+    assert "a profile may set only camera, proximity, robot, leader" in message
     assert str(path) in message
 
 

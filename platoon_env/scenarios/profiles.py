@@ -1,8 +1,11 @@
 """Sensor profiles: named sets of sensing and actuation realism (``docs/realism.md``).
 
 A profile is a YAML mapping of partial scenario blocks, ``{camera: {...}, proximity: {...},
-robot: {...}}``, holding the realism fields of the schema (camera noise, detection, frame rate
-and latency; proximity noise; actuator lag and rate limits). It describes a kind of hardware,
+robot: {...}, leader: {drive: ...}}``, holding the realism fields of the schema (camera noise,
+detection, frame rate and latency; proximity noise; actuator lag, rate limits and velocity
+box) and, for a profile that names its robot, ``leader.drive`` (the leader is one of those
+robots: its motion is held to, or slowed to, their drive). ``extends: NAME`` builds on a
+shipped profile (its blocks first, this profile's keys over them). It describes a kind of hardware,
 not a scenario: the same profile merges into any scenario
 (:func:`platoon_env.scenarios.options.apply_overrides`, ``make(..., sensor_profile="aruco")``),
 whose field of view, ranges and geometry it leaves alone.
@@ -29,6 +32,7 @@ from typing import Any
 from platoon_env.config import (
     CameraConfig,
     CameraNoiseConfig,
+    LeaderConfig,
     ProximityConfig,
     RobotConfig,
     ScenarioError,
@@ -46,7 +50,15 @@ _BLOCK_SECTIONS: dict[str, type] = {
     "camera": CameraConfig,
     "proximity": ProximityConfig,
     "robot": RobotConfig,
+    "leader": LeaderConfig,
 }
+
+#: Blocks of which a profile may set only some keys: of the leader, only whether it keeps the
+#: robots' drive (``leader.drive``: a profile that names a robot makes the leader one of them).
+_BLOCK_KEYS: dict[str, tuple[str, ...]] = {"leader": ("drive",)}
+
+#: The key naming the shipped profile a profile builds on (its blocks merged first).
+EXTENDS = "extends"
 
 #: Names of the blocks a profile may hold (a sensor profile never touches the geometry).
 PROFILE_BLOCKS: tuple[str, ...] = tuple(_BLOCK_SECTIONS)
@@ -77,6 +89,10 @@ def _keys_of(section: type) -> list[str]:
     return sorted(field_key(f) for f in fields(section))
 
 
+def _block_keys(name: str) -> list[str]:
+    return sorted(_BLOCK_KEYS.get(name, ())) or _keys_of(_BLOCK_SECTIONS[name])
+
+
 def _shipped() -> str:
     return ", ".join(list_profiles())
 
@@ -87,10 +103,9 @@ def _error(source: str, message: str) -> ScenarioError:
     )
 
 
-def _check_keys(source: str, where: str, block: Any, section: type) -> None:
+def _check_keys(source: str, where: str, block: Any, known: list[str]) -> None:
     if not isinstance(block, Mapping):
         raise _error(source, f"{where}: expected a mapping of {where} keys, got {block!r}")
-    known = _keys_of(section)
     unknown = sorted(str(k) for k in block if k not in known)
     if unknown:
         raise _error(
@@ -98,15 +113,21 @@ def _check_keys(source: str, where: str, block: Any, section: type) -> None:
         )
 
 
-def _validated(data: Any, source: str) -> dict[str, dict[str, Any]]:
-    """The profile's blocks as plain dicts, after checking their form."""
+#: How many profiles deep ``extends`` may go.
+_MAX_EXTENDS = 4
+
+
+def _validated(data: Any, source: str, depth: int = 0) -> dict[str, dict[str, Any]]:
+    """The profile's blocks as plain dicts, after checking their form; a profile that
+    ``extends`` a shipped one gets that one's blocks first, its own keys over them
+    (``camera.noise`` merged key by key)."""
     if not isinstance(data, Mapping):
         got = "an empty file" if data is None else repr(data)
         raise _error(
             source,
             f"expected a mapping of blocks (some of {', '.join(PROFILE_BLOCKS)}), got {got}",
         )
-    unknown = sorted(str(k) for k in data if k not in _BLOCK_SECTIONS)
+    unknown = sorted(str(k) for k in data if k not in _BLOCK_SECTIONS and k != EXTENDS)
     if unknown:
         raise _error(
             source,
@@ -114,25 +135,39 @@ def _validated(data: Any, source: str) -> dict[str, dict[str, Any]]:
             f"(a profile may set only {', '.join(PROFILE_BLOCKS)})",
         )
     out: dict[str, dict[str, Any]] = {}
+    if EXTENDS in data:
+        base = data[EXTENDS]
+        if not isinstance(base, str) or base not in list_profiles():
+            raise _error(source, f"{EXTENDS}: must name a shipped profile, got {base!r}")
+        if depth >= _MAX_EXTENDS:
+            raise _error(source, f"{EXTENDS}: more than {_MAX_EXTENDS} profiles deep (a cycle?)")
+        out = _shipped_profile(base, depth + 1)
     for name, block in data.items():
-        _check_keys(source, name, block, _BLOCK_SECTIONS[name])
-        copied: dict[str, Any] = {}
+        if name == EXTENDS:
+            continue
+        _check_keys(source, name, block, _block_keys(name))
+        copied: dict[str, Any] = dict(out.get(name, {}))
         for key, value in block.items():
             nested = _NESTED_SECTIONS.get((name, key))
             if nested is not None:
-                _check_keys(source, f"{name}.{key}", value, nested)
-                value = dict(value)
+                _check_keys(source, f"{name}.{key}", value, _keys_of(nested))
+                value = {**copied.get(key, {}), **value}
             copied[key] = value
         out[name] = copied
     return out
 
 
-def _parsed(text: str, filename: str, source: str) -> dict[str, dict[str, Any]]:
+def _parsed(text: str, filename: str, source: str, depth: int = 0) -> dict[str, dict[str, Any]]:
     try:
         data = read_yaml(text, filename)
     except ScenarioError as exc:  # malformed YAML: the message names the file and line
         raise _error(source, str(exc)) from exc
-    return _validated(data, source)
+    return _validated(data, source, depth)
+
+
+def _shipped_profile(name: str, depth: int = 0) -> dict[str, dict[str, Any]]:
+    ref = _folder().joinpath(f"{name}{_SUFFIX}")
+    return _parsed(ref.read_text(encoding="utf-8"), f"{_FOLDER}/{name}{_SUFFIX}", repr(name), depth)
 
 
 def load_profile(profile: ProfileLike) -> dict[str, dict[str, Any]]:
@@ -156,8 +191,7 @@ def load_profile(profile: ProfileLike) -> dict[str, dict[str, Any]]:
         raise TypeError(f"sensor profile must be a name or a path, got {type(profile).__name__}")
     text = os.fspath(profile)
     if isinstance(profile, str) and text in list_profiles():
-        ref = _folder().joinpath(f"{text}{_SUFFIX}")
-        return _parsed(ref.read_text(encoding="utf-8"), f"{_FOLDER}/{text}{_SUFFIX}", repr(text))
+        return _shipped_profile(text)
     path = Path(text)
     if path.suffix in (".yaml", ".yml") or path.exists():
         source = repr(str(path))

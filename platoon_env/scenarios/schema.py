@@ -68,6 +68,7 @@ from platoon_env.scenarios.trajectory import (
     TRAJECTORY_LIMIT_TOLERANCE,
     TRAJECTORY_POSITION_TOLERANCE,
     check_trajectory_times,
+    fit_leader_to_drive,
     trajectory_mean_speed,
     trajectory_route,
 )
@@ -244,9 +245,14 @@ def parse_scenario(data: Any, path: str = "scenario") -> ScenarioConfig:
     Raises :class:`ScenarioError` naming the field for unknown keys, wrong types and
     out-of-range parameters (:func:`~platoon_env.scenarios.validate.check_ranges`). A
     ``leader.trajectory`` without ``leader.speed`` gets its mean speed
-    (:func:`trajectory_mean_speed`).
+    (:func:`trajectory_mean_speed`). With ``leader.drive: retime`` the leader is slowed to the
+    robots' drive (:func:`~platoon_env.scenarios.trajectory.fit_leader_to_drive`).
     """
     cfg = parse_section(ScenarioConfig, _with_trajectory_speed(data, path), path)
+    if cfg.leader.drive == "retime":
+        if cfg.leader.trajectory:  # retiming reads the sample times: they must be valid
+            check_trajectory_times(cfg.leader.trajectory, f"{path}.leader.trajectory")
+        cfg = fit_leader_to_drive(cfg)
     check_ranges(cfg, path)
     return cfg
 

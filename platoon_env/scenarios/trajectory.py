@@ -10,6 +10,7 @@ platoon (:func:`check_trajectory_motion`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -175,3 +176,170 @@ def check_trajectory_motion(cfg: ScenarioConfig, path: str) -> None:
             f"{TRAJECTORY_HEADING_TOLERANCE:g} rad beyond the headings it held): give each "
             "sample the heading of its motion",
         )
+
+
+# --------------------------------------------------------------------------------------------
+# The leader is one of the robots: its motion within the robots' drive (``leader.drive``).
+# --------------------------------------------------------------------------------------------
+
+#: The values of ``leader.drive`` (:class:`~platoon_env.config.LeaderConfig`).
+LEADER_DRIVE_MODES: tuple[str, ...] = ("free", "check", "retime")
+
+
+def trajectory_rates(
+    samples: tuple[TrajectorySample, ...],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A trajectory's segment velocities ``u``, ``omega`` ``(M - 1,)`` (the interpolation's,
+    :func:`~platoon_env.dynamics.leader.trajectory_velocities`) and its accelerations
+    ``a``, ``alpha`` ``(M,)``: each change of velocity (from rest at the first sample, between
+    consecutive segments, to rest at the last) over the time between the segments' midpoints
+    (half a segment at either end). At speed factor 1; a factor ``f`` scales the velocities by
+    ``f`` and the accelerations by ``f^2``."""
+    route = trajectory_route(samples)
+    u, omega = trajectory_velocities(route)
+    t = route[0][:, PATH_T]
+    mid = 0.5 * (t[1:] + t[:-1])
+    at = np.concatenate([[t[0]], mid, [t[-1]]])
+    dt = np.diff(at)
+    a = np.diff(np.concatenate([[0.0], u, [0.0]])) / dt
+    alpha = np.diff(np.concatenate([[0.0], omega, [0.0]])) / dt
+    return u, omega, a, alpha
+
+
+def _drive_limits(cfg: ScenarioConfig) -> list[tuple[str, float, str, int]]:
+    """``(quantity, limit, field, power)`` of the robots' drive that are set: a velocity bound
+    scales with the speed factor (power 1), an acceleration bound with its square (2)."""
+    rob = cfg.robot
+    out = [
+        ("speed", rob.u_max, "robot.u_max", 1),
+        ("turn rate", rob.omega_max, "robot.omega_max", 1),
+    ]
+    if rob.accel_max is not None:
+        out.append(("acceleration", rob.accel_max, "robot.accel_max", 2))
+    if rob.alpha_max is not None:
+        out.append(("angular acceleration", rob.alpha_max, "robot.alpha_max", 2))
+    return out
+
+
+def _trajectory_peaks(cfg: ScenarioConfig) -> dict[str, tuple[float, int]]:
+    """The fastest leader's (speed factor ``1 + speed_variation``) largest ``|u|``,
+    ``|omega|``, ``|a|``, ``|alpha|`` on its trajectory, each with the sample that ends the
+    segment (or the change) where it occurs."""
+    f = 1.0 + cfg.leader.speed_variation
+    u, omega, a, alpha = trajectory_rates(cfg.leader.trajectory)
+    peaks = {}
+    for name, values, power, shift in (
+        ("speed", u, 1, 1),
+        ("turn rate", omega, 1, 1),
+        ("acceleration", a, 2, 0),
+        ("angular acceleration", alpha, 2, 0),
+    ):
+        k = int(np.argmax(np.abs(values)))
+        peaks[name] = (float(abs(values[k])) * f**power, min(k + shift, len(values)))
+    return peaks
+
+
+def leader_drive_excess(cfg: ScenarioConfig) -> list[tuple[str, float, float, str, str]]:
+    """Where the leader exceeds the robots' drive (an empty list: nowhere): ``(quantity,
+    value, limit, field, where)`` for each bound exceeded, ``where`` the leader's field that
+    does. A timed trajectory: its peaks (:func:`trajectory_rates`) at the fastest speed factor
+    against every bound set. A path (pure pursuit): ``speed * (1 + speed_variation)`` against
+    ``u_max`` and ``max_turn_rate`` against ``omega_max``; pure pursuit has no acceleration
+    model (it starts at full speed, its turn rate jumps at the vertices), so a path leader
+    exceeds any acceleration bound that is set (give it a timed trajectory instead,
+    ``scripts/plan_leader_trajectory.py``)."""
+    lead = cfg.leader
+    out = []
+    if lead.trajectory:
+        peaks = _trajectory_peaks(cfg)
+        for name, limit, field, _ in _drive_limits(cfg):
+            value, k = peaks[name]
+            if value > limit * (1.0 + TRAJECTORY_LIMIT_TOLERANCE):
+                out.append((name, value, limit, field, f"leader.trajectory[{k}]"))
+        return out
+    fastest = lead.speed * (1.0 + lead.speed_variation)
+    for name, limit, field, power in _drive_limits(cfg):
+        if power == 2:
+            out.append((name, math.inf, limit, field, "leader.path"))
+        elif name == "speed" and fastest > limit:
+            out.append((name, fastest, limit, field, "leader.speed"))
+        elif name == "turn rate" and lead.max_turn_rate > limit:
+            out.append((name, lead.max_turn_rate, limit, field, "leader.max_turn_rate"))
+    return out
+
+
+def fit_leader_to_drive(cfg: ScenarioConfig) -> ScenarioConfig:
+    """``cfg`` with its leader slowed to the robots' drive when ``leader.drive`` is
+    ``"retime"`` (else ``cfg`` itself), the smallest change that fits:
+
+    * a timed trajectory: every sample time multiplied by one factor ``s >= 1``, the largest of
+      ``value / limit`` over the velocity bounds and ``sqrt(value / limit)`` over the
+      acceleration bounds (velocities scale by ``1 / s``, accelerations by ``1 / s^2``), its
+      ``speed`` the new mean speed; the path driven is the same, only slower;
+    * a path: ``speed`` lowered to ``u_max / (1 + speed_variation)`` and ``max_turn_rate`` to
+      ``omega_max`` where they exceed them (acceleration bounds cannot be met by pure pursuit:
+      :func:`check_leader_drive` refuses that).
+
+    Idempotent: a fitted leader is returned unchanged.
+    """
+    lead = cfg.leader
+    if lead.drive != "retime":
+        return cfg
+    if lead.trajectory:
+        peaks = _trajectory_peaks(cfg)
+        stretch = 1.0
+        for name, limit, _, power in _drive_limits(cfg):
+            ratio = peaks[name][0] / limit
+            stretch = max(stretch, ratio ** (1.0 / power))
+        if stretch <= 1.0:
+            return cfg
+        # A hair beyond the ratio, so that rounding never leaves a peak above its bound.
+        stretch *= 1.0 + 1e-9
+        t0 = lead.trajectory[0][0]
+        samples = tuple(
+            (t0 + (t - t0) * stretch, x, y, theta) for t, x, y, theta in lead.trajectory
+        )
+        new = dataclasses.replace(lead, trajectory=samples, speed=trajectory_mean_speed(samples))
+        return dataclasses.replace(cfg, leader=new)
+    speed = min(lead.speed, cfg.robot.u_max / (1.0 + lead.speed_variation))
+    turn = min(lead.max_turn_rate, cfg.robot.omega_max)
+    if speed == lead.speed and turn == lead.max_turn_rate:
+        return cfg
+    return dataclasses.replace(
+        cfg, leader=dataclasses.replace(lead, speed=speed, max_turn_rate=turn)
+    )
+
+
+def check_leader_drive(cfg: ScenarioConfig, path: str) -> None:
+    """With ``leader.drive`` ``"check"`` or ``"retime"`` (after :func:`fit_leader_to_drive`),
+    the leader keeps the robots' drive (:func:`leader_drive_excess`); ``ScenarioError`` naming
+    the leader's field and the bound otherwise. ``"free"``: nothing checked here."""
+    lead = cfg.leader
+    require(
+        lead.drive in LEADER_DRIVE_MODES,
+        f"{path}.leader.drive",
+        f"must be one of {', '.join(LEADER_DRIVE_MODES)}, got {lead.drive!r}",
+    )
+    if lead.drive == "free":
+        return
+    excess = leader_drive_excess(cfg)
+    if not excess:
+        return
+    name, value, limit, field, where = excess[0]
+    if math.isinf(value):
+        raise field_error(
+            f"{path}.{where}",
+            f"a pure-pursuit leader has no {name} bound, but {field} = {limit:g} is set and "
+            f"leader.drive = {lead.drive!r} asks the leader to keep it: give the leader a "
+            "timed trajectory (leader.trajectory) planned within the drive, or set "
+            "leader.drive: free",
+        )
+    fastest = (
+        " at the fastest speed factor 1 + leader.speed_variation" if lead.speed_variation else ""
+    )
+    raise field_error(
+        f"{path}.{where}",
+        f"the leader's {name}{fastest} reaches {value:.6g}, above {field} = {limit:g} (the "
+        f"leader is one of the robots; leader.drive = {lead.drive!r}): set leader.drive: "
+        "retime to slow it down, or raise the bound",
+    )

@@ -29,6 +29,7 @@ from platoon_env.config import (
 )
 from platoon_env.realism import check_realism_ranges
 from platoon_env.scenarios.trajectory import (
+    check_leader_drive,
     check_trajectory_motion,
     check_trajectory_times,
     polyline_length,
@@ -93,12 +94,15 @@ def check_ranges(cfg: ScenarioConfig, path: str = "scenario") -> None:
     default derived from the leader's path) to :data:`MAX_EPISODE_STEPS`, ``settle_time`` to
     :data:`MAX_SETTLE_TIME` and every coordinate to :data:`MAX_COORDINATE`. A timed trajectory
     must be one the leader can drive
-    (:func:`~platoon_env.scenarios.trajectory.check_trajectory_motion`).
+    (:func:`~platoon_env.scenarios.trajectory.check_trajectory_motion`), and with
+    ``leader.drive`` set the leader keeps the robots' drive
+    (:func:`~platoon_env.scenarios.trajectory.check_leader_drive`).
     """
     _check_platoon(cfg, path)
     _check_leader(cfg, path)
     _check_coordinates(cfg, path)
     _check_leader_motion(cfg, path)
+    check_leader_drive(cfg, path)
     if cfg.generator is None:
         _check_leader_route(cfg, path)
     else:
