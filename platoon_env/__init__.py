@@ -76,8 +76,8 @@ register_gym_ids()
 
 __all__ = [
     "GYM_IDS",
-    "CoreSnapshot",
     "VIOLATION_CAUSES",
+    "CoreSnapshot",
     "PlatoonParallelEnv",
     "Scenario",
     "ScenarioConfig",

@@ -612,7 +612,7 @@ class PlatoonCore:
             params=self.params[b : b + 1].copy(),
             episode=self.episode[b : b + 1].copy(),
             rows={name: getattr(self, name)[b].copy() for name in _SNAPSHOT_ROWS},
-            rng_state=copy.deepcopy(self.rngs[b].bit_generator.state),
+            rng_state=copy.deepcopy(dict(self.rngs[b].bit_generator.state)),
             realism=dict(self.realism[b]),
         )
 

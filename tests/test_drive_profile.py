@@ -114,7 +114,7 @@ def test_retime_stretches_the_trajectory_until_it_fits() -> None:
     assert max(usage) <= 1.0 and max(usage) > 1.0 - 1e-6
     # idempotent (the drive rule passes it as it is); the free rule refuses the unslowed leader
     assert fit_leader_to_drive(cfg) is cfg
-    with pytest.raises(ScenarioError, match="above robot.u_max"):
+    with pytest.raises(ScenarioError, match=r"above robot\.u_max"):
         apply_overrides(base, _slow_box())
     env = platoon_env.make("study_b", **_slow_box(), leader={"drive": "retime"})
     assert env.scenario.config.leader.trajectory == cfg.leader.trajectory

@@ -36,9 +36,7 @@ def _run(env: platoon_env.PlatoonParallelEnv, actions: np.ndarray) -> list[Any]:
     for a in actions:
         if not env.agents:
             break
-        obs, rew, term, trunc, info = env.step(
-            {agent: a[i] for i, agent in enumerate(env.agents)}
-        )
+        obs, rew, term, trunc, info = env.step({agent: a[i] for i, agent in enumerate(env.agents)})
         out.append(
             (
                 {k: v.tobytes() for k, v in obs.items()},
@@ -115,7 +113,7 @@ def test_batched_rows_restored_from_one_env_follow_it() -> None:
         if term.any() or trunc.any() or not env.agents:
             break
     assert len(poses) > 5
-    for row0, single, row2 in poses:
+    for row0, single, _ in poses:
         np.testing.assert_array_equal(row0, single)
     assert not np.array_equal(poses[-1][2], poses[-1][1])
     # row 1 was left alone by the restore: its own episode (seed 1), stepped as often
@@ -171,7 +169,7 @@ def test_restore_refuses_another_scenario_and_leaves_the_env_as_it_was() -> None
     c_env = platoon_env.make("study_c")
     c_env.reset(seed=0)
     before = c_env.snapshot()
-    with pytest.raises(ValueError, match="does not fit|cannot be restored"):
+    with pytest.raises(ValueError, match=r"does not fit|cannot be restored"):
         c_env.restore(b_env.snapshot())
     assert c_env.poses.tobytes() == before.rows["poses"].tobytes()
     # same buffer shapes, another scenario: refused by fingerprint
