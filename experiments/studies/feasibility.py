@@ -39,7 +39,7 @@ import argparse
 import math
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import fields
+from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any
 
@@ -141,7 +141,8 @@ def _cells(
     oracle_params: dict[str, Any] | None = None,
     max_episode_steps: int | None = None,
 ) -> list[Cell]:
-    oracle = PolicySpec.of("oracle", **(oracle_params or {}))
+    # Every parameter spelled out, so that the store keeps the rows of other defaults apart.
+    oracle = PolicySpec.of("oracle", **asdict(OracleParams(**(oracle_params or {}))))
     out = []
     for task in tasks:
         study, condition = task.split("/")
