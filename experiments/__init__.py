@@ -10,11 +10,15 @@
 * :mod:`experiments.report` — statistics and the exports (CSV, markdown provenance);
 * :mod:`experiments.suites` — the named benchmark suites (``paper``, ``heldout``,
   ``robustness``) and the study list; :mod:`experiments.axes` — the realism axes;
-  :mod:`experiments.stats` — rliable aggregates over seeds or episodes.
+  :mod:`experiments.stats` — rliable aggregates over seeds or episodes;
+* what several drivers share: :mod:`experiments.board` and :mod:`experiments.cards` (the
+  leaderboard's table and the model cards), :mod:`experiments.configs` (the sweep's
+  configurations), :mod:`experiments.robustness` (the frontiers' and breaks' grid and rows),
+  :mod:`experiments.tuning` (the tuners' objective).
 
-The drivers and command-line tools (evaluate, leaderboard, cards, sweep, paper figures,
-comparison, frontiers, discretisation) are in :mod:`experiments.studies`, a layer above this
-one: nothing here imports them.
+The drivers and command-line tools (evaluate, leaderboard, sweep, paper figures, comparison,
+frontiers, breaks, tuners, feasibility, discretisation) are in :mod:`experiments.studies`, a
+layer above this one: nothing here imports them, and no driver imports another.
 """
 
 from experiments.grid import Cell, GridResult, resolve_cells, run_grid

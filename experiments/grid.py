@@ -177,28 +177,11 @@ def run_grid(
 
     own = not isinstance(store, Store)
     db = Store(store) if not isinstance(store, Store) else store
-    resolved: list[ResolvedCell] = [c for c in cells if isinstance(c, ResolvedCell)]
-    if len(resolved) != len(cells):
-        resolved = resolve_cells(c for c in cells if isinstance(c, Cell))
-    first: dict[EpisodeKey, ResolvedCell] = {}
-    for rc in resolved:  # a key runs once, under the first cell naming it (as resolve_cells)
-        first.setdefault(rc.key, rc)
-    resolved = list(first.values())
+    resolved = _distinct(cells)
     keep = keep or (lambda cell: False)
     start = time.perf_counter()
     run_id = db.begin_run(tool, stamp)
-    by_key = {rc.key: rc for rc in resolved}
-    names = {rc.key: rc.names for rc in resolved}
-    db.register(
-        {rc.key.policy: (rc.cell.policy.kind, rc.cell.policy.description()) for rc in resolved},
-        {rc.key.scenario: rc.config for rc in resolved},
-        {rc.key.overrides: effective_overrides(rc.cell) for rc in resolved},
-    )
-    kept: dict[EpisodeKey, Any] = {}
-    ran = 0
-    reused = 0
-    interrupted = False
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    _register(db, resolved)
     bar = tqdm(
         total=len(resolved),
         desc="episodes",
@@ -206,10 +189,9 @@ def run_grid(
         disable=not progress,
         mininterval=0.5 if sys.stderr.isatty() else 30.0,
     )
-    pool: ProcessPoolExecutor | None = None
-    restarts = 0
-    # a job: one cell (run_cell) or a chunk of cells sharing a batched core (run_cells)
-    pending: dict[Future[Any], list[ResolvedCell]] = {}
+    jobs = _Jobs(db, run_id, resolved, keep, workers, bar)
+    interrupted = False
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         queue = [rc.key for rc in resolved]
         busy: list[EpisodeKey] = []
@@ -217,72 +199,14 @@ def run_grid(
         # Claim a few jobs' cells at a time, so that evaluators sharing the store share the work.
         capacity = max(1, workers)
         per_job = max(1, batch)
-        while queue or pending or busy:
-            while queue and len(pending) < capacity:
-                take = (capacity - len(pending)) * per_job
+        while queue or jobs.pending or busy:
+            while queue and len(jobs.pending) < capacity:
+                take = (capacity - len(jobs.pending)) * per_job
                 chunk, queue = queue[:take], queue[take:]
-                claim = db.claim(chunk, run_id, names)
-                if claim.mine or claim.finished:
+                if jobs.claim(chunk, per_job, busy):
                     waiting_since = None
-                reused += len(claim.finished)
-                bar.update(len(claim.finished))
-                busy.extend(claim.busy)
-                mine = [by_key[key] for key in claim.mine]
-                jobs = chunk_cells(mine, per_job, keep) if per_job > 1 else [[rc] for rc in mine]
-                for job in jobs:
-                    if workers <= 1:
-                        if len(job) == 1:
-                            results = [run_cell(job[0], keep(job[0].cell))]
-                        else:
-                            results = run_cells(job)
-                        for rc, result in zip(job, results, strict=True):
-                            _store_result(db, run_id, rc, result, kept)
-                            ran += 1
-                            bar.update()
-                        continue
-                    if pool is not None and getattr(pool, "_broken", False):
-                        # a worker died (killed, out of memory): its cells were recorded as
-                        # failed; a fresh pool runs the rest
-                        _stop_pool(pool, wait_for_workers=False)
-                        pool = None
-                        restarts += 1
-                    if pool is None:
-                        if restarts > MAX_POOL_RESTARTS:
-                            for rc in job:
-                                result = CellResult(
-                                    "failed", {}, f"worker pool broke {restarts} times", 0.0
-                                )
-                                _store_result(db, run_id, rc, result, kept)
-                                bar.update()
-                            continue
-                        pool = ProcessPoolExecutor(
-                            max_workers=workers,
-                            mp_context=multiprocessing.get_context("spawn"),
-                            initializer=_init_worker,
-                            initargs=(os.getpid(),),
-                        )
-                    if len(job) == 1:
-                        pending[pool.submit(run_cell, job[0], keep(job[0].cell))] = job
-                    else:
-                        pending[pool.submit(run_cells, job)] = job
-            if pending:
-                done, _ = wait(pending, timeout=poll, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    job = pending.pop(fut)
-                    try:
-                        outcome = fut.result()
-                        results = outcome if isinstance(outcome, list) else [outcome]
-                    except Exception as exc:  # the worker died (a broken pool)
-                        results = [
-                            CellResult(
-                                "failed", {}, f"worker died: {type(exc).__name__}: {exc}", 0.0
-                            )
-                            for _ in job
-                        ]
-                    for rc, result in zip(job, results, strict=True):
-                        _store_result(db, run_id, rc, result, kept)
-                        ran += 1
-                        bar.update()
+            if jobs.pending:
+                jobs.collect(poll)
             elif busy and not queue:
                 now = time.monotonic()
                 waiting_since = now if waiting_since is None else waiting_since
@@ -300,24 +224,165 @@ def run_grid(
         raise
     finally:
         bar.close()
-        if pool is not None:
-            _stop_pool(pool, wait_for_workers=not interrupted and status == "finished")
+        jobs.close(wait_for_workers=not interrupted and status == "finished")
         signal.signal(signal.SIGTERM, previous)
         db.finish_run(run_id, status)
         records = db.episodes([rc.key for rc in resolved])
         if own:
             db.close()
-    # Kept episodes of cells that were already finished: run them again (episodes are not
-    # stored); an episode is a pure function of its cell.
     if not interrupted:
-        missing = [rc for rc in resolved if keep(rc.cell) and rc.key not in kept]
-        for rc in tqdm(missing, desc="episodes for figures", unit="ep", disable=not missing):
-            result = run_cell(rc, keep=True)
-            if result.episode is not None:
-                kept[rc.key] = result.episode
+        _rerun_kept(resolved, keep, jobs.kept)
     return GridResult(
-        resolved, records, kept, ran, reused, run_id, time.perf_counter() - start, interrupted
+        resolved,
+        records,
+        jobs.kept,
+        jobs.ran,
+        jobs.reused,
+        run_id,
+        time.perf_counter() - start,
+        interrupted,
     )
+
+
+def _distinct(cells: Sequence[Cell] | Sequence[ResolvedCell]) -> list[ResolvedCell]:
+    """``cells`` resolved (unless they are already), each key once: under the first cell naming
+    it (as :func:`resolve_cells`)."""
+    resolved: list[ResolvedCell] = [c for c in cells if isinstance(c, ResolvedCell)]
+    if len(resolved) != len(cells):
+        resolved = resolve_cells(c for c in cells if isinstance(c, Cell))
+    first: dict[EpisodeKey, ResolvedCell] = {}
+    for rc in resolved:
+        first.setdefault(rc.key, rc)
+    return list(first.values())
+
+
+def _register(db: Store, resolved: Sequence[ResolvedCell]) -> None:
+    """Record in the store what the cells' fingerprints stand for: the policies, the scenario
+    configs and the overrides."""
+    db.register(
+        {rc.key.policy: (rc.cell.policy.kind, rc.cell.policy.description()) for rc in resolved},
+        {rc.key.scenario: rc.config for rc in resolved},
+        {rc.key.overrides: effective_overrides(rc.cell) for rc in resolved},
+    )
+
+
+def _rerun_kept(
+    resolved: Sequence[ResolvedCell], keep: Callable[[Cell], bool], kept: dict[EpisodeKey, Any]
+) -> None:
+    """Run again the kept episodes of cells that were already finished (episodes are not
+    stored); an episode is a pure function of its cell."""
+    missing = [rc for rc in resolved if keep(rc.cell) and rc.key not in kept]
+    for rc in tqdm(missing, desc="episodes for figures", unit="ep", disable=not missing):
+        result = run_cell(rc, keep=True)
+        if result.episode is not None:
+            kept[rc.key] = result.episode
+
+
+class _Jobs:
+    """The jobs of one :func:`run_grid`: a job is one cell (:func:`run_cell`) or a chunk of
+    cells sharing a batched core (:func:`run_cells`), run in this process (``workers <= 1``)
+    or in a pool of spawned workers, each result stored as it arrives. A pool that breaks (a
+    worker killed, out of memory) is replaced up to :data:`MAX_POOL_RESTARTS` times."""
+
+    def __init__(
+        self,
+        db: Store,
+        run_id: int,
+        resolved: Sequence[ResolvedCell],
+        keep: Callable[[Cell], bool],
+        workers: int,
+        bar: Any,
+    ) -> None:
+        self.db = db
+        self.run_id = run_id
+        self.by_key = {rc.key: rc for rc in resolved}
+        self.names = {rc.key: rc.names for rc in resolved}
+        self.keep = keep
+        self.workers = workers
+        self.bar = bar
+        self.kept: dict[EpisodeKey, Any] = {}
+        self.ran = 0
+        self.reused = 0
+        self.pending: dict[Future[Any], list[ResolvedCell]] = {}
+        self.pool: ProcessPoolExecutor | None = None
+        self.restarts = 0
+
+    def claim(self, chunk: Sequence[EpisodeKey], per_job: int, busy: list[EpisodeKey]) -> bool:
+        """Claim the cells of ``chunk`` in the store and start those this run got, as jobs of
+        up to ``per_job`` cells; the cells another live run holds are added to ``busy``. Whether
+        some cell was claimed or found finished (progress)."""
+        claim = self.db.claim(chunk, self.run_id, self.names)
+        self.reused += len(claim.finished)
+        self.bar.update(len(claim.finished))
+        busy.extend(claim.busy)
+        mine = [self.by_key[key] for key in claim.mine]
+        jobs = chunk_cells(mine, per_job, self.keep) if per_job > 1 else [[rc] for rc in mine]
+        for job in jobs:
+            self.start(job)
+        return bool(claim.mine or claim.finished)
+
+    def store(self, job: Sequence[ResolvedCell], results: Sequence[CellResult]) -> None:
+        """Store each cell's result of a finished job."""
+        for rc, result in zip(job, results, strict=True):
+            _store_result(self.db, self.run_id, rc, result, self.kept)
+            self.ran += 1
+            self.bar.update()
+
+    def start(self, job: list[ResolvedCell]) -> None:
+        """Run ``job`` here (``workers <= 1``), or submit it to the pool."""
+        if self.workers <= 1:
+            if len(job) == 1:
+                self.store(job, [run_cell(job[0], self.keep(job[0].cell))])
+            else:
+                self.store(job, run_cells(job))
+            return
+        pool = self._pool()
+        if pool is None:
+            for rc in job:
+                result = CellResult("failed", {}, f"worker pool broke {self.restarts} times", 0.0)
+                _store_result(self.db, self.run_id, rc, result, self.kept)
+                self.bar.update()
+        elif len(job) == 1:
+            self.pending[pool.submit(run_cell, job[0], self.keep(job[0].cell))] = job
+        else:
+            self.pending[pool.submit(run_cells, job)] = job
+
+    def _pool(self) -> ProcessPoolExecutor | None:
+        """The worker pool, started or replaced if broken; None once it broke too often."""
+        if self.pool is not None and getattr(self.pool, "_broken", False):
+            # a worker died (killed, out of memory): its cells were recorded as failed; a fresh
+            # pool runs the rest
+            _stop_pool(self.pool, wait_for_workers=False)
+            self.pool = None
+            self.restarts += 1
+        if self.pool is None:
+            if self.restarts > MAX_POOL_RESTARTS:
+                return None
+            self.pool = ProcessPoolExecutor(
+                max_workers=self.workers,
+                mp_context=multiprocessing.get_context("spawn"),
+                initializer=_init_worker,
+                initargs=(os.getpid(),),
+            )
+        return self.pool
+
+    def collect(self, poll: float) -> None:
+        """Store the results of the jobs that finish within ``poll`` s."""
+        done, _ = wait(self.pending, timeout=poll, return_when=FIRST_COMPLETED)
+        for fut in done:
+            job = self.pending.pop(fut)
+            try:
+                outcome = fut.result()
+                results = outcome if isinstance(outcome, list) else [outcome]
+            except Exception as exc:  # the worker died (a broken pool)
+                error = f"worker died: {type(exc).__name__}: {exc}"
+                results = [CellResult("failed", {}, error, 0.0) for _ in job]
+            self.store(job, results)
+
+    def close(self, wait_for_workers: bool) -> None:
+        """Shut the pool down (:func:`_stop_pool`)."""
+        if self.pool is not None:
+            _stop_pool(self.pool, wait_for_workers=wait_for_workers)
 
 
 def _store_result(

@@ -1,4 +1,4 @@
-"""The model cards' usage snippet (experiments/studies/cards.py) matches the model's env."""
+"""The model cards' usage snippet (experiments/cards.py) matches the model's env."""
 
 from __future__ import annotations
 
@@ -9,8 +9,7 @@ from pathlib import Path
 import pytest
 
 import platoon_env
-from experiments.report import wilson
-from experiments.studies.cards import (
+from experiments.cards import (
     _curve_end,
     _observation_option,
     _profile,
@@ -20,6 +19,7 @@ from experiments.studies.cards import (
     end_cost,
     training_cores,
 )
+from experiments.report import wilson
 from platoon_env.observation import OBS_NAMES, OBS_NAMES_SCALE_FREE, OBS_NAMES_TASK
 
 

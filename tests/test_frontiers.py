@@ -160,7 +160,7 @@ def test_worker_pool(tmp_path: Path) -> None:
 def test_robot_contact_is_diagnosed_on_the_rear_robot() -> None:
     import numpy as np
 
-    from experiments.studies.frontiers import diagnosed_follower, failure_diagnostics
+    from experiments.robustness import diagnosed_follower, failure_diagnostics
     from platoon_env.geometry.sensing import SENSE_BETA, SENSE_D
     from platoon_env.rollout import Episode
 

@@ -10,10 +10,10 @@ import pytest
 
 pytest.importorskip("rliable")
 
+from experiments.board import episode_seeds, span
 from experiments.policies import PolicySpec
 from experiments.stats import bootstrap_episodes
 from experiments.studies import leaderboard as lb
-from experiments.studies.board import episode_seeds, span
 from experiments.suites import ARUCO, IDEAL, suite
 
 REPO = Path(__file__).resolve().parent.parent

@@ -8,9 +8,9 @@ from dataclasses import dataclass
 import pytest
 
 from experiments.axes import AXES
+from experiments.configs import CONFIGS
 from experiments.names import by_name
 from experiments.studies.breaks import PROFILE_AXES
-from experiments.studies.sweep import CONFIGS
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ from baselines.ppc_tuned import (
     formation_geometry,
     load_table,
 )
+from experiments import tuning
 from experiments.policies import PolicySpec, build_policy
 from experiments.studies import tune_ppc
 from experiments.suites import STUDIES
@@ -105,7 +106,7 @@ def test_registry_entry_builds() -> None:
 @pytest.mark.parametrize("scenario", ["study_a", "study_b", "procedural_medium_test"])
 def test_search_refuses_study_maps_and_test_splits(scenario: str) -> None:
     with pytest.raises(ValueError, match="refusing to tune"):
-        tune_ppc.check_training_scenario(scenario)
+        tuning.check_training_scenario(scenario)
     with pytest.raises(ValueError, match="refusing to tune"):
         tune_ppc.search_formation(
             "study_c", scenario=scenario, trials=1, episodes=1, max_steps=10, seed=0, timeout=None
@@ -127,8 +128,8 @@ def test_formation_overrides_carry_the_studys_geometry() -> None:
 def test_objective_value() -> None:
     safe = {"violation": "", "time_to_violation": float("inf")}
     failed = {"violation": "collision_robot", "time_to_violation": 5.0}
-    assert tune_ppc.objective_value([safe, failed], horizon=10.0) == pytest.approx(
-        0.5 + tune_ppc.TIE_BREAK * 0.75
+    assert tuning.objective_value([safe, failed], horizon=10.0) == pytest.approx(
+        0.5 + tuning.TIE_BREAK * 0.75
     )
 
 

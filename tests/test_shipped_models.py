@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 import platoon_env
-from experiments.studies.sweep import CONFIGS, DEFAULT_SEEDS, SHIPPED
+from experiments.configs import CONFIGS, DEFAULT_SEEDS, SHIPPED
 from training.curves import read_progress
 from training.policies import LearnedPolicy
 

@@ -13,8 +13,9 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
+from experiments.configs import CONFIGS
 from experiments.studies import sweep
-from experiments.studies.sweep import CONFIGS, RESUMABLE, main, run_args, run_dir, ship
+from experiments.studies.sweep import RESUMABLE, main, run_args, run_dir, ship
 from training.train import RUN_FILES, check_scenario, make_env, parse_args, plan_run
 
 CONFIG = CONFIGS["ppo_ta_aruco"]

@@ -8,7 +8,7 @@ module here is imported by a layer below it.
 * :mod:`~experiments.studies.evaluate` — ``platoon-evaluate``: any policies on any scenarios and
   suites, the default benchmark (PPC against the shipped models);
 * :mod:`~experiments.studies.leaderboard` — ``platoon-leaderboard``: every policy on the
-  ``paper`` and ``heldout`` suites; :mod:`~experiments.studies.cards` — the model cards it writes;
+  ``paper`` and ``heldout`` suites; :mod:`~experiments.cards` — the model cards it writes;
 * :mod:`~experiments.studies.sweep` — ``platoon-sweep``: the shipped learned configurations
   trained over seeds;
 * :mod:`~experiments.studies.paper_figures` — the paper's figures from PPC episodes;

@@ -13,7 +13,7 @@ ideal sensors at a time. This driver starts from the other end, the shipped prof
 are grouped into the axes of :data:`PROFILE_AXES` (camera noise, detection, frame rate,
 latency, proximity noise, the acceleration limits, the actuator lag); an axis whose profile
 values equal the study's own (ideal) values is inactive and skipped with a note. For each
-controller (:data:`experiments.studies.frontiers.CONTROLLERS`: the paper's PPC law, the
+controller (:data:`experiments.robustness.CONTROLLERS`: the paper's PPC law, the
 last-seen baseline of ref. [32], the filtered PPC) and study A, B, C, the conditions
 (:func:`conditions`) are
 
@@ -28,10 +28,10 @@ violation (every violation cause ends the episode, as in the frontiers). Every e
 row of the evaluation store (``OUT/results.sqlite``, or ``--store``) run by the shared grid
 runner (:func:`experiments.grid.run_grid`; resumable, identical configurations run once). Its
 measure (:func:`episode_row`) is the frontiers' row
-(:func:`experiments.studies.frontiers.episode_row`: the first violation's cause, time and
+(:func:`experiments.robustness.episode_row`: the first violation's cause, time and
 follower, the PPC diagnostics) and **where** the failure
 happened: the position ``(x, y)`` of the diagnosed follower
-(:func:`experiments.studies.frontiers.diagnosed_follower`: the rear robot of a robot contact,
+(:func:`experiments.robustness.diagnosed_follower`: the rear robot of a robot contact,
 else the follower of the first violation) just after the violating step, and its true wall
 clearances ``d_W_l``, ``d_W_r`` there. A failure's **place** (:func:`place_of`) is
 
@@ -71,13 +71,24 @@ from experiments.cli import add_grid_options, failed_episodes, new_parser
 from experiments.grid import Cell, store_file, store_path
 from experiments.names import by_name
 from experiments.report import write_text_atomic
+from experiments.robustness import (
+    CONTROLLERS,
+    OUTCOME_COLUMNS,
+    Point,
+    add_study_options,
+    diagnosed_follower,
+    finish_study_args,
+    run_and_export,
+    study_grid,
+)
+from experiments.robustness import episode_row as outcome_row
 from experiments.stamp import png_metadata
-from experiments.studies import frontiers
-from experiments.studies.frontiers import CONTROLLERS, Point, episode_overrides
-from experiments.suites import STUDIES
 from platoon_env.config import ScenarioConfig
 from platoon_env.geometry.sensing import SENSE_D_WALL_LEFT, SENSE_D_WALL_RIGHT
 from platoon_env.rollout import Episode
+from platoon_env.scenarios.loader import load_config
+from platoon_env.scenarios.profiles import list_profiles, load_profile
+from platoon_env.scenarios.scenario import build_scenario
 
 __all__ = [
     "CONDITION_KINDS",
@@ -152,12 +163,8 @@ KEY_COLUMNS: tuple[str, ...] = ("controller", "study", "condition", "axis", "see
 #: Where a failure happened (:func:`failure_place`).
 PLACE_COLUMNS: tuple[str, ...] = ("fail_x", "fail_y", "fail_d_W_l", "fail_d_W_r")
 
-#: Columns of ``breaks.csv``: the key, the frontiers' outcome columns, the place.
-CSV_COLUMNS: tuple[str, ...] = (
-    *KEY_COLUMNS,
-    *(c for c in frontiers.CSV_COLUMNS if c not in frontiers.KEY_COLUMNS),
-    *PLACE_COLUMNS,
-)
+#: Columns of ``breaks.csv``: the key, the frontiers' outcome columns and wall time, the place.
+CSV_COLUMNS: tuple[str, ...] = (*KEY_COLUMNS, *OUTCOME_COLUMNS, "wall_time", *PLACE_COLUMNS)
 
 #: The places of :func:`place_of`, in table order.
 PLACES: tuple[str, ...] = ("open", "wall", "narrow")
@@ -173,7 +180,8 @@ DEFAULT_PROFILE = "aruco"
 DEFAULT_SEEDS = 20
 QUICK_SEEDS = 2
 
-#: The measure of an episode (:func:`episode_row`).
+#: The measure of an episode (:func:`episode_row`). The store keys every episode by this
+#: string: it must stay byte-identical for the existing stores to match.
 MEASURE = "experiments.studies.breaks:episode_row"
 
 
@@ -213,16 +221,12 @@ def _field(cfg: ScenarioConfig, path: FieldPath) -> Any:
 
 @cache
 def _config(study: str) -> ScenarioConfig:
-    from platoon_env.scenarios.loader import load_config
-
     return load_config(study)
 
 
 def axis_values(profile: str) -> dict[str, dict[FieldPath, Any]]:
     """The fields the sensor ``profile`` sets, by axis of :data:`PROFILE_AXES` (axes it does
     not touch are left out). A profile field no axis holds is a ``ValueError`` naming it."""
-    from platoon_env.scenarios.profiles import load_profile
-
     owner = {path: a.name for a in PROFILE_AXES.values() for path in a.fields}
     out: dict[str, dict[FieldPath, Any]] = {}
     for path, value in _flatten(load_profile(profile)).items():
@@ -295,7 +299,8 @@ def conditions(study: str, profile: str) -> tuple[list[Condition], list[str]]:
 
 
 def condition_overrides(study: str, condition: Condition, profile: str) -> dict[str, Any]:
-    """The ``make`` overrides of a condition (before :func:`frontiers.episode_overrides`):
+    """The ``make`` overrides of a condition (before
+    :func:`experiments.robustness.episode_overrides`):
 
     * ``ideal``: none;
     * ``profile``: ``sensor_profile=profile`` (:func:`experiments.axes.profile_overrides`);
@@ -336,18 +341,18 @@ def build_grid(
     for study in studies:
         conds[study], skipped = conditions(study, profile)
         notes += skipped
-    order = sorted(studies, key=lambda s: -STUDIES.index(s) if s in STUDIES else 0)
-    grid: list[tuple[tuple[str, ...], Cell]] = []
-    for seed in range(seeds):
-        for study in order:
-            for ctrl in controllers:
-                c = CONTROLLERS[ctrl]
-                for cond in conds[study]:
-                    ov = episode_overrides(
-                        condition_overrides(study, cond, profile), max_episode_steps
-                    )
-                    cell = Cell.of(c.spec, study, seed, ov, measure=MEASURE, record_signals=c.ppc)
-                    grid.append(((ctrl, study, cond.kind, cond.axis, str(seed)), cell))
+    points = {
+        study: [((c.kind, c.axis), condition_overrides(study, c, profile)) for c in conds[study]]
+        for study in studies
+    }
+    grid = study_grid(
+        studies,
+        controllers,
+        seeds,
+        points,
+        measure=MEASURE,
+        max_episode_steps=max_episode_steps,
+    )
     return grid, conds, notes
 
 
@@ -359,11 +364,11 @@ def build_grid(
 def failure_place(ep: Episode) -> dict[str, Any]:
     """Where a failed episode failed (:data:`PLACE_COLUMNS`; "" without a violation): the
     position ``fail_x``, ``fail_y`` [m] of the diagnosed follower
-    (:func:`frontiers.diagnosed_follower`) just after the violating step, and its true wall
-    clearances ``fail_d_W_l``, ``fail_d_W_r`` [m] there (``d_W_l``, ``d_W_r``: to the nearest
-    boundary point on its left and right, clipped to the proximity range)."""
+    (:func:`experiments.robustness.diagnosed_follower`) just after the violating step, and its
+    true wall clearances ``fail_d_W_l``, ``fail_d_W_r`` [m] there (``d_W_l``, ``d_W_r``: to the
+    nearest boundary point on its left and right, clipped to the proximity range)."""
     out: dict[str, Any] = dict.fromkeys(PLACE_COLUMNS, "")
-    diag = frontiers.diagnosed_follower(ep)
+    diag = diagnosed_follower(ep)
     if ep.first_violation is None or diag is None:
         return out
     k = min(ep.first_violation[0] + 1, ep.poses.shape[0] - 1)
@@ -376,9 +381,9 @@ def failure_place(ep: Episode) -> dict[str, Any]:
 
 
 def episode_row(ep: Episode) -> dict[str, Any]:
-    """The outcome columns of one episode: the frontiers' (:func:`frontiers.episode_row`) and
-    :func:`failure_place`."""
-    row = frontiers.episode_row(ep)
+    """The outcome columns of one episode: the frontiers'
+    (:func:`experiments.robustness.episode_row`) and :func:`failure_place`."""
+    row = outcome_row(ep)
     row.update(failure_place(ep))
     return row
 
@@ -651,7 +656,6 @@ def plot_map(
 
     from platoon_env.plots import new_figure, save_figure
     from platoon_env.rendering import draw_scene
-    from platoon_env.scenarios.scenario import build_scenario
 
     groups = _group(rows)
     scenario = build_scenario(_config(study))
@@ -769,8 +773,6 @@ _TOOL = "python -m experiments.studies.breaks"
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    from platoon_env.scenarios.profiles import list_profiles
-
     parser = new_parser(_TOOL, __doc__, out=Path("results/breaks"))
     add_grid_options(
         parser, seeds=None, seeds_help=f"seeds per condition (default {DEFAULT_SEEDS})", store=None
@@ -785,9 +787,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--figures", type=Path, default=None, help="folder of the PNGs (default: OUT)"
     )
-    frontiers.add_study_options(
-        parser, quick_help=f"smoke run: {QUICK_SEEDS} seeds (unless --seeds)"
-    )
+    add_study_options(parser, quick_help=f"smoke run: {QUICK_SEEDS} seeds (unless --seeds)")
     parser.add_argument(
         "--profile",
         default=DEFAULT_PROFILE,
@@ -795,7 +795,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help=f"the sensor profile taken apart (default {DEFAULT_PROFILE})",
     )
     args = parser.parse_args(argv)
-    frontiers.finish_study_args(args, seeds=DEFAULT_SEEDS, quick_seeds=QUICK_SEEDS)
+    finish_study_args(args, seeds=DEFAULT_SEEDS, quick_seeds=QUICK_SEEDS)
     args.store = store_path(args.out) if args.store is None else store_file(args.store)
     args.figures = args.out if args.figures is None else args.figures
     return args
@@ -815,7 +815,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     for note in notes:
         print(f"note: {note}")
-    run = frontiers.run_and_export(
+    run = run_and_export(
         _TOOL,
         grid,
         args.store,

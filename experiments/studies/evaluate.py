@@ -120,7 +120,7 @@ from experiments.report import (
 from experiments.significance import mean_success
 from experiments.stamp import code_version, metadata_stamp, png_metadata
 from experiments.store import Store, StoreError
-from experiments.suites import SUITES, Condition, suite
+from experiments.suites import SUITES, Condition, Suite, suite
 from platoon_env.extras import MissingExtraError, require_extra
 from platoon_env.rollout import METRIC_NAMES, Episode, PolicyLike
 from platoon_env.scenarios.fingerprint import canonical_json
@@ -625,6 +625,31 @@ def plot_scenario(
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     """Parse and validate the command line; every error is an argparse usage error (exit 2)
     raised before anything is written."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    the_suite = suite(args.suite) if args.suite else None
+    if the_suite is not None:
+        given = [f for f in ("scenario", *REALISM_BLOCKS) if getattr(args, f)]
+        given += ["sensor_profile"] if args.sensor_profile else []
+        if given:
+            flags = ", ".join("--" + g.replace("_", "-") for g in given)
+            parser.error(f"--suite {args.suite} sets the scenarios and conditions; drop {flags}")
+    if args.episodes is None:
+        args.episodes = the_suite.seeds if the_suite is not None else DEFAULT_EPISODES
+    _check_output(parser, args)
+    args.published = None
+    if args.compare_to is not None:
+        args.published = _compare_to(parser, args)
+    if args.publish:
+        _check_publish(parser, args)
+    _choose_policies(parser, args)
+    args.conditions = _conditions(parser, args, the_suite)
+    _resolve_grid(parser, args, the_suite)
+    return args
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line's options (checked and completed by :func:`parse_args`)."""
     parser = new_parser(_TOOL, __doc__)
     parser.add_argument(
         "--policy",
@@ -702,6 +727,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="override any make() option for every env, e.g. max_episode_steps=500 or "
         "formation.d_des=1.5 (YAML value; repeatable)",
     )
+    _add_realism_options(parser)
+    return parser
+
+
+def _add_realism_options(parser: argparse.ArgumentParser) -> None:
+    """``--sensor-profile`` and the per-field overrides ``--camera``, ``--proximity``,
+    ``--robot``."""
     realism = parser.add_argument_group(
         "realism", "sensing and actuation realism, passed to every env (docs/sensing.md)"
     )
@@ -724,16 +756,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             metavar="KEY=VALUE",
             help=f"override a {block} field, e.g. {example} (YAML value; repeatable)",
         )
-    args = parser.parse_args(argv)
-    the_suite = suite(args.suite) if args.suite else None
-    if the_suite is not None:
-        given = [f for f in ("scenario", *REALISM_BLOCKS) if getattr(args, f)]
-        given += ["sensor_profile"] if args.sensor_profile else []
-        if given:
-            flags = ", ".join("--" + g.replace("_", "-") for g in given)
-            parser.error(f"--suite {args.suite} sets the scenarios and conditions; drop {flags}")
-    if args.episodes is None:
-        args.episodes = the_suite.seeds if the_suite is not None else DEFAULT_EPISODES
+
+
+def _check_output(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Usage errors of ``--out``, ``--claim-timeout`` and ``--models``."""
     if args.out.exists() and not args.out.is_dir():
         parser.error(f"--out {args.out}: exists and is not a folder")
     unwritable = _unwritable(args.out)
@@ -745,19 +771,25 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error("--out must name an output folder, not the working directory")
     if args.models is not None and not args.models.is_dir():
         parser.error(f"--models {args.models}: no such folder")
-    args.published = None
-    if args.compare_to is not None:
-        args.published = _compare_to(parser, args)
-    if args.publish:
-        given = [f for f in ("policy", "scenario", "suite", "models", "sensor_profile",
-                             "set_options", *REALISM_BLOCKS) if getattr(args, f)]  # fmt: skip
-        if given or args.episodes != DEFAULT_EPISODES or args.seed or args.every_seed:
-            parser.error("--publish writes the default benchmark's rows: give no other option "
-                         "than --out, --workers, --batch and --no-plots")  # fmt: skip
-        version = code_version()
-        if not version or version["modified"]:
-            changed = ", ".join(version.get("modified", [])) or "not a git checkout"
-            parser.error(f"--publish needs a clean checkout of a commit (changed: {changed})")
+
+
+def _check_publish(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``--publish`` writes the default benchmark's rows: no option that changes the grid, and
+    a clean checkout of a commit."""
+    given = [f for f in ("policy", "scenario", "suite", "models", "sensor_profile",
+                         "set_options", *REALISM_BLOCKS) if getattr(args, f)]  # fmt: skip
+    if given or args.episodes != DEFAULT_EPISODES or args.seed or args.every_seed:
+        parser.error("--publish writes the default benchmark's rows: give no other option "
+                     "than --out, --workers, --batch and --no-plots")  # fmt: skip
+    version = code_version()
+    if not version or version["modified"]:
+        changed = ", ".join(version.get("modified", [])) or "not a git checkout"
+        parser.error(f"--publish needs a clean checkout of a commit (changed: {changed})")
+
+
+def _choose_policies(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``args.policy`` (the default ones unless given), the extras they need, and whether the
+    plots are drawn (``args.no_plots``, ``args.no_plots_reason``)."""
     if args.policy is None:
         args.policy = default_policies(args.models)
         if not any(p.kind == MODEL for p in args.policy):
@@ -785,6 +817,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     names = [p.name for p in args.policy]
     if len(set(names)) != len(names):
         parser.error(f"policy names must be unique, got {names}")
+
+
+def _conditions(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, the_suite: Suite | None
+) -> list[Condition]:
+    """The conditions of the grid: the suite's, else the one of the realism flags; with the
+    ``--set`` options on top (``args.realism``, ``args.overrides``)."""
     blocks: dict[str, Any] = {}
     for block in REALISM_BLOCKS:
         try:
@@ -809,9 +848,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         conditions = [Condition(c.label, {**c.overrides, **extra}) for c in the_suite.conditions]
     else:
         conditions = [Condition(args.realism.label, args.overrides)]
-    args.conditions = conditions
-    # Resolve every cell now: a bad scenario, profile or override is a usage error here, and
-    # the same scenario given twice (a name, a path to the same content) runs once.
+    return conditions
+
+
+def _resolve_grid(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, the_suite: Suite | None
+) -> None:
+    """Resolve every cell now (``args.cells``): a bad scenario, profile or override is a usage
+    error here, and the same scenario given twice (a name, a path to the same content) runs
+    once. Fills ``args.scenario``, ``args.policy``, ``args.configurations``,
+    ``args.condition_of`` and ``args.resolved``."""
+    conditions = args.conditions
     default = the_suite.scenarios if the_suite is not None else DEFAULT_SCENARIOS
     scenarios = list(dict.fromkeys(args.scenario or default))
     if args.seed + args.episodes - 1 > INT64_MAX:
@@ -850,7 +897,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         (rc.cell.scenario, args.condition_of[rc.cell.overrides].label): resolved_realism(rc.config)
         for rc in args.cells
     }
-    return args
 
 
 def episode_seeds(

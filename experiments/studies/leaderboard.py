@@ -15,7 +15,7 @@ interrupted run resumes, and episodes already stored are not run again):
 
 on every **task** of the two suites (:mod:`experiments.suites`): a scenario under a
 condition — ``paper``: studies A, B, C × {ideal, aruco}; ``heldout``: the test split of every
-procedural tier × {ideal, aruco}. The episode seeds (:func:`~experiments.studies.board.
+procedural tier × {ideal, aruco}. The episode seeds (:func:`~experiments.board.
 episode_seeds`): on a held-out task every policy plays each of the ``n`` layouts (seeds
 ``0 … n − 1``) once, a configuration's runs sharing them out (run ``k`` of ``R``: the ``k``-th of
 ``R`` near-equal slices); on a paper study a configuration's runs split the seeds (run ``k``:
@@ -55,7 +55,7 @@ independent tasks):
 Outputs: ``docs/leaderboard.md`` (every table, with the provenance of its rows), the figures
 ``docs/figures/leaderboard_*.png``, the learning curves ``docs/figures/learning_curves.png``,
 each model's card ``models/<run>/README.md`` and the index ``models/README.md``
-(:mod:`experiments.studies.cards`), and, unless ``--no-readme``, the README's table between the
+(:mod:`experiments.cards`), and, unless ``--no-readme``, the README's table between the
 ``<!-- leaderboard:start -->`` and ``<!-- leaderboard:end -->`` markers.
 """
 
@@ -72,6 +72,20 @@ from typing import Any
 
 import numpy as np
 
+from experiments.board import (
+    ANALYTIC,
+    SUITES,
+    Board,
+    Entry,
+    Task,
+    TooFewLayoutsError,
+    build_board,
+    cells,
+    entries,
+    span,
+    tasks,
+)
+from experiments.cards import write_cards
 from experiments.cli import add_batch_option, add_models_option, add_workers_option, count
 from experiments.grid import run_grid, store_file
 from experiments.policies import default_models_dir
@@ -86,20 +100,6 @@ from experiments.stats import (
     probability_of_improvement,
 )
 from experiments.store import Store, StoreError
-from experiments.studies.board import (
-    ANALYTIC,
-    SUITES,
-    Board,
-    Entry,
-    Task,
-    TooFewLayoutsError,
-    build_board,
-    cells,
-    entries,
-    span,
-    tasks,
-)
-from experiments.studies.cards import write_cards
 from experiments.suites import suite
 from platoon_env.violations import VIOLATION_CAUSES
 
@@ -642,24 +642,10 @@ def _seeds_text(task: Task, runs: int) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    models = args.models if args.models is not None else default_models_dir()
-    if models is None or not models.is_dir():
-        print(
-            f"platoon-leaderboard: error: no models folder "
-            f"({args.models or 'none found in the source checkout'}); pass --models DIR",
-            file=sys.stderr,
-        )
+    opened = _open(args)
+    if opened is None:
         return 2
-    problem = None if args.no_readme else readme_problem(args.readme)
-    if problem:
-        print(f"platoon-leaderboard: error: --readme {args.readme}: {problem} (or --no-readme)",
-              file=sys.stderr)  # fmt: skip
-        return 2
-    try:  # before any work: a file that is not a store, or not ours, is refused untouched
-        store = Store(store_file(args.store))
-    except StoreError as exc:
-        print(f"platoon-leaderboard: error: --store {args.store}: {exc}", file=sys.stderr)
-        return 2
+    models, store = opened
     board_entries = entries(models)
     board_tasks = tasks(args.paper_seeds, args.heldout_seeds)
     stamp = metadata_stamp(
@@ -712,14 +698,54 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         provenance = f"**Mixed code versions (--allow-mixed)**: {shown}.\n\n" + provenance
     board = build_board(board_entries, board_tasks, result, refused)
+    return _publish(args, board, models, stamp, provenance, failed=bool(result.failed))
+
+
+def _open(args: argparse.Namespace) -> tuple[Path, Store] | None:
+    """The models folder and the store, after the checks made before any work (each failure
+    printed; None then): the models folder exists, the README can be spliced, and the store is
+    one (a file that is not a store, or not ours, is refused untouched)."""
+    models = args.models if args.models is not None else default_models_dir()
+    if models is None or not models.is_dir():
+        print(
+            f"platoon-leaderboard: error: no models folder "
+            f"({args.models or 'none found in the source checkout'}); pass --models DIR",
+            file=sys.stderr,
+        )
+        return None
+    problem = None if args.no_readme else readme_problem(args.readme)
+    if problem:
+        print(f"platoon-leaderboard: error: --readme {args.readme}: {problem} (or --no-readme)",
+              file=sys.stderr)  # fmt: skip
+        return None
+    try:
+        store = Store(store_file(args.store))
+    except StoreError as exc:
+        print(f"platoon-leaderboard: error: --store {args.store}: {exc}", file=sys.stderr)
+        return None
+    return models, store
+
+
+def _publish(
+    args: argparse.Namespace,
+    board: Board,
+    models: Path,
+    stamp: Mapping[str, Any],
+    provenance: str,
+    *,
+    failed: bool,
+) -> int:
+    """Write the board's statistics: ``leaderboard.md`` and its figures, the model cards and
+    the README's table (unless told not to); print the tables. The exit code (1 if an episode
+    failed)."""
     rows = [
         suite_row(board, e, s, c.label)
         for s in SUITES
         for c in suite(s).conditions
-        for e in board_entries
+        for e in board.entries
     ]
     found = comparisons(board)
-    goals = [goal(board, e, found) for e in board_entries if e.learned]
+    goals = [goal(board, e, found) for e in board.entries if e.learned]
     improvements = improvement_markdown(board)
     goal_text = goal_markdown(goals)
     figures = args.docs / "figures"
@@ -729,13 +755,36 @@ def main(argv: Sequence[str] | None = None) -> int:
     plot_profiles(board, figures / "leaderboard_profiles.png", meta)
     plot_separation(found, board.tasks, figures / "leaderboard_separation.png", meta)
     table = table_markdown(rows)
-    seeds = "; ".join(_seeds_text(board.suite_tasks(s)[0], span(board_entries)) for s in SUITES)
+    doc = leaderboard_markdown(board, provenance, table, found, improvements, goal_text)
+    write_text_atomic(args.docs / "leaderboard.md", doc)
+    if not args.no_cards:
+        write_cards(board, models, figures / "learning_curves.png", meta)
+    if not args.no_readme:
+        splice_readme(args.readme, table)
+    print(table)
+    print(improvements)
+    print(goal_text)
+    print(f"wrote {args.docs / 'leaderboard.md'} and {figures}/leaderboard_*.png")
+    return 1 if failed else 0
+
+
+def leaderboard_markdown(
+    board: Board,
+    provenance: str,
+    table: str,
+    found: Sequence[Comparison],
+    improvements: str,
+    goal_text: str,
+) -> str:
+    """The text of ``docs/leaderboard.md``: the provenance, the suite table, the per-task
+    table, the comparisons, the probability of improvement, the profiles and the goal."""
+    seeds = "; ".join(_seeds_text(board.suite_tasks(s)[0], span(board.entries)) for s in SUITES)
     doc = [
         "# Leaderboard\n",
         "Made by `python -m experiments.studies.leaderboard` (see its module docstring for every "
         "statistic); do not edit by hand.\n",
         provenance,
-        f"Tasks: {len(board_tasks)} ({seeds}); learned configurations: their shipped training "
+        f"Tasks: {len(board.tasks)} ({seeds}); learned configurations: their shipped training "
         "seeds are the runs.\n",
         "## Per policy and suite\n",
         table,
@@ -779,16 +828,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ]
     if board.missing:
         doc.append(f"\n**{board.missing} episode(s) failed or are missing**: re-run to retry.\n")
-    write_text_atomic(args.docs / "leaderboard.md", "\n".join(doc))
-    if not args.no_cards:
-        write_cards(board, models, figures / "learning_curves.png", meta)
-    if not args.no_readme:
-        splice_readme(args.readme, table)
-    print(table)
-    print(improvements)
-    print(goal_text)
-    print(f"wrote {args.docs / 'leaderboard.md'} and {figures}/leaderboard_*.png")
-    return 1 if result.failed else 0
+    return "\n".join(doc)
 
 
 if __name__ == "__main__":

@@ -45,6 +45,7 @@ import numpy as np
 from experiments.cli import count
 from experiments.report import write_text_atomic
 from experiments.stamp import metadata_stamp, png_metadata, stamp_markdown
+from training.curves import plot_learning_curves, read_progress
 
 __all__ = ["ENGINES", "VARIANTS", "main", "tail_success", "train_args", "wall_time"]
 
@@ -104,8 +105,6 @@ def train_args(variant: str, scenario: str, timesteps: int, seed: int, out: Path
 
 def tail_success(progress: Path, tail: int) -> float:
     """The mean team success rate over the last ``tail`` logged windows that had an episode."""
-    from training.curves import read_progress
-
     rate = read_progress(progress)["success_rate"]
     rate = rate[~np.isnan(rate)]
     if rate.size == 0:
@@ -138,8 +137,6 @@ def wall_time(progress: Path) -> float:
     """The run's training wall time in seconds, from the ``wall_time_s`` column of
     ``progress``: each segment of a resumed run counts from 0 again, so the time is the sum of
     each segment's last value (a segment ends where the column drops)."""
-    from training.curves import read_progress
-
     wall = read_progress(progress)["wall_time_s"]
     if wall.size == 0:
         raise ValueError(f"{progress}: no logged window")
@@ -256,8 +253,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     if len(set(args.seeds)) != len(args.seeds) or len(args.seeds) < 2:
         parser.error(f"--seeds must be at least two distinct seeds, got {args.seeds}")
     from concurrent.futures import ThreadPoolExecutor
-
-    from training.curves import plot_learning_curves
 
     # the two engines side by side, one core each
     with ThreadPoolExecutor(2) as pool:

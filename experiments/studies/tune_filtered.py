@@ -17,12 +17,12 @@ and writes the best point to the table (``--table``, default the shipped
 value.
 
 **Training layouts only.** Each scenario must be a procedural ``train`` split
-(:func:`experiments.studies.tune_ppc.check_training_scenario` refuses a study map or a test
+(:func:`experiments.tuning.check_training_scenario` refuses a study map or a test
 split). The defaults are the two tiers the residual configurations train on, whose layouts
 draw a formation each (1-7 followers, the three studies' geometry ranges): one setting for
 every formation, since the residual's base law must run on all of them.
 
-**Objective** (maximised; :func:`experiments.studies.tune_ppc.objective_value`): the fraction
+**Objective** (maximised; :func:`experiments.tuning.objective_value`): the fraction
 of episodes without a violation, plus ``0.1`` times the mean of
 ``min(time_to_violation, T) / T`` over the episodes (``T`` the tier's episode length), pooled
 over the scenarios. Ties go to the smaller ``tau_r``, then to ``phi = 1`` (the filtered
@@ -44,7 +44,7 @@ import argparse
 import json
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,13 +54,13 @@ import platoon_env
 from baselines.filtered_ppc import FilterParams
 from baselines.filtered_ppc_drive import DEFAULT_TABLE, TABLE_KEYS, load_drive_table
 from experiments.cli import count
-from experiments.grid import Cell, run_grid, store_path
+from experiments.grid import Cell, GridResult, run_grid, store_path
 from experiments.policies import PolicySpec
 from experiments.report import write_text_atomic
 from experiments.significance import compare, task_rate
 from experiments.stamp import metadata_stamp
-from experiments.studies.tune_ppc import TIE_BREAK, check_training_scenario, objective_value
 from experiments.suites import suite
+from experiments.tuning import TIE_BREAK, check_training_scenario, objective_value
 
 __all__ = [
     "DEFAULT_SCENARIOS",
@@ -230,39 +230,9 @@ def run_report(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     given = list(sys.argv[1:] if argv is None else argv)
     if given[:1] == ["report"]:
-        rp = argparse.ArgumentParser(
-            prog=f"{COMMAND} report", description=run_report.__doc__, allow_abbrev=False
-        )
-        rp.add_argument("--out", type=Path, default=Path("results/tune_filtered"))
-        rp.add_argument("--seeds", type=count(1), default=20)
-        rp.add_argument("--workers", type=count(1), default=2)
-        rp.add_argument("--batch", type=count(0), default=20, help="episodes per batched core")
-        return run_report(rp.parse_args(given[1:]))
-    ap = argparse.ArgumentParser(
-        prog=COMMAND, description=__doc__.split("\n\n")[0], allow_abbrev=False
-    )
-    ap.add_argument("--out", type=Path, default=Path("results/tune_filtered"))
-    ap.add_argument("--episodes", type=count(1), default=None, help="seeds per scenario (40)")
-    ap.add_argument("--workers", type=count(1), default=2)
-    ap.add_argument("--scenario", nargs="+", default=list(DEFAULT_SCENARIOS))
-    ap.add_argument("--tau-r", type=float, nargs="+", default=list(DEFAULT_TAU_R))
-    ap.add_argument("--phi", type=float, nargs="+", default=list(DEFAULT_PHI))
-    ap.add_argument("--table", type=Path, default=DEFAULT_TABLE, help="the table written")
-    ap.add_argument("--max-steps", type=count(1), default=None, help="a shorter step limit (tests)")
-    ap.add_argument("--quick", action="store_true", help="a smoke run: 2 seeds per scenario")
-    args = ap.parse_args(argv)
+        return run_report(parse_report_args(given[1:]))
+    args = parse_args(argv)
     episodes = args.episodes or (2 if args.quick else 40)
-    for name in args.scenario:
-        try:
-            check_training_scenario(name)
-        except ValueError as exc:
-            ap.error(str(exc))
-    for t in args.tau_r:
-        if not (math.isfinite(t) and t >= 0):
-            ap.error(f"--tau-r values must be finite and >= 0, got {t}")
-    for f in args.phi:
-        if not 0 <= f <= 1:
-            ap.error(f"--phi values must be in [0, 1], got {f}")
     horizons = {name: _horizon(name, args.max_steps) for name in args.scenario}
     cells = grid_cells(args.scenario, args.tau_r, args.phi, episodes, args.max_steps)
     config = {"episodes": episodes, "scenarios": args.scenario, "tau_r": args.tau_r,
@@ -276,35 +246,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{COMMAND}: {len(result.failed)} episode(s) failed or the run was interrupted; "
               "the table is not written", file=sys.stderr)  # fmt: skip
         return 1
-    by_point: dict[tuple[float, float], dict[str, list[dict[str, Any]]]] = {}
-    for rc, rec in result.finished():
-        spec = json.loads(rc.cell.policy.params)
-        point = (spec["lookahead_rate_limited"], spec["lookahead_predecessor"])
-        by_point.setdefault(point, {}).setdefault(rc.cell.scenario, []).append(rec.metrics)
-    values: dict[tuple[float, float], float] = {}
-    grid = []
-    lines = ["| tau_r [s] | phi | " + " | ".join(f"{s}: no violation" for s in args.scenario)
-             + " | objective |", "|---|---|" + "---|" * len(args.scenario) + "---|"]  # fmt: skip
-    for point in sorted(by_point):
-        per = by_point[point]
-        # pooled: each scenario's objective over its own horizon, weighted by its episodes
-        value = sum(
-            objective_value(per[s], horizons[s]) * len(per[s]) for s in args.scenario
-        ) / sum(len(per[s]) for s in args.scenario)
-        values[point] = value
-        safe = {s: sum(m["violation"] == "" for m in per[s]) for s in args.scenario}
-        grid.append(
-            {
-                "lookahead_rate_limited": point[0],
-                "lookahead_predecessor": point[1],
-                "value": round(value, 6),
-                "no_violation": safe,
-                "episodes": episodes,
-            }
-        )
-        lines.append(f"| {point[0]:g} | {point[1]:g} | "
-                     + " | ".join(f"{safe[s]}/{len(per[s])}" for s in args.scenario)
-                     + f" | {value:.4f} |")  # fmt: skip
+    values, grid, lines = score_points(result, args.scenario, horizons, episodes)
     best = best_point(values)
     params = dict(zip(TABLE_KEYS, best, strict=True))
     provenance = {
@@ -330,6 +272,89 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(summary)
     print(f"table written to {args.table}")
     return 0
+
+
+def parse_report_args(argv: Sequence[str]) -> argparse.Namespace:
+    """The options of ``report`` (the arguments after it)."""
+    rp = argparse.ArgumentParser(
+        prog=f"{COMMAND} report", description=run_report.__doc__, allow_abbrev=False
+    )
+    rp.add_argument("--out", type=Path, default=Path("results/tune_filtered"))
+    rp.add_argument("--seeds", type=count(1), default=20)
+    rp.add_argument("--workers", type=count(1), default=2)
+    rp.add_argument("--batch", type=count(0), default=20, help="episodes per batched core")
+    return rp.parse_args(argv)
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """The options of the grid search, checked: training scenarios only, ``tau_r >= 0`` and
+    ``phi`` in [0, 1] (a usage error otherwise)."""
+    ap = argparse.ArgumentParser(
+        prog=COMMAND, description=__doc__.split("\n\n")[0], allow_abbrev=False
+    )
+    ap.add_argument("--out", type=Path, default=Path("results/tune_filtered"))
+    ap.add_argument("--episodes", type=count(1), default=None, help="seeds per scenario (40)")
+    ap.add_argument("--workers", type=count(1), default=2)
+    ap.add_argument("--scenario", nargs="+", default=list(DEFAULT_SCENARIOS))
+    ap.add_argument("--tau-r", type=float, nargs="+", default=list(DEFAULT_TAU_R))
+    ap.add_argument("--phi", type=float, nargs="+", default=list(DEFAULT_PHI))
+    ap.add_argument("--table", type=Path, default=DEFAULT_TABLE, help="the table written")
+    ap.add_argument("--max-steps", type=count(1), default=None, help="a shorter step limit (tests)")
+    ap.add_argument("--quick", action="store_true", help="a smoke run: 2 seeds per scenario")
+    args = ap.parse_args(argv)
+    for name in args.scenario:
+        try:
+            check_training_scenario(name)
+        except ValueError as exc:
+            ap.error(str(exc))
+    for t in args.tau_r:
+        if not (math.isfinite(t) and t >= 0):
+            ap.error(f"--tau-r values must be finite and >= 0, got {t}")
+    for f in args.phi:
+        if not 0 <= f <= 1:
+            ap.error(f"--phi values must be in [0, 1], got {f}")
+    return args
+
+
+def score_points(
+    result: GridResult,
+    scenarios: Sequence[str],
+    horizons: Mapping[str, float],
+    episodes: int,
+) -> tuple[dict[tuple[float, float], float], list[dict[str, Any]], list[str]]:
+    """The objective of each grid point ``(tau_r, phi)`` (:func:`objective_value`, pooled over
+    the scenarios, each over its own horizon, weighted by its episodes), the table's ``grid``
+    rows, and the markdown table's lines."""
+    by_point: dict[tuple[float, float], dict[str, list[dict[str, Any]]]] = {}
+    for rc, rec in result.finished():
+        spec = json.loads(rc.cell.policy.params)
+        point = (spec["lookahead_rate_limited"], spec["lookahead_predecessor"])
+        by_point.setdefault(point, {}).setdefault(rc.cell.scenario, []).append(rec.metrics)
+    values: dict[tuple[float, float], float] = {}
+    grid: list[dict[str, Any]] = []
+    lines = ["| tau_r [s] | phi | " + " | ".join(f"{s}: no violation" for s in scenarios)
+             + " | objective |", "|---|---|" + "---|" * len(scenarios) + "---|"]  # fmt: skip
+    for point in sorted(by_point):
+        per = by_point[point]
+        # pooled: each scenario's objective over its own horizon, weighted by its episodes
+        value = sum(objective_value(per[s], horizons[s]) * len(per[s]) for s in scenarios) / sum(
+            len(per[s]) for s in scenarios
+        )
+        values[point] = value
+        safe = {s: sum(m["violation"] == "" for m in per[s]) for s in scenarios}
+        grid.append(
+            {
+                "lookahead_rate_limited": point[0],
+                "lookahead_predecessor": point[1],
+                "value": round(value, 6),
+                "no_violation": safe,
+                "episodes": episodes,
+            }
+        )
+        lines.append(f"| {point[0]:g} | {point[1]:g} | "
+                     + " | ".join(f"{safe[s]}/{len(per[s])}" for s in scenarios)
+                     + f" | {value:.4f} |")  # fmt: skip
+    return values, grid, lines
 
 
 if __name__ == "__main__":

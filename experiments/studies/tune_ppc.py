@@ -9,7 +9,7 @@ writes the table :data:`baselines.ppc_tuned.DEFAULT_TABLE` with its provenance.
 **Where it tunes: training layouts only.** Each trial runs the same few episodes (seeds
 ``0..E-1``, so trials are compared on common random numbers) of a procedural ``train`` split
 (default ``procedural_medium_train``), never a study map nor a ``test`` split
-(:func:`check_training_scenario` refuses both), with
+(:func:`experiments.tuning.check_training_scenario` refuses both), with
 
 * the formation overridden to the study's (:func:`formation_overrides`): ``followers``, the
   robots' radius and velocity bounds, the camera's and proximity sensor's geometry, the safety
@@ -21,11 +21,11 @@ writes the table :data:`baselines.ppc_tuned.DEFAULT_TABLE` with its provenance.
 * ``max_episode_steps`` shortened (default 4000 steps = 40 s): PPC's failures under aruco come
   within seconds, and the shortened horizon keeps the search within its compute budget.
 
-**Objective** (maximised): the fraction of episodes without any violation within the horizon,
-plus a tie-break of ``0.1`` times the mean of ``min(time_to_violation, T) / T`` (``T`` the
-horizon), which orders trials that fail equally often by how long they last. Trial 0 is the
-study's own gains (``enqueue_trial``), so the best value is never below theirs on these
-episodes (``baseline_value`` in the table).
+**Objective** (maximised; :func:`experiments.tuning.objective_value`): the fraction of
+episodes without any violation within the horizon, plus a tie-break of ``0.1`` times the mean
+of ``min(time_to_violation, T) / T`` (``T`` the horizon), which orders trials that fail
+equally often by how long they last. Trial 0 is the study's own gains (``enqueue_trial``), so
+the best value is never below theirs on these episodes (``baseline_value`` in the table).
 
 Each formation's search runs in its own process (``--workers``, default 2), its trials one
 after another; progress goes to ``--log``. ``--timeout`` bounds each formation's search in wall
@@ -54,7 +54,13 @@ from typing import Any
 
 import platoon_env
 from baselines.ppc import PPCPolicy
-from baselines.ppc_tuned import DEFAULT_TABLE, TUNED_KEYS, formation_geometry, table_text
+from baselines.ppc_tuned import (
+    DEFAULT_TABLE,
+    TUNED_KEYS,
+    formation_geometry,
+    load_table,
+    table_text,
+)
 from experiments.cli import count, number
 from experiments.grid import Cell, run_grid, store_path
 from experiments.policies import REGISTRY, PolicySpec
@@ -62,6 +68,7 @@ from experiments.report import write_text_atomic
 from experiments.significance import task_rate
 from experiments.stamp import REPO_ROOT, metadata_stamp
 from experiments.suites import STUDIES, suite
+from experiments.tuning import TIE_BREAK, check_training_scenario, objective_value
 from platoon_env.rollout import episode_metrics, run_episode
 from platoon_env.scenarios.loader import load_config
 from platoon_env.scenarios.profiles import load_profile
@@ -71,10 +78,8 @@ __all__ = [
     "DOC",
     "REPORT_COMMAND",
     "SEARCH_COMMAND",
-    "check_training_scenario",
     "formation_overrides",
     "main",
-    "objective_value",
     "search_formation",
     "sweep_conditions",
 ]
@@ -85,9 +90,6 @@ SEARCH_COMMAND = "python -m experiments.studies.tune_ppc"
 REPORT_COMMAND = "python -m experiments.studies.tune_ppc report"
 #: The page the report block is in.
 DOC = REPO_ROOT / "docs" / "realism.md"
-#: Weight of the tie-break (mean time to the first violation over the horizon): below one
-#: episode's share of the success rate for any budget of up to 10 episodes a trial.
-TIE_BREAK = 0.1
 #: Sweep on study B: camera latencies [s] × bounds on the applied linear acceleration [m/s^2]
 #: (None: no bound), on top of the aruco camera and proximity models.
 SWEEP_LATENCIES: tuple[float, ...] = (0.0, 0.03, 0.05)
@@ -99,25 +101,6 @@ REPORT_POLICIES: tuple[str, ...] = ("ppc", "ppc_tuned")
 # ----------------------------------------------------------------------------------------------
 # What the search runs
 # ----------------------------------------------------------------------------------------------
-
-
-def check_training_scenario(scenario: str) -> ScenarioConfig:
-    """The config of ``scenario`` if it is a procedural ``train`` split; else a ``ValueError``.
-
-    A fixed map (a study, or any YAML with one workspace) or a ``test`` split is refused: the
-    search must never see the layouts the policies are evaluated on."""
-    cfg = load_config(scenario)
-    if cfg.generator is None:
-        raise ValueError(
-            f"refusing to tune on {scenario!r}: a fixed map (the studies are evaluation maps); "
-            "give a procedural training split such as procedural_medium_train"
-        )
-    if cfg.generator.split != "train":
-        raise ValueError(
-            f"refusing to tune on {scenario!r}: its generator split is "
-            f"{cfg.generator.split!r}; never tune on test layouts (use a *_train split)"
-        )
-    return cfg
 
 
 def formation_overrides(study: str) -> dict[str, Any]:
@@ -143,14 +126,6 @@ def formation_overrides(study: str) -> dict[str, Any]:
     if proximity:
         out["proximity"] = proximity
     return out
-
-
-def objective_value(metrics: Sequence[Mapping[str, Any]], horizon: float) -> float:
-    """The search's objective over one trial's episodes: the fraction without a violation,
-    plus :data:`TIE_BREAK` times the mean of ``min(time_to_violation, horizon) / horizon``."""
-    safe = sum(m["violation"] == "" for m in metrics) / len(metrics)
-    frac = sum(min(float(m["time_to_violation"]), horizon) / horizon for m in metrics)
-    return safe + TIE_BREAK * frac / len(metrics)
 
 
 def _suggest(trial: Any, cfg: ScenarioConfig) -> dict[str, float]:
@@ -359,8 +334,6 @@ def _table(
 
 
 def _table_summary() -> list[str]:
-    from baselines.ppc_tuned import load_table
-
     table = load_table()
     p = table.provenance
     lines = [

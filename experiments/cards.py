@@ -19,14 +19,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from experiments.configs import CONFIGS
 from experiments.report import wilson, write_text_atomic
-from experiments.studies.sweep import CONFIGS
 from experiments.suites import LEADERBOARD_SUITES as SUITES
 from platoon_env.observation import OBS_NAMES_SCALE_FREE, OBS_NAMES_TASK
 from training.curves import plot_learning_curves, read_progress
 
 if TYPE_CHECKING:
-    from experiments.studies.board import Board, Entry
+    from experiments.board import Board, Entry
 
 __all__ = [
     "card_markdown",
@@ -274,7 +274,7 @@ def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
         "The training cost is the follower episode cost (the share of follower episodes with a "
         "violation) at the end of training: over the last 10 % of the run's transitions, with "
         "a 95 % Wilson interval and, for PPO-Lagrangian runs, the verdict against the run's "
-        "budget (`experiments.studies.cards.end_cost`).",
+        "budget (`experiments.cards.end_cost`).",
         "",
         "| model | configuration | seed | transitions | wall time | core-hours | training cost | "
         + " | ".join(f"{s} success" for s in SUITES)

@@ -3,7 +3,7 @@ scenario under a condition, in a suite) and the board (every episode's metrics b
 and task), built from the evaluation store's grid.
 
 :mod:`experiments.studies.leaderboard` computes the statistics and writes the tables from a
-:class:`Board`; :mod:`experiments.studies.cards` writes the model cards from one. Both import
+:class:`Board`; :mod:`experiments.cards` writes the model cards from one. Both import
 this module, and it imports neither.
 """
 
