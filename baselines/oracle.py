@@ -101,7 +101,7 @@ class OracleParams:
     """
 
     knot: int = 10
-    horizon: int = 20
+    horizon: int = 30
     replan: int = 1
     samples: int = 32
     iterations: int = 2
@@ -363,10 +363,15 @@ class OraclePolicy:
 
 
 def _planning_snapshot(snap: CoreSnapshot) -> CoreSnapshot:
-    """``snap`` as the model runs it: no violation ends a rollout (``terminate_on`` empty), and
-    neither does the step limit or the leader's settle time (a rollout near the episode's end
-    goes on behind the arrived leader)."""
+    """``snap`` as the model runs it: without perception (the planner reads the truth), no
+    violation ends a rollout (``terminate_on`` empty), and neither does the step limit or the
+    leader's settle time (a rollout near the episode's end goes on behind the arrived
+    leader)."""
     params = snap.params.copy()
+    # The planner reads the ground truth only: the model skips the perception pipeline (noise,
+    # dropouts, frames, latency), which changes no pose, no sensing and no violation.
+    params["perceive"] = False
+    params["random_perception"] = False
     params["terminate_mask"] = 0
     params["max_episode_steps"] = np.iinfo(np.int64).max // 2
     params["settle_time"] = 1e12
