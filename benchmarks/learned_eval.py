@@ -31,6 +31,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--batch", type=int, default=20)
     args = parser.parse_args(argv)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    # Here, after OMP_NUM_THREADS is set: torch reads it at import (experiments imports torch).
     import torch
 
     from experiments.batched_eval import run_cells

@@ -54,6 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from maps import pillar_lane
 
 import platoon_env
+from baselines import PPCPolicy
 from platoon_env.batched import BatchedPlatoon
 
 REPEATS = 3
@@ -114,8 +115,6 @@ def machine() -> dict[str, Any]:
 # ------------------------------------------------------------------------------------------------
 def record_ppc_actions(scenario: Any, steps: int, seed: int = 0) -> np.ndarray:
     """``(T, N, 2)`` float32 actions of the PPC policy over one episode from ``seed``."""
-    from baselines import PPCPolicy
-
     env = platoon_env.make(scenario, terminate_on=())
     policy = PPCPolicy(env)
     obs, _ = env.reset(seed=seed)
@@ -296,8 +295,6 @@ def time_vmas(n_agents: int, batch: int, threads: int, seconds: float) -> tuple[
 
 def time_ppc(scenario: Any, seconds: float) -> tuple[float, int]:
     """Microseconds per follower of one ``PPCPolicy.act`` call, and N."""
-    from baselines import PPCPolicy
-
     env = platoon_env.make(scenario)
     policy = PPCPolicy(env)
     obs, _ = env.reset(seed=0)
@@ -453,7 +450,54 @@ def plot(scaling: list[Row], mpe: Row | None, vmas: list[Row], path: Path) -> No
 # ------------------------------------------------------------------------------------------------
 # Main
 # ------------------------------------------------------------------------------------------------
-def main(argv: list[str] | None = None) -> int:
+@dataclass(frozen=True)
+class Sizes:
+    """What a run times: ``seconds`` per number, the PPC episode's length recorded for
+    replay, the scaling maps' edges, followers and batches, the large batch ``big`` and the
+    numba ``threads`` of the batched rows (``--quick``: a small smoke run)."""
+
+    seconds: float
+    record_steps: int
+    edge_counts: tuple[int, ...]
+    followers: tuple[int, ...]
+    batches: tuple[int, ...]
+    big: int
+    threads: int
+    quick: bool
+
+    @classmethod
+    def of(cls, args: argparse.Namespace) -> Sizes:
+        """The sizes of the command line ``args``."""
+        quick = bool(args.quick)
+        return cls(
+            seconds=0.15 if quick else args.seconds,
+            record_steps=100 if quick else 2000,
+            edge_counts=(200,) if quick else (200, 1000, 5000),
+            followers=(1, 7) if quick else (1, 7, 50),
+            batches=(1, 32) if quick else (1, 32, 1024),
+            big=32 if quick else 1024,
+            threads=args.threads,
+            quick=quick,
+        )
+
+
+@dataclass
+class Headline:
+    """The headline rows, the notes on the other libraries, MPE's row and VMAS's rows."""
+
+    rows: list[Row]
+    notes: list[str]
+    mpe: Row | None
+    vmas: list[Row]
+
+    @property
+    def best_vmas(self) -> float | None:
+        """VMAS's best agent-steps/s (None: not timed)."""
+        return max((r.agent_steps for r in self.vmas), default=None)
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line (module doc)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--out",
@@ -466,34 +510,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-mpe", action="store_true", help="skip MPE")
     parser.add_argument("--no-vmas", action="store_true", help="skip VMAS")
     parser.add_argument("--no-plot", action="store_true", help="skip the scaling plot")
-    args = parser.parse_args(argv)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    seconds = 0.15 if args.quick else args.seconds
-    record_steps = 100 if args.quick else 2000
-    edge_counts = (200,) if args.quick else (200, 1000, 5000)
-    followers = (1, 7) if args.quick else (1, 7, 50)
-    batches = (1, 32) if args.quick else (1, 32, 1024)
-    big = 32 if args.quick else 1024
-    threads = args.threads
+    return parser.parse_args(argv)
 
-    mach = machine()
-    print("machine: " + ", ".join(f"{k}={v}" for k, v in mach.items()), flush=True)
 
-    # --- headline -----------------------------------------------------------------------
+def headline_rows(sizes: Sizes, mach: dict[str, Any], no_mpe: bool, no_vmas: bool) -> Headline:
+    """MPE (in its own process), study A's ParallelEnv (with and without diagnostics, with
+    ArUco sensors), the batched API at 1, 32 and ``big`` envs, and VMAS (own process)."""
+    seconds, big, threads = sizes.seconds, sizes.big, sizes.threads
     headline: list[Row] = []
     notes: list[str] = []
-    mpe_rate, mpe_note = (
-        (None, "skipped (--no-mpe)") if args.no_mpe else isolated(time_mpe, 7, seconds)
-    )
+    mpe_rate, mpe_note = (None, "skipped (--no-mpe)") if no_mpe else isolated(time_mpe, 7, seconds)
     mpe_row = None
     if mpe_rate is not None:
         mpe_row = Row("MPE simple_spread", "-", 0, 7, None, 1, mpe_rate, note=mpe_note)
         headline.append(mpe_row)
     notes.append(f"MPE: {mpe_note}")
-    study_a = record_ppc_actions("study_a", record_steps)
+    study_a = record_ppc_actions("study_a", sizes.record_steps)
     edges_a = int(platoon_env.make("study_a").scenario.workspace.edges.shape[0])
-    aruco = {"sensor_profile": "aruco"}
+    aruco: dict[str, Any] = {"sensor_profile": "aruco"}
     for diagnostics, realism, suffix in (
         (True, {}, ""),
         (False, {}, ", diagnostics=False"),
@@ -513,24 +547,16 @@ def main(argv: list[str] | None = None) -> int:
         if th > 1 and th > mach["numba_threads"]:
             continue
         suffix = ", aruco sensors" if realism else ""
-        headline.append(
-            Row(
-                f"platoon study_a, batched arrays{suffix}",
-                "study_a",
-                edges_a,
-                7,
-                batch,
-                th,
-                time_batched("study_a", study_a, batch, th, seconds, **realism),
-            )
-        )
+        env_rate = time_batched("study_a", study_a, batch, th, seconds, **realism)
+        what = f"platoon study_a, batched arrays{suffix}"
+        headline.append(Row(what, "study_a", edges_a, 7, batch, th, env_rate))
         print(
             f"batched study_a B={batch} threads={th}: {_fmt(headline[-1].agent_steps)} "
             "agent-steps/s",
             flush=True,
         )
     vmas_rows: list[Row] = []
-    if args.no_vmas:
+    if no_vmas:
         notes.append("VMAS: skipped (--no-vmas)")
     else:
         for th in sorted({1, threads}):
@@ -541,13 +567,18 @@ def main(argv: list[str] | None = None) -> int:
             vmas_rows.append(Row("VMAS navigation (CPU)", "-", 0, 7, big, th, vmas_rate))
             notes.append(f"VMAS: {vmas_note}")
     headline.extend(vmas_rows)
-    best_vmas = max((r.agent_steps for r in vmas_rows), default=None)
+    return Headline(headline, notes, mpe_row, vmas_rows)
 
-    # --- formations -------------------------------------------------------------------------
+
+def formation_rows(sizes: Sizes) -> list[Row]:
+    """:data:`FORMATIONS` at ``big`` envs, physical and scale-free observations."""
+    big, threads = sizes.big, sizes.threads
     formations: list[Row] = []
     scale_free = {"observation": {"task_aware": True, "scale_free": True}}
     for obs_opts, suffix in (({}, ""), (scale_free, ", scale-free observations")):
-        env_rate, live, reset_ms, reset_cpu = time_formations(big, threads, seconds, **obs_opts)
+        env_rate, live, reset_ms, reset_cpu = time_formations(
+            big, threads, sizes.seconds, **obs_opts
+        )
         formations.append(
             Row(
                 f"platoon {FORMATIONS}, batched arrays{suffix}",
@@ -567,49 +598,28 @@ def main(argv: list[str] | None = None) -> int:
             f"followers), reset {reset_ms:.1f} ms median ({reset_cpu:.1f} ms CPU)",
             flush=True,
         )
+    return formations
 
-    # --- scaling ------------------------------------------------------------------------
+
+def scaling_rows(sizes: Sizes) -> list[Row]:
+    """The pillar-lane maps of every edge count and number of followers: the ParallelEnv,
+    the batched API at every batch size, and at 32 envs without edge culling."""
+    seconds, threads, batches = sizes.seconds, sizes.threads, sizes.batches
     scaling: list[Row] = []
-    for n_edges in edge_counts:
-        for n in followers:
+    for n_edges in sizes.edge_counts:
+        for n in sizes.followers:
             scenario = platoon_env.load_scenario(pillar_lane(n_edges, n))
             edges = int(scenario.workspace.edges.shape[0])
-            acts = record_ppc_actions(scenario, record_steps)
-            scaling.append(
-                Row(
-                    "ParallelEnv",
-                    scenario.name,
-                    edges,
-                    n,
-                    None,
-                    1,
-                    time_parallel_env(scenario, acts, seconds),
-                )
-            )
+            acts = record_ppc_actions(scenario, sizes.record_steps)
+            env_rate = time_parallel_env(scenario, acts, seconds)
+            scaling.append(Row("ParallelEnv", scenario.name, edges, n, None, 1, env_rate))
             for batch in batches:
                 th = 1 if batch == 1 else threads
-                scaling.append(
-                    Row(
-                        "batched",
-                        scenario.name,
-                        edges,
-                        n,
-                        batch,
-                        th,
-                        time_batched(scenario, acts, batch, th, seconds),
-                    )
-                )
+                env_rate = time_batched(scenario, acts, batch, th, seconds)
+                scaling.append(Row("batched", scenario.name, edges, n, batch, th, env_rate))
+            env_rate = time_batched(scenario, acts, 32, threads, seconds, grid_cell_size=0.0)
             scaling.append(
-                Row(
-                    "batched",
-                    scenario.name,
-                    edges,
-                    n,
-                    32,
-                    threads,
-                    time_batched(scenario, acts, 32, threads, seconds, grid_cell_size=0.0),
-                    culling=False,
-                )
+                Row("batched", scenario.name, edges, n, 32, threads, env_rate, culling=False)
             )
             print(
                 f"map {edges} edges, N={n}: "
@@ -619,14 +629,18 @@ def main(argv: list[str] | None = None) -> int:
                 ),
                 flush=True,
             )
+    return scaling
 
-    # --- PPC ------------------------------------------------------------------------------
-    ppc = [time_ppc("study_a", seconds)]
-    if not args.quick:
-        ppc.append(time_ppc(pillar_lane(200, 50), seconds))
 
-    # --- report -----------------------------------------------------------------------------
-    mpe_rate_or_none = mpe_row.env_steps if mpe_row else None
+def report(
+    mach: dict[str, Any],
+    headline: Headline,
+    scaling: list[Row],
+    formations: list[Row],
+    ppc: list[tuple[float, int]],
+) -> str:
+    """``results.md``: the machine, then the headline, scaling, formations and PPC tables."""
+    mpe_rate_or_none = headline.mpe.env_steps if headline.mpe else None
     md = [
         "## Speed (benchmarks/run.py)",
         "",
@@ -634,9 +648,9 @@ def main(argv: list[str] | None = None) -> int:
         + ", ".join(f"{k} {v}" for k, v in mach.items() if k != "load_average")
         + (f"; load average at start {mach['load_average']}" if "load_average" in mach else ""),
         "",
-        headline_table(headline, mpe_rate_or_none, best_vmas),
+        headline_table(headline.rows, mpe_rate_or_none, headline.best_vmas),
         "",
-        *[f"- {n}" for n in notes],
+        *[f"- {n}" for n in headline.notes],
         "",
         "Scaling with map size, followers and batch size (synthetic pillar-lane maps; the "
         "ParallelEnv row is one env with PettingZoo dicts):",
@@ -652,7 +666,26 @@ def main(argv: list[str] | None = None) -> int:
         + "; ".join(f"{us:.2f} µs per follower (N = {n})" for us, n in ppc),
         "",
     ]
-    text = "\n".join(md)
+    return "\n".join(md)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Time everything (module doc), print the tables and write them to ``--out``."""
+    args = parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    sizes = Sizes.of(args)
+
+    mach = machine()
+    print("machine: " + ", ".join(f"{k}={v}" for k, v in mach.items()), flush=True)
+    headline = headline_rows(sizes, mach, args.no_mpe, args.no_vmas)
+    formations = formation_rows(sizes)
+    scaling = scaling_rows(sizes)
+    ppc = [time_ppc("study_a", sizes.seconds)]
+    if not sizes.quick:
+        ppc.append(time_ppc(pillar_lane(200, 50), sizes.seconds))
+
+    text = report(mach, headline, scaling, formations, ppc)
     print()
     print(text)
     (out / "results.md").write_text(text)
@@ -660,8 +693,8 @@ def main(argv: list[str] | None = None) -> int:
         json.dumps(
             {
                 "machine": mach,
-                "notes": notes,
-                "headline": [asdict(r) | {"agent_steps": r.agent_steps} for r in headline],
+                "notes": headline.notes,
+                "headline": [asdict(r) | {"agent_steps": r.agent_steps} for r in headline.rows],
                 "scaling": [asdict(r) | {"agent_steps": r.agent_steps} for r in scaling],
                 "formations": [asdict(r) | {"agent_steps": r.agent_steps} for r in formations],
                 "ppc_us_per_follower": [{"n": n, "us": us} for us, n in ppc],
@@ -670,7 +703,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     )
     if not args.no_plot:
-        plot(scaling, mpe_row, vmas_rows, out / "scaling.png")
+        plot(scaling, headline.mpe, headline.vmas, out / "scaling.png")
     print(f"\nwrote {out / 'results.md'}, results.json" + ("" if args.no_plot else ", scaling.png"))
     return 0
 

@@ -55,6 +55,7 @@ import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import shapely
@@ -417,6 +418,7 @@ def layout_properties(scenario: Scenario) -> LayoutProperties:
 
 
 def check(source: str, outdir: Path) -> Report:
+    """Load ``source``, measure and check it (module doc) and draw ``outdir/<name>.png``."""
     report = Report(Path(source).stem)
     try:
         scenario, note = load(source)
@@ -427,36 +429,65 @@ def check(source: str, outdir: Path) -> Report:
     report.name = cfg.name
     if note:
         report.add("procedural", note)
-    free = scenario.free_space
-    boundary = free.boundary
-    r = cfg.robot.radius
-    d_des = cfg.formation.d_des
-    beta_con = cfg.camera.half_angle
-    delta = cfg.ppc.delta if cfg.ppc is not None else 0.0
+    measure_map(scenario, report)
+    raw = np.asarray(scenario.leader_path, dtype=float)
+    path = PathSamples.of(raw)
+    report.add("path length", f"{scenario.path_s[-1]:.2f} m ({len(raw)} points)")
+    clearance, width, both = measure_passages(scenario, path, report)
+    measure_corners(raw, path, width, report)
+    check_retraced_pairs(scenario, path, report)
+    check_closed_up_pairs(scenario, path, report)
+    check_initial_configuration(scenario, path, report)
+    traj = check_env_leader(scenario, raw, report)
+    draw(scenario, path.pts, both, traj, clearance, report, outdir / f"{cfg.name}.png")
+    return report
 
+
+@dataclass(frozen=True)
+class PathSamples:
+    """The leader path sampled every :data:`SAMPLE_STEP`: the points, their arc length ``s``,
+    the unit tangents and the headings along the path."""
+
+    pts: np.ndarray
+    s: np.ndarray
+    tan: np.ndarray
+    heading: np.ndarray
+
+    @classmethod
+    def of(cls, raw: np.ndarray) -> PathSamples:
+        """The samples of the path polyline ``raw``."""
+        pts, s = resample(raw, SAMPLE_STEP)
+        tan = tangents(pts)
+        return cls(pts, s, tan, np.arctan2(tan[:, 1], tan[:, 0]))
+
+
+def measure_map(scenario: Scenario, report: Report) -> None:
+    """The free area, the boundary edges and the map's size."""
+    free = scenario.free_space
     xmin, ymin, xmax, ymax = scenario.workspace.bounds
     report.add("free area", f"{free.area:.1f} m^2")
     report.add("boundary edges", str(len(scenario.workspace.edges)))
     report.numbers["edges"] = len(scenario.workspace.edges)
     report.add("map size", f"{xmax - xmin:.1f} x {ymax - ymin:.1f} m")
 
-    raw = np.asarray(scenario.leader_path, dtype=float)
-    pts, s = resample(raw, SAMPLE_STEP)
-    tan = tangents(pts)
-    heading = np.arctan2(tan[:, 1], tan[:, 0])
-    report.add("path length", f"{scenario.path_s[-1]:.2f} m ({len(raw)} points)")
 
-    # --- clearance of the path itself (the loader has checked it with check_leader_path)
-    clearance = shapely.distance(boundary, shapely.points(pts))
+def measure_passages(
+    scenario: Scenario, path: PathSamples, report: Report
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The path's clearance (the loader has checked it with ``check_leader_path``), the
+    passage width across it and where ``F_l`` and ``F_r`` engage together (``clearance - r <
+    delta`` on both sides); returns the clearance, the width and that mask per sample."""
+    cfg, pts, s = scenario.config, path.pts, path.s
+    r = cfg.robot.radius
+    delta = cfg.ppc.delta if cfg.ppc is not None else 0.0
+    clearance = shapely.distance(scenario.free_space.boundary, shapely.points(pts))
     k_min = int(np.argmin(clearance))
     report.add(
         "min path clearance",
         f"{clearance[k_min]:.3f} m at s={s[k_min]:.2f} ({pts[k_min, 0]:.2f}, {pts[k_min, 1]:.2f})"
         f"; need >= r + {LEADER_PATH_MARGIN} = {r + LEADER_PATH_MARGIN:.2f}",
     )
-
-    # --- passage width across the path and where F_l and F_r engage together
-    sides = normal_ray_distances(free, pts, tan)
+    sides = normal_ray_distances(scenario.free_space, pts, path.tan)
     width = sides.sum(axis=1)
     k_w = int(np.argmin(width))
     report.add(
@@ -468,9 +499,12 @@ def check(source: str, outdir: Path) -> Report:
         "path with clearance-r < delta on both sides",
         f"{both.sum() * SAMPLE_STEP:.1f} m (passage < 2(r+delta) = {2 * (r + delta):.2f} m)",
     )
+    return clearance, width, both
 
-    # --- the path's vertices: the largest turn and the sharp corners, with the passage width on
-    # the legs either side of each (a corner inside a narrow passage, or one in an open room)
+
+def measure_corners(raw: np.ndarray, path: PathSamples, width: np.ndarray, report: Report) -> None:
+    """The path's vertices: the largest turn and the sharp corners, with the passage width on
+    the legs either side of each (a corner inside a narrow passage, or one in an open room)."""
     seg = np.diff(raw, axis=0)
     seg = seg[np.hypot(seg[:, 0], seg[:, 1]) > 0.0]
     seg_heading = np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))
@@ -478,7 +512,7 @@ def check(source: str, outdir: Path) -> Report:
     report.add(
         "max turn at a path vertex", f"{vertex_turn.max():.1f} deg" if len(vertex_turn) else "0"
     )
-    corners = sharp_corners(raw, s, pts, width)
+    corners = sharp_corners(raw, path.s, path.pts, width)
     report.corners = corners
     report.add(
         f"sharp corners (turn >= {SHARP_CORNER_DEG:g} deg)",
@@ -489,17 +523,22 @@ def check(source: str, outdir: Path) -> Report:
         or "none",
     )
 
-    # --- a follower on the path, facing along it, its predecessor a chord d_des ahead: the
-    # env's sensing and violation rules
+
+def check_retraced_pairs(scenario: Scenario, path: PathSamples, report: Report) -> None:
+    """A follower on the path, facing along it, its predecessor a chord ``d_des`` ahead: the
+    env's sensing (bearing ``|beta|``, line of sight ``min(d_l, d_r)``) and violation rules
+    (reported, not required)."""
+    cfg, pts, s = scenario.config, path.pts, path.s
+    d_des = cfg.formation.d_des
     partner = chord_partner(pts, d_des)
     idx = np.nonzero(partner >= 0)[0]
-    on_path = np.column_stack([pts[idx], heading[idx]])
+    on_path = np.column_stack([pts[idx], path.heading[idx]])
     sensed = sense_pairs(scenario, on_path, pts[partner[idx]])
     bearing = np.abs(sensed[:, SENSE_BETA])
     k_b = int(np.argmax(bearing))
     report.add(
         "max on-path bearing",
-        f"{bearing[k_b]:.3f} rad at s={s[idx[k_b]]:.2f} (beta_con = {beta_con:.3f})",
+        f"{bearing[k_b]:.3f} rad at s={s[idx[k_b]]:.2f} (beta_con = {cfg.camera.half_angle:.3f})",
     )
     sight = np.minimum(sensed[:, SENSE_D_SIGHT_LEFT], sensed[:, SENSE_D_SIGHT_RIGHT])
     k_s = int(np.argmin(sight))
@@ -517,7 +556,11 @@ def check(source: str, outdir: Path) -> Report:
         violation_summary(bad, len(idx)),
     )
 
-    # --- a closed-up pair on the path, the follower facing its predecessor: required
+
+def check_closed_up_pairs(scenario: Scenario, path: PathSamples, report: Report) -> None:
+    """A closed-up pair on the path, the follower facing its predecessor a chord ``d_close``
+    ahead (:func:`closest_spacing`): required to commit no violation."""
+    pts, s = path.pts, path.s
     d_close = closest_spacing(scenario)
     partner = chord_partner(pts, d_close)
     idx = np.nonzero(partner >= 0)[0]
@@ -536,7 +579,11 @@ def check(source: str, outdir: Path) -> Report:
             f"spacing the PPC funnel allows) violates a constraint ({summary})"
         )
 
-    # --- the default initial configuration (leader first), as the library builds it
+
+def check_initial_configuration(scenario: Scenario, path: PathSamples, report: Report) -> None:
+    """The default initial configuration (leader first), as the library builds it: feasible
+    (required), its clearances, and how straight the start stretch is."""
+    cfg, pts = scenario.config, path.pts
     poses = np.asarray(scenario.initial_poses)
     problems = initial_violations(cfg, scenario.workspace, poses)
     for problem in problems:
@@ -548,12 +595,12 @@ def check(source: str, outdir: Path) -> Report:
         "initial configuration",
         f"{'feasible' if not problems else 'INFEASIBLE'}; leader starts at "
         f"s={scenario.initial_progress:.2f}; min robot clearance {min(robot_clear):.3f} m "
-        f"(need > r = {r:.2f})",
+        f"(need > r = {cfg.robot.radius:.2f})",
     )
     # bearing of follower i if it faced along the path tangent (it faces its predecessor, so
     # this only measures how straight the start stretch is)
     nearest = [int(np.argmin(np.hypot(*(pts - p[:2]).T))) for p in poses[1:]]
-    along = np.column_stack([poses[1:, :2], heading[nearest]])
+    along = np.column_stack([poses[1:, :2], path.heading[nearest]])
     start_bearing = np.abs(sense_pairs(scenario, along, poses[:-1, :2])[:, SENSE_BETA])
     report.add(
         "start stretch",
@@ -561,7 +608,13 @@ def check(source: str, outdir: Path) -> Report:
         f"min line-of-sight clearance min(d_l, d_r) {start_sight.min():.3f} m",
     )
 
-    # --- the env's leader
+
+def check_env_leader(scenario: Scenario, raw: np.ndarray, report: Report) -> np.ndarray:
+    """The env's leader driven to its path's end (required to arrive, its trajectory checked
+    with ``check_leader_path``): run time, clearance, corner cutting, tightest turn; returns
+    the trajectory."""
+    cfg = scenario.config
+    boundary = scenario.free_space.boundary
     run = drive_leader(scenario)
     traj = run.trajectory
     lead_clear = shapely.distance(boundary, shapely.points(traj))
@@ -579,12 +632,12 @@ def check(source: str, outdir: Path) -> Report:
         f"{tightest_turn(traj):.2f} m",
     )
     try:
-        check_leader_path(free, traj, r, where="the env's leader as driven")
+        check_leader_path(
+            scenario.free_space, traj, cfg.robot.radius, where="the env's leader as driven"
+        )
     except ScenarioError as exc:
         report.failures.append(str(exc))
-
-    draw(scenario, pts, both, traj, clearance, report, outdir / f"{cfg.name}.png")
-    return report
+    return traj
 
 
 # --------------------------------------------------------------------------------------------
@@ -601,47 +654,19 @@ def draw(
     report: Report,
     out: Path,
 ) -> None:
+    """Draw ``scenario`` to ``out``: the workspace, the path sampled at ``pts`` coloured by its
+    ``clearance`` (``both``: where ``F_l`` and ``F_r`` engage together), the env leader's
+    trajectory ``traj`` and the initial configuration, titled with ``report``'s numbers."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.patches import Circle, Wedge
-    from matplotlib.patches import Polygon as MplPolygon
 
-    cfg = scenario.config
-    free = scenario.free_space
     xmin, ymin, xmax, ymax = scenario.workspace.bounds
     pad = 0.5
     aspect = (ymax - ymin + 2 * pad) / (xmax - xmin + 2 * pad)
     fig, ax = plt.subplots(figsize=(12, max(4.0, 12 * aspect) + 1.2))
-    ax.add_patch(
-        MplPolygon(
-            [
-                (xmin - pad, ymin - pad),
-                (xmax + pad, ymin - pad),
-                (xmax + pad, ymax + pad),
-                (xmin - pad, ymax + pad),
-            ],
-            color="0.55",
-        )
-    )
-    polys = list(getattr(free, "geoms", [free]))
-    for poly in polys:
-        ax.add_patch(MplPolygon(np.asarray(poly.exterior.coords), color="white"))
-    # the band of width r along the boundary where a robot centre would collide (drawn before
-    # the holes, which paint over the inside of the bands around inner obstacles)
-    band = free.boundary.buffer(cfg.robot.radius).intersection(free)
-    for g in getattr(band, "geoms", [band]):
-        if g.geom_type == "Polygon":
-            ax.add_patch(MplPolygon(np.asarray(g.exterior.coords), color="#f4d0d0", lw=0))
-            for hole in g.interiors:
-                ax.add_patch(MplPolygon(np.asarray(hole.coords), color="white", lw=0))
-    for poly in polys:
-        for hole in poly.interiors:
-            ax.add_patch(
-                MplPolygon(np.asarray(hole.coords), facecolor="0.55", edgecolor="k", lw=0.6)
-            )
-        ax.plot(*poly.exterior.xy, color="k", lw=0.8)
+    draw_workspace(ax, scenario, pad)
     sc = ax.scatter(pts[:, 0], pts[:, 1], c=clearance, s=3, cmap="viridis", zorder=3)
     fig.colorbar(sc, ax=ax, shrink=0.6, label="path clearance [m]")
     ax.plot(*np.asarray(scenario.leader_path).T, "o", ms=2, color="tab:blue", zorder=4)
@@ -656,8 +681,74 @@ def draw(
             zorder=5,
             label="clearance - r < delta on both sides",
         )
-    # the default initial configuration, leader first; each follower's field of view about its
-    # heading and its line of sight to its predecessor
+    draw_initial_configuration(ax, scenario)
+    ax.annotate("start", pts[0], xytext=(5, -12), textcoords="offset points")
+    ax.annotate("end", pts[-1], xytext=(5, 5), textcoords="offset points")
+    ax.set_xlim(xmin - pad, xmax + pad)
+    ax.set_ylim(ymin - pad, ymax + pad)
+    ax.set_aspect("equal")
+    ax.set_xticks(np.arange(math.floor(xmin), math.ceil(xmax) + 1, 1.0), minor=True)
+    ax.set_yticks(np.arange(math.floor(ymin), math.ceil(ymax) + 1, 1.0), minor=True)
+    ax.grid(which="both", lw=0.2, color="0.8")
+    ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.06), ncol=3, fontsize=8)
+    lines = [
+        f"{scenario.config.name}: {report.values['path length']}, "
+        f"leader {report.values['env leader']}",
+        f"min clearance {report.values['min path clearance']}",
+        f"narrowest passage {report.values['narrowest passage']}; "
+        f"{len(report.corners)} sharp corners (>= {SHARP_CORNER_DEG:g} deg), "
+        f"max turn at a vertex {report.values['max turn at a path vertex']}",
+    ]
+    ax.set_title("\n".join(lines), fontsize=8)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    report.add("png", str(out))
+
+
+def draw_workspace(ax: Any, scenario: Scenario, pad: float) -> None:
+    """The obstacles (grey, ``pad`` beyond the bounds), the free space (white) and the band of
+    width ``r`` along its boundary where a robot centre would collide (pink)."""
+    from matplotlib.patches import Polygon as MplPolygon
+
+    free = scenario.free_space
+    xmin, ymin, xmax, ymax = scenario.workspace.bounds
+    ax.add_patch(
+        MplPolygon(
+            [
+                (xmin - pad, ymin - pad),
+                (xmax + pad, ymin - pad),
+                (xmax + pad, ymax + pad),
+                (xmin - pad, ymax + pad),
+            ],
+            color="0.55",
+        )
+    )
+    polys = list(getattr(free, "geoms", [free]))
+    for poly in polys:
+        ax.add_patch(MplPolygon(np.asarray(poly.exterior.coords), color="white"))
+    # the band is drawn before the holes, which paint over the inside of the bands around
+    # inner obstacles
+    band = free.boundary.buffer(scenario.config.robot.radius).intersection(free)
+    for g in getattr(band, "geoms", [band]):
+        if g.geom_type == "Polygon":
+            ax.add_patch(MplPolygon(np.asarray(g.exterior.coords), color="#f4d0d0", lw=0))
+            for hole in g.interiors:
+                ax.add_patch(MplPolygon(np.asarray(hole.coords), color="white", lw=0))
+    for poly in polys:
+        for hole in poly.interiors:
+            ax.add_patch(
+                MplPolygon(np.asarray(hole.coords), facecolor="0.55", edgecolor="k", lw=0.6)
+            )
+        ax.plot(*poly.exterior.xy, color="k", lw=0.8)
+
+
+def draw_initial_configuration(ax: Any, scenario: Scenario) -> None:
+    """The default initial configuration, leader first; each follower's field of view about
+    its heading and its line of sight to its predecessor."""
+    from matplotlib.patches import Circle, Wedge
+
+    cfg = scenario.config
     poses = np.asarray(scenario.initial_poses)
     r, beta, rng = cfg.robot.radius, cfg.camera.half_angle, cfg.camera.range
     for i, (x, y, theta) in enumerate(poses):
@@ -677,27 +768,6 @@ def draw(
             )
         )
         ax.plot(*np.stack([poses[i, :2], poses[i - 1, :2]]).T, color="tab:green", lw=0.8, zorder=6)
-    ax.annotate("start", pts[0], xytext=(5, -12), textcoords="offset points")
-    ax.annotate("end", pts[-1], xytext=(5, 5), textcoords="offset points")
-    ax.set_xlim(xmin - pad, xmax + pad)
-    ax.set_ylim(ymin - pad, ymax + pad)
-    ax.set_aspect("equal")
-    ax.set_xticks(np.arange(math.floor(xmin), math.ceil(xmax) + 1, 1.0), minor=True)
-    ax.set_yticks(np.arange(math.floor(ymin), math.ceil(ymax) + 1, 1.0), minor=True)
-    ax.grid(which="both", lw=0.2, color="0.8")
-    ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.06), ncol=3, fontsize=8)
-    lines = [
-        f"{cfg.name}: {report.values['path length']}, leader {report.values['env leader']}",
-        f"min clearance {report.values['min path clearance']}",
-        f"narrowest passage {report.values['narrowest passage']}; "
-        f"{len(report.corners)} sharp corners (>= {SHARP_CORNER_DEG:g} deg), "
-        f"max turn at a vertex {report.values['max turn at a path vertex']}",
-    ]
-    ax.set_title("\n".join(lines), fontsize=8)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    report.add("png", str(out))
 
 
 # --------------------------------------------------------------------------------------------

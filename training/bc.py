@@ -314,6 +314,8 @@ def _clone(
     out: Path,
     on_iteration: Callable[[dict[str, Any]], None] | None,
 ) -> BCRun:
+    """DAgger: ``bc.iterations`` rollouts of the mixture ``beta_i`` expert / ``1 - beta_i``
+    learner, each aggregated and the actor regressed on the aggregate; then the save."""
     device = torch.device(ppo.device)
     seed = process_seed(ppo.seed, 0)
     torch.manual_seed(seed)
@@ -323,7 +325,6 @@ def _clone(
 
     core, obs = make_core(ppo, segment=0)
     spec = SlotSpec.of(ppo, core)
-    B, N = core.batch_size, core.n_followers
     K = int(core.single_observation_space.shape[0])
     scale = (
         spec.obs_scale
@@ -336,46 +337,19 @@ def _clone(
     net = ActorCritic(K, ppo.net_arch, ppo.log_std_init, cost_head=False).to(device)
     optimizer = torch.optim.Adam(net.actor_parameters(), lr=bc.learning_rate)
 
-    train_x: list[NDArray[np.float32]] = []
-    train_y: list[NDArray[np.float32]] = []
-    hold_x: list[NDArray[np.float32]] = []
-    hold_y: list[NDArray[np.float32]] = []
+    aggregate = _Aggregate()
     history: list[dict[str, Any]] = []
     started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     clock = time.perf_counter()
     commit = git_commit()
-    samples_seen = 0
 
     for iteration in range(bc.iterations):
         beta = bc.beta(iteration)
         net.eval()
         data = collector.rollout(net, beta, bc.steps_per_iteration)
-        # ----- aggregate (a held-out share of each iteration is kept for the error) ---------
-        order = rng.permutation(len(data.x))
-        n_hold = round(bc.holdout * len(data.x))
-        hold_x.append(data.x[order[:n_hold]])
-        hold_y.append(data.y[order[:n_hold]])
-        train_x.append(data.x[order[n_hold:]])
-        train_y.append(data.y[order[n_hold:]])
-        samples_seen += len(data.x)
-        while sum(len(a) for a in train_x) > bc.max_samples and len(train_x) > 1:
-            train_x.pop(0)
-            train_y.pop(0)
-        X = torch.as_tensor(np.concatenate(train_x), device=device)[-bc.max_samples :]
-        Y = torch.as_tensor(np.concatenate(train_y), device=device)[-bc.max_samples :]
-        # ----- regress the actor on the aggregate ------------------------------------------
-        net.train()
-        loss_sum, loss_n = 0.0, 0
-        for _epoch in range(bc.epochs):
-            perm = torch.randperm(len(X), generator=gen).to(device)
-            for start in range(0, len(X), bc.batch_size):
-                idx = perm[start : start + bc.batch_size]
-                loss = ((net.actor(X[idx]) - Y[idx]) ** 2).sum(-1).mean()
-                optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                optimizer.step()
-                loss_sum += float(loss.detach()) * len(idx)
-                loss_n += len(idx)
+        aggregate.add(data, bc, rng)
+        X, Y = aggregate.training_set(bc, device)
+        train_error = _regress(net, optimizer, X, Y, bc, gen, device)
         teams = data.team_success
         entry = {
             "iteration": iteration,
@@ -384,9 +358,11 @@ def _clone(
             "aggregate": len(X),
             "team_episodes": len(teams),
             "team_success": float(teams.mean()) if len(teams) else None,
-            "train_error": loss_sum / max(loss_n, 1),
-            "holdout_error": action_error(net, hold_x, hold_y, device),
-            "holdout_error_this_iteration": action_error(net, hold_x[-1:], hold_y[-1:], device),
+            "train_error": train_error,
+            "holdout_error": action_error(net, aggregate.hold_x, aggregate.hold_y, device),
+            "holdout_error_this_iteration": action_error(
+                net, aggregate.hold_x[-1:], aggregate.hold_y[-1:], device
+            ),
             "label_clipped": [float(c) for c in data.label_clipped],
             "wall_time_s": round(time.perf_counter() - clock, 3),
         }
@@ -394,9 +370,99 @@ def _clone(
         if on_iteration is not None:
             on_iteration(entry)
 
-    # ----- save: an ordinary SB3 PPO zip of the actor (the critic is untrained) -------------
-    out.mkdir(parents=True, exist_ok=True)
     net = net.cpu()
+    path = _save_clone(
+        bc,
+        ppo,
+        out,
+        core,
+        spec,
+        net,
+        aggregate.samples_seen,
+        history,
+        started=started,
+        clock=clock,
+        commit=commit,
+    )
+    return BCRun(path, history, net)
+
+
+@dataclass
+class _Aggregate:
+    """DAgger's aggregate: each iteration's samples, a held-out share of each kept for the
+    held-out error, the oldest training samples dropped beyond ``max_samples``."""
+
+    train_x: list[NDArray[np.float32]] = dataclasses.field(default_factory=list)
+    train_y: list[NDArray[np.float32]] = dataclasses.field(default_factory=list)
+    hold_x: list[NDArray[np.float32]] = dataclasses.field(default_factory=list)
+    hold_y: list[NDArray[np.float32]] = dataclasses.field(default_factory=list)
+    samples_seen: int = 0
+
+    def add(self, data: Rollout, bc: BCConfig, rng: np.random.Generator) -> None:
+        """Aggregate an iteration's samples, a random ``holdout`` share of them held out."""
+        order = rng.permutation(len(data.x))
+        n_hold = round(bc.holdout * len(data.x))
+        self.hold_x.append(data.x[order[:n_hold]])
+        self.hold_y.append(data.y[order[:n_hold]])
+        self.train_x.append(data.x[order[n_hold:]])
+        self.train_y.append(data.y[order[n_hold:]])
+        self.samples_seen += len(data.x)
+        while sum(len(a) for a in self.train_x) > bc.max_samples and len(self.train_x) > 1:
+            self.train_x.pop(0)
+            self.train_y.pop(0)
+
+    def training_set(self, bc: BCConfig, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+        """The inputs and labels to regress on: the newest ``max_samples`` training samples."""
+        X = torch.as_tensor(np.concatenate(self.train_x), device=device)[-bc.max_samples :]
+        Y = torch.as_tensor(np.concatenate(self.train_y), device=device)[-bc.max_samples :]
+        return X, Y
+
+
+def _regress(
+    net: ActorCritic,
+    optimizer: torch.optim.Optimizer,
+    X: torch.Tensor,
+    Y: torch.Tensor,
+    bc: BCConfig,
+    gen: torch.Generator,
+    device: torch.device,
+) -> float:
+    """Regress the actor's mean on the labels: ``bc.epochs`` passes of Adam over minibatches,
+    the squared error summed over the two action components; returns the mean training loss."""
+    net.train()
+    loss_sum, loss_n = 0.0, 0
+    for _epoch in range(bc.epochs):
+        perm = torch.randperm(len(X), generator=gen).to(device)
+        for start in range(0, len(X), bc.batch_size):
+            idx = perm[start : start + bc.batch_size]
+            loss = ((net.actor(X[idx]) - Y[idx]) ** 2).sum(-1).mean()
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            loss_sum += float(loss.detach()) * len(idx)
+            loss_n += len(idx)
+    return loss_sum / max(loss_n, 1)
+
+
+def _save_clone(
+    bc: BCConfig,
+    ppo: FastPPOConfig,
+    out: Path,
+    core: BatchedPlatoon,
+    spec: SlotSpec,
+    net: ActorCritic,
+    samples_seen: int,
+    history: list[dict[str, Any]],
+    *,
+    started: str,
+    clock: float,
+    commit: dict[str, Any],
+) -> Path:
+    """Save the clone (``net`` on the CPU) as an ordinary SB3 ``PPO`` zip of the actor (the
+    critic is untrained) with its ``model.json`` and ``model.state.pt`` in ``out``; ``started``,
+    ``clock`` (``perf_counter`` at the start) and ``commit`` are the run's."""
+    B, N = core.batch_size, core.n_followers
+    out.mkdir(parents=True, exist_ok=True)
     state_file = out / "model.state.pt"
     torch.save({"network": net.state_dict()}, state_file)
     saver = sb3_model(ppo, spec, max(2, ppo.n_steps * B * N))
@@ -434,8 +500,7 @@ def _clone(
         "versions": library_versions(stable_baselines3, torch),
         "command": list(sys.argv),
     }
-    path = save_model(saver, out / "model.zip", meta)
-    return BCRun(path, history, net)
+    return save_model(saver, out / "model.zip", meta)
 
 
 def action_error(

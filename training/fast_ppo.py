@@ -902,43 +902,180 @@ def _learn(
     segment: int,
     trainer: str,
 ) -> FastRun:
-    """The learner, top to bottom: set up, then collect / advantages / multiplier / update."""
+    """The learner, top to bottom: set up, then collect / advantages / multiplier / update,
+    a checkpoint every ``checkpoint_every`` transitions, the model at the end (or at Ctrl-C)."""
     device = torch.device(cfg.device)
     seed = process_seed(cfg.seed, segment)
     torch.manual_seed(seed)
     gen = torch.Generator(device=device)
     gen.manual_seed(seed)
 
-    # --- envs: B copies, N follower slots each, one compiled step for all -------------------
     core, first_obs = make_core(cfg, segment)
     spec = SlotSpec.of(cfg, core)
-    B, N = core.batch_size, core.n_followers
-    S, T = B * N, cfg.n_steps
-    # The live follower slots of each copy (BatchedPlatoon.live): all of them unless the
-    # scenario draws formations with fewer followers than N; then they change at every reset,
-    # and samples, counts and team outcomes read the slots live when each sample was observed.
-    live = core.live
-    variable = core.variable_followers
-    live_flat = torch.as_tensor(live.reshape(-1), device=device)
-    n_live = int(live.sum())
-    if cfg.batch_size > T * n_live:
-        raise ValueError(
-            f"batch_size: {cfg.batch_size} exceeds the rollout n_steps * n_envs * followers = "
-            f"{T} * {B} * {N} = {T * n_live}"
-        )
-    scale = torch.as_tensor(
-        spec.obs_scale
-        if spec.obs_scale is not None
-        else np.ones(core.single_observation_space.shape, np.float32),
-        device=device,
+    slots = _Slots.of(cfg, core, spec, device)
+    learner = _new_learner(cfg, slots, stored, gen)
+    expert = None if cfg.residual is None else BatchedExpert(core, cfg.residual)
+    if stored is not None:
+        learner.restore(stored.state, cfg)
+    saver = sb3_model(cfg, spec, slots.T * slots.n_live)
+    out.mkdir(parents=True, exist_ok=True)
+    progress = _Progress(
+        out / PROGRESS_FILE, cfg.log_every, learner.timesteps, keep=stored is not None
     )
-    action_range = cfg.action_range
-    lagrangian = cfg.lagrangian
+    record = _Record.start(
+        cfg, out, core, spec, saver, stored, previous, segment, trainer, learner.timesteps
+    )
+    buf = _Rollout.start(cfg, slots, core, first_obs)
 
-    # --- network, optimiser, multiplier (restored when resuming) -----------------------------
-    K = int(core.single_observation_space.shape[0])  # the env's observation
-    n_in = int(spec.observation_space.shape[0])  # the policy's input (K, or K + 2)
-    net = ActorCritic(n_in, cfg.net_arch, cfg.log_std_init, cost_head=lagrangian).to(device)
+    bar = None
+    if cfg.progress_bar:
+        bar = tqdm(total=cfg.timesteps, initial=learner.timesteps, unit="step", dynamic_ncols=True)
+    last_checkpoint = learner.timesteps
+    interrupted = False
+    try:
+        while learner.timesteps < cfg.timesteps:
+            learner.net.eval()
+            with torch.no_grad():  # collect T steps, then log π_old, the values and GAE
+                rollout_costs, finals = _collect(
+                    cfg, slots, core, expert, learner, buf, progress, bar
+                )
+                behaviour = _behaviour(cfg, slots, learner.net, buf, finals)
+            lam = 0.0  # the multiplier moves on the rollout's costs before the update
+            if learner.multiplier is not None:
+                lam = _dual_ascent(learner.multiplier, rollout_costs)
+            _update(cfg, learner, _live_samples(cfg, slots, buf, behaviour), lam)
+            if cfg.checkpoint_every > 0 and (
+                learner.timesteps - last_checkpoint >= cfg.checkpoint_every
+            ):
+                last_checkpoint = learner.timesteps
+                record.save(learner, "checkpoint")
+    except KeyboardInterrupt:
+        interrupted = True
+        print(
+            f"\ninterrupted after {learner.timesteps} timesteps; saving the model so far",
+            file=sys.stderr,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    progress.maybe_write(learner.timesteps, learner.lam(), force=True)
+    path = record.save(learner, "model", interrupted)
+    return FastRun(path, learner.timesteps, interrupted, learner.lam())
+
+
+# --- set-up ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Slots:
+    """The samples of a rollout: ``B`` env copies of ``N`` follower slots (``S = B * N``
+    slots), ``T`` steps each; ``K`` the env's observation size, ``n_in`` the policy's input
+    size (``K``, or ``K + 2`` with ``previous_command``), ``scale`` the fixed observation
+    scale. The live slots of each copy (:attr:`BatchedPlatoon.live`) are all of them unless the
+    scenario draws formations with fewer followers than ``N`` (``variable``); then they change
+    at every reset, and samples, counts and team outcomes read the slots live when each sample
+    was observed. ``live_flat`` and ``n_live`` are the fixed formation's live slots."""
+
+    device: torch.device
+    B: int
+    N: int
+    S: int
+    T: int
+    K: int
+    n_in: int
+    variable: bool
+    live_flat: torch.Tensor
+    n_live: int
+    scale: torch.Tensor
+
+    @classmethod
+    def of(
+        cls, cfg: FastPPOConfig, core: BatchedPlatoon, spec: SlotSpec, device: torch.device
+    ) -> _Slots:
+        """``core``'s slots for ``cfg``; ``ValueError`` if a minibatch exceeds a rollout."""
+        B, N = core.batch_size, core.n_followers
+        live = core.live
+        n_live = int(live.sum())
+        if cfg.batch_size > cfg.n_steps * n_live:
+            raise ValueError(
+                f"batch_size: {cfg.batch_size} exceeds the rollout n_steps * n_envs * followers "
+                f"= {cfg.n_steps} * {B} * {N} = {cfg.n_steps * n_live}"
+            )
+        scale = torch.as_tensor(
+            spec.obs_scale
+            if spec.obs_scale is not None
+            else np.ones(core.single_observation_space.shape, np.float32),
+            device=device,
+        )
+        return cls(
+            device=device,
+            B=B,
+            N=N,
+            S=B * N,
+            T=cfg.n_steps,
+            K=int(core.single_observation_space.shape[0]),
+            n_in=int(spec.observation_space.shape[0]),
+            variable=core.variable_followers,
+            live_flat=torch.as_tensor(live.reshape(-1), device=device),
+            n_live=n_live,
+            scale=scale,
+        )
+
+    def policy_input(
+        self, cfg: FastPPOConfig, obs: NDArray[np.float32], sent: torch.Tensor
+    ) -> torch.Tensor:
+        """The policy's input ``(M, n_in)``: ``o_t / scale``, then (``previous_command``) the
+        slot's previous command ``a_{t-1}`` as sent."""
+        scaled = torch.as_tensor(obs, device=self.device).reshape(-1, self.K) / self.scale
+        return torch.cat([scaled, sent], dim=1) if cfg.previous_command else scaled
+
+
+@dataclass
+class _Learner:
+    """What is trained and what a saved point holds: the network, its optimiser, the
+    multiplier ``λ`` (PPO-Lagrangian), the frozen network the anchor term pulls the actor's
+    mean towards (``anchor_coef > 0``), the noise and minibatch generator, the transitions
+    and the rollouts trained on in the run (the value warm-up counts them)."""
+
+    net: ActorCritic
+    optimizer: torch.optim.Optimizer
+    multiplier: LagrangeMultiplier | None
+    anchor: ActorCritic | None
+    gen: torch.Generator
+    initialised_from: dict[str, Any] | None
+    timesteps: int = 0
+    rollouts: int = 0
+
+    def lam(self) -> float | None:
+        """``λ`` now (None without a multiplier)."""
+        return None if self.multiplier is None else self.multiplier.value
+
+    def restore(self, state: Mapping[str, Any], cfg: FastPPOConfig) -> None:
+        """Continue from a saved point's learner state."""
+        self.net.load_state_dict(state["network"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        if self.multiplier is not None:
+            self.multiplier.value = float(state["lambda"])
+        self.timesteps = int(state["timesteps"])
+        self.rollouts = int(state.get("rollouts", cfg.value_warmup))
+
+    def state(self) -> dict[str, Any]:
+        """The learner state a saved point's ``.state.pt`` holds."""
+        return {
+            "network": {k: v.detach().cpu() for k, v in self.net.state_dict().items()},
+            "optimizer": self.optimizer.state_dict(),
+            "lambda": self.lam(),
+            "timesteps": self.timesteps,
+            "rollouts": self.rollouts,
+        }
+
+
+def _new_learner(
+    cfg: FastPPOConfig, slots: _Slots, stored: _Stored | None, gen: torch.Generator
+) -> _Learner:
+    """The network (SB3's initialisation, ``init_from``'s weights, or a residual policy's zero
+    output layer), Adam, the multiplier and the anchor network of a run (before a resumed
+    run's state is restored)."""
+    device, n_in = slots.device, slots.n_in
+    net = ActorCritic(n_in, cfg.net_arch, cfg.log_std_init, cost_head=cfg.lagrangian).to(device)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.learning_rate, eps=1e-5)
     multiplier = (
         LagrangeMultiplier(
@@ -947,17 +1084,14 @@ def _learn(
             initial=cfg.lagrangian_init,
             max_value=cfg.lagrangian_max,
         )
-        if lagrangian
+        if cfg.lagrangian
         else None
     )
-    timesteps = 0
-    rollouts = 0  # rollouts trained on in the run (the value warm-up counts them)
     initialised_from = None
     if stored is None and cfg.init_from is not None:
         initialised_from = initial_weights(cfg.init_from, net)
     elif stored is not None:
         initialised_from = stored.meta.get("initialised_from")
-    # The frozen start the anchor term pulls the actor's mean towards (anchor_coef > 0).
     anchor: ActorCritic | None = None
     if cfg.anchor_coef > 0 and (cfg.init_from is not None or cfg.residual is None):
         if cfg.init_from is None:
@@ -974,66 +1108,104 @@ def _learn(
         with torch.no_grad():
             net.action_net.weight.zero_()
             net.action_net.bias.zero_()
-    expert = None if cfg.residual is None else BatchedExpert(core, cfg.residual)
-    if stored is not None:
-        net.load_state_dict(stored.state["network"])
-        optimizer.load_state_dict(stored.state["optimizer"])
-        if multiplier is not None:
-            multiplier.value = float(stored.state["lambda"])
-        timesteps = int(stored.state["timesteps"])
-        rollouts = int(stored.state.get("rollouts", cfg.value_warmup))
-    saver = sb3_model(cfg, spec, T * n_live)
-    out.mkdir(parents=True, exist_ok=True)
-    progress = _Progress(out / PROGRESS_FILE, cfg.log_every, timesteps, keep=stored is not None)
+    return _Learner(net, optimizer, multiplier, anchor, gen, initialised_from)
 
-    # --- what model.json records --------------------------------------------------------------
-    commit = git_commit()
-    started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
-    clock = time.perf_counter()
-    start_timesteps = timesteps
-    first_episodes = {
-        "env_seed_segment": segment,
-        "first_layouts": [sc.layout_index for sc in core.scenarios]
-        if core.source.procedural
-        else None,
-        "start_poses_sha256": _digest(core.poses),
-    }
-    env_meta = env_metadata(_train_view(cfg), core)
 
-    def save(name: str, interrupted: bool = False) -> Path:
-        state = {
-            "network": {k: v.detach().cpu() for k, v in net.state_dict().items()},
-            "optimizer": optimizer.state_dict(),
-            "lambda": None if multiplier is None else multiplier.value,
-            "timesteps": timesteps,
-            "rollouts": rollouts,
+# --- saved points ---------------------------------------------------------------------------
+@dataclass
+class _Record:
+    """What ``model.json`` records of this segment beside the learner state, and the SB3
+    ``PPO`` object the weights are saved in; :meth:`save` writes a saved point."""
+
+    cfg: FastPPOConfig
+    out: Path
+    spec: SlotSpec
+    saver: PPO
+    stored: _Stored | None
+    previous: list[dict[str, Any]]
+    trainer: str
+    commit: dict[str, Any]
+    started: str
+    clock: float
+    first_episodes: dict[str, Any]
+    env_meta: dict[str, Any]
+    start_timesteps: int
+
+    @classmethod
+    def start(
+        cls,
+        cfg: FastPPOConfig,
+        out: Path,
+        core: BatchedPlatoon,
+        spec: SlotSpec,
+        saver: PPO,
+        stored: _Stored | None,
+        previous: list[dict[str, Any]],
+        segment: int,
+        trainer: str,
+        start_timesteps: int,
+    ) -> _Record:
+        """The record of segment ``segment`` (from ``start_timesteps``), its clock started
+        now."""
+        commit = git_commit()
+        started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+        clock = time.perf_counter()
+        first_episodes = {
+            "env_seed_segment": segment,
+            "first_layouts": [sc.layout_index for sc in core.scenarios]
+            if core.source.procedural
+            else None,
+            "start_poses_sha256": _digest(core.poses),
         }
-        state_file = out / f"{name}.state.pt"
-        digest = _atomic_torch_save(state, state_file)
-        saver.policy.load_state_dict({k: v.detach().cpu() for k, v in net.sb3_state_dict().items()})
-        saver.num_timesteps = timesteps
+        env_meta = env_metadata(_train_view(cfg), core)
+        return cls(
+            cfg=cfg,
+            out=out,
+            spec=spec,
+            saver=saver,
+            stored=stored,
+            previous=previous,
+            trainer=trainer,
+            commit=commit,
+            started=started,
+            clock=clock,
+            first_episodes=first_episodes,
+            env_meta=env_meta,
+            start_timesteps=start_timesteps,
+        )
+
+    def save(self, learner: _Learner, name: str, interrupted: bool = False) -> Path:
+        """Save ``learner`` as the point ``name`` (``model`` or ``checkpoint``): the learner
+        state, then the SB3 zip and its JSON (:func:`training.policies.save_model`)."""
+        cfg, stored, timesteps = self.cfg, self.stored, learner.timesteps
+        state_file = self.out / f"{name}.state.pt"
+        digest = _atomic_torch_save(learner.state(), state_file)
+        sb3_state = learner.net.sb3_state_dict()
+        self.saver.policy.load_state_dict({k: v.detach().cpu() for k, v in sb3_state.items()})
+        self.saver.num_timesteps = timesteps
         this = segment_metadata(
-            started_at=started,
-            wall_time_s=time.perf_counter() - clock,
-            timesteps_start=start_timesteps,
+            started_at=self.started,
+            wall_time_s=time.perf_counter() - self.clock,
+            timesteps_start=self.start_timesteps,
             timesteps_end=timesteps,
             resumed_from=None if stored is None else f"{stored.name}.zip",
-            commit=commit,
+            commit=self.commit,
         )
-        this.update(first_episodes)
+        this.update(self.first_episodes)
+        multiplier, initialised_from = learner.multiplier, learner.initialised_from
         meta: dict[str, Any] = {
             "algo": cfg.algo,
-            "trainer": trainer,
+            "trainer": self.trainer,
             **({"residual": cfg.residual} if cfg.residual is not None else {}),
             **({"previous_command": True} if cfg.previous_command else {}),
             **({"initialised_from": initialised_from} if initialised_from else {}),
-            **env_meta,
-            **adapter_metadata(spec),
+            **self.env_meta,
+            **adapter_metadata(self.spec),
             "timesteps": timesteps,
             "timesteps_requested": cfg.timesteps,
             **({"lagrange_multiplier": multiplier.value} if multiplier is not None else {}),
-            **commit,
-            **timing_metadata([*previous, this], timesteps),
+            **self.commit,
+            **timing_metadata([*self.previous, this], timesteps),
             "learner_state": state_file.name,
             "learner_state_sha256": digest,
             "config": json_config(cfg),
@@ -1041,209 +1213,331 @@ def _learn(
         }
         if name == "model":
             meta["interrupted"] = interrupted
-        return save_model(saver, out / f"{name}.zip", meta)
+        return save_model(self.saver, self.out / f"{name}.zip", meta)
 
-    # --- rollout storage (device tensors, time-major: [t, slot]) ------------------------------
-    def zeros(*shape: int) -> torch.Tensor:
-        return torch.zeros((T, *shape), dtype=torch.float32, device=device)
 
-    obs_buf, act_buf, rew_buf, done_buf = zeros(S, n_in), zeros(S, 2), zeros(S), zeros(S)
-    # the law's normalised, clipped command of a residual policy (zeros otherwise)
-    base_buf = zeros(S, 2)
-    raw_obs = first_obs
+# --- collection -----------------------------------------------------------------------------
+@dataclass
+class _Rollout:
+    """The rollout storage (device tensors, time-major: ``[t, slot]``) and what collection
+    carries from one rollout to the next: the env's last observation (raw, and as the
+    policy's input), each slot's last command as sent, the live slots and the returns and
+    costs of the episodes under way."""
 
-    def law_action(raw: NDArray[np.float32]) -> torch.Tensor:
-        assert expert is not None
-        base, _ = to_normalised(expert.act(raw), action_range)
-        return torch.as_tensor(base, device=device).reshape(S, 2)
+    obs: torch.Tensor
+    act: torch.Tensor
+    rew: torch.Tensor
+    done: torch.Tensor
+    #: the law's normalised, clipped command of a residual policy (zeros otherwise)
+    base: torch.Tensor
+    cost: torch.Tensor | None
+    #: the live samples
+    live_samples: torch.Tensor
+    raw_obs: NDArray[np.float32]
+    next_obs: torch.Tensor
+    #: previous_command: each slot's last command as sent (normalised, clipped), the
+    #: standstill at an episode's start
+    sent: torch.Tensor
+    standstill: torch.Tensor
+    live: NDArray[np.bool_]
+    live_slots: NDArray[np.bool_]
+    episode_return: NDArray[np.float64]
+    episode_cost: NDArray[np.float64]
 
-    cost_buf = zeros(S) if lagrangian else None
-    live_slots = live.reshape(-1)
-    live_buf = torch.ones((T, S), dtype=torch.bool, device=device)  # the live samples
-    episode_return = np.zeros(S)
-    episode_cost = np.zeros(S)
-    # previous_command: each slot's last command as sent (normalised, clipped), the standstill
-    # at an episode's start; the policy reads [o_t / scale, a_{t-1}]
-    standstill = torch.as_tensor(to_normalised(np.zeros(2), action_range)[0], device=device)
-    sent = standstill.repeat(S, 1)
+    @classmethod
+    def start(
+        cls, cfg: FastPPOConfig, slots: _Slots, core: BatchedPlatoon, first_obs: NDArray[Any]
+    ) -> _Rollout:
+        """Empty storage, and the copies at their first observations."""
+        T, S, device = slots.T, slots.S, slots.device
 
-    def policy_input(obs: NDArray[np.float32], previous: torch.Tensor) -> torch.Tensor:
-        scaled = torch.as_tensor(obs, device=device).reshape(-1, K) / scale
-        return torch.cat([scaled, previous], dim=1) if cfg.previous_command else scaled
+        def zeros(*shape: int) -> torch.Tensor:
+            return torch.zeros((T, *shape), dtype=torch.float32, device=device)
 
-    next_obs = policy_input(first_obs, sent)
-
-    def lam_now() -> float | None:
-        return None if multiplier is None else multiplier.value
-
-    bar = None
-    if cfg.progress_bar:
-        bar = tqdm(total=cfg.timesteps, initial=timesteps, unit="step", dynamic_ncols=True)
-    last_checkpoint = timesteps
-    interrupted = False
-    try:
-        while timesteps < cfg.timesteps:
-            # ===== collect T steps of every slot: one forward of the actor, one env call ======
-            # Only the actor runs per step; the values and log-probabilities of the behaviour
-            # policy (unchanged during the rollout) are computed after it in one large batch.
-            rollout_costs: list[NDArray[np.float64]] = []
-            finals: list[tuple[int, NDArray[np.int64], torch.Tensor]] = []
-            net.eval()
-            with torch.no_grad():
-                std = torch.exp(net.log_std)
-                for t in range(T):
-                    mean = net.actor(next_obs)
-                    if expert is not None:
-                        base_buf[t] = law_action(raw_obs)
-                        mean = mean + base_buf[t]
-                    action = mean + std * torch.randn(mean.shape, generator=gen, device=device)
-                    obs_buf[t] = next_obs
-                    act_buf[t] = action
-                    if variable:
-                        live_buf[t] = torch.as_tensor(live_slots, device=device)
-                    # SB3 clips the sample to the action Box before the adapter maps it.
-                    sent = action.clamp(-1.0, 1.0)
-                    physical = action_range.to_physical(sent.cpu().numpy())
-                    obs, reward, terminated, truncated, info = core.step(physical.reshape(B, N, 2))
-                    reward = reward.reshape(S)
-                    cost = COST_OF_MASK[info["violations"]].reshape(S)
-                    episode_return += reward
-                    episode_cost += cost
-                    ended = terminated | truncated
-                    slot_ended = np.repeat(ended, N)
-                    raw_obs = obs
-                    if ended.any():
-                        if expert is not None:  # the laws of the copies that reset start over
-                            expert.restart(ended)
-                        # A time limit is bootstrapped (r + γ V(o_T)): keep its final obs.
-                        limit = np.repeat(truncated & ~terminated, N)
-                        if limit.any():
-                            index = np.flatnonzero(limit)
-                            final = info["final_observation"].reshape(S, K)[limit]
-                            where = torch.as_tensor(index, device=device)
-                            finals.append((t, index, policy_input(final, sent[where])))
-                        # the slots that start over have sent nothing yet
-                        sent[torch.as_tensor(slot_ended, device=device)] = standstill
-                        done = slot_ended & live_slots
-                        costs = episode_cost[done].copy()
-                        team = (episode_cost.reshape(B, N) == 0) | ~live
-                        progress.add(episode_return[done].copy(), costs, team.all(1)[ended])
-                        rollout_costs.append(costs)
-                        episode_return[slot_ended] = 0.0
-                        episode_cost[slot_ended] = 0.0
-                    rew_buf[t] = torch.as_tensor(reward, device=device)
-                    done_buf[t] = torch.as_tensor(slot_ended, device=device)
-                    if cost_buf is not None:
-                        cost_buf[t] = torch.as_tensor(cost, device=device)
-                    next_obs = policy_input(obs, sent)
-                    timesteps += int(live_slots.sum()) if variable else n_live
-                    if variable:  # the envs that reset drew new formations
-                        live = core.live
-                        live_slots = live.reshape(-1)
-                    progress.maybe_write(timesteps, lam_now())
-                    if bar is not None:
-                        bar.update(int(live_buf[t].sum()) if variable else n_live)
-
-                # ===== the behaviour policy's log π and values, the time-limit bootstraps =====
-                mean = net.actor(obs_buf.reshape(T * S, n_in)) + base_buf.reshape(T * S, 2)
-                logp_buf = gaussian_log_prob(act_buf.reshape(T * S, 2), mean, net.log_std)
-                logp_buf = logp_buf.reshape(T, S)
-                values, cvalues = net.critics(obs_buf.reshape(T * S, n_in))
-                val_buf = values.reshape(T, S)
-                cval_buf = None if cvalues is None else cvalues.reshape(T, S)
-                next_value, next_cvalue = net.critics(next_obs)
-                if finals:
-                    final_obs = torch.cat([f for _, _, f in finals])
-                    v_final, c_final = net.critics(final_obs)
-                    at = 0
-                    for t, index, _ in finals:
-                        rows = slice(at, at + len(index))
-                        where = torch.as_tensor(index, device=device)
-                        rew_buf[t, where] += cfg.gamma * v_final[rows]
-                        if cost_buf is not None and c_final is not None:
-                            cost_buf[t, where] += cfg.gamma * c_final[rows]
-                        at += len(index)
-
-                # ===== advantages: GAE(γ, λ_GAE) of the reward (and of the cost) ==============
-                advantages, returns = _gae(rew_buf, val_buf, done_buf, next_value, cfg)
-                cost_adv = cost_returns = None
-                if cost_buf is not None and cval_buf is not None and next_cvalue is not None:
-                    cost_adv, cost_returns = _gae(cost_buf, cval_buf, done_buf, next_cvalue, cfg)
-
-            # ===== the multiplier: dual ascent on the rollout's episode costs, before the update
-            lam = 0.0
-            if multiplier is not None:
-                costs_all = np.concatenate(rollout_costs) if rollout_costs else np.zeros(0)
-                lam = multiplier.update(costs_all)
-
-            # ===== PPO update: n_epochs over minibatches of the live samples ==================
-            def flat(x: torch.Tensor) -> torch.Tensor:
-                if variable:
-                    return x[live_buf]  # (samples, ...): the slots live when observed
-                x = x if n_live == S else x[:, live_flat]
-                return x.reshape(-1, *x.shape[2:])
-
-            b_obs, b_act, b_logp = flat(obs_buf), flat(act_buf), flat(logp_buf)
-            b_base = flat(base_buf)
-            b_adv, b_ret = flat(advantages), flat(returns)
-            b_cadv = b_cret = None
-            if cost_adv is not None and cost_returns is not None:
-                b_cadv, b_cret = flat(cost_adv), flat(cost_returns)
-                b_cadv = scaled_cost_advantages(b_cadv, cfg.cost_advantage)
-            n = b_obs.shape[0]
-            # The first value_warmup rollouts of the run train the critic(s) alone.
-            warmup = rollouts < cfg.value_warmup
-            rollouts += 1
-            net.train()
-            for _epoch in range(cfg.n_epochs):
-                order = torch.randperm(n, generator=gen, device=device)
-                for start in range(0, n, cfg.batch_size):
-                    idx = order[start : start + cfg.batch_size]
-                    if len(idx) < 2:
-                        continue  # no standardised advantage of one sample
-                    own, value, cvalue = net(b_obs[idx])
-                    mean = own + b_base[idx]  # b_base is zero unless residual
-                    logp = gaussian_log_prob(b_act[idx], mean, net.log_std)
-                    ratio = torch.exp(logp - b_logp[idx])
-                    adv = surrogate_advantages(
-                        b_adv[idx], None if b_cadv is None else b_cadv[idx], lam
-                    )
-                    clipped = torch.clamp(ratio, 1.0 - cfg.clip_range, 1.0 + cfg.clip_range)
-                    policy_loss = -torch.min(adv * ratio, adv * clipped).mean()
-                    value_loss = ((value - b_ret[idx]) ** 2).mean()
-                    if cvalue is not None and b_cret is not None:
-                        value_loss = value_loss + ((cvalue - b_cret[idx]) ** 2).mean()
-                    entropy = (0.5 + _LOG_SQRT_2PI + net.log_std).sum()
-                    loss = policy_loss - cfg.ent_coef * entropy + cfg.vf_coef * value_loss
-                    if cfg.anchor_coef > 0:
-                        # to the start network's output, or (residual, no start) to zero
-                        if anchor is not None:
-                            with torch.no_grad():
-                                target = anchor.actor(b_obs[idx])
-                            own = own - target
-                        drift = (own**2).sum(-1).mean()
-                        loss = loss + cfg.anchor_coef * drift
-                    if warmup:  # no gradient reaches the actor or log_std
-                        loss = cfg.vf_coef * value_loss
-                    optimizer.zero_grad(set_to_none=True)
-                    loss.backward()
-                    nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
-                    optimizer.step()
-
-            if cfg.checkpoint_every > 0 and timesteps - last_checkpoint >= cfg.checkpoint_every:
-                last_checkpoint = timesteps
-                save("checkpoint")
-    except KeyboardInterrupt:
-        interrupted = True
-        print(
-            f"\ninterrupted after {timesteps} timesteps; saving the model so far", file=sys.stderr
+        obs, act, rew, done = zeros(S, slots.n_in), zeros(S, 2), zeros(S), zeros(S)
+        base = zeros(S, 2)
+        cost = zeros(S) if cfg.lagrangian else None
+        live = core.live
+        live_samples = torch.ones((T, S), dtype=torch.bool, device=device)
+        standstill_np = to_normalised(np.zeros(2), cfg.action_range)[0]
+        standstill = torch.as_tensor(standstill_np, device=device)
+        sent = standstill.repeat(S, 1)
+        return cls(
+            obs=obs,
+            act=act,
+            rew=rew,
+            done=done,
+            base=base,
+            cost=cost,
+            live_samples=live_samples,
+            raw_obs=first_obs,
+            next_obs=slots.policy_input(cfg, first_obs, sent),
+            sent=sent,
+            standstill=standstill,
+            live=live,
+            live_slots=live.reshape(-1),
+            episode_return=np.zeros(S),
+            episode_cost=np.zeros(S),
         )
-    finally:
+
+
+#: A time-limited end of some slots at step ``t``: their indices and the policy's input at
+#: their final observations (bootstrapped: ``r + γ V(o_T)``).
+_Final = tuple[int, NDArray[np.int64], torch.Tensor]
+
+
+def _collect(
+    cfg: FastPPOConfig,
+    slots: _Slots,
+    core: BatchedPlatoon,
+    expert: BatchedExpert | None,
+    learner: _Learner,
+    buf: _Rollout,
+    progress: _Progress,
+    bar: tqdm | None,
+) -> tuple[list[NDArray[np.float64]], list[_Final]]:
+    """Collect ``T`` steps of every slot: one forward of the actor, one env call per step
+    (under ``torch.no_grad``). Only the actor runs per step; the values and
+    log-probabilities of the behaviour policy (unchanged during the rollout) are computed
+    after it in one large batch (:func:`_behaviour`). Returns the costs of the follower
+    episodes that ended, and the time-limited ends to bootstrap."""
+    rollout_costs: list[NDArray[np.float64]] = []
+    finals: list[_Final] = []
+    net, gen, device = learner.net, learner.gen, slots.device
+    std = torch.exp(net.log_std)
+    for t in range(slots.T):
+        mean = net.actor(buf.next_obs)
+        if expert is not None:
+            base, _ = to_normalised(expert.act(buf.raw_obs), cfg.action_range)
+            buf.base[t] = torch.as_tensor(base, device=device).reshape(slots.S, 2)
+            mean = mean + buf.base[t]
+        action = mean + std * torch.randn(mean.shape, generator=gen, device=device)
+        buf.obs[t] = buf.next_obs
+        buf.act[t] = action
+        if slots.variable:
+            buf.live_samples[t] = torch.as_tensor(buf.live_slots, device=device)
+        # SB3 clips the sample to the action Box before the adapter maps it.
+        buf.sent = action.clamp(-1.0, 1.0)
+        physical = cfg.action_range.to_physical(buf.sent.cpu().numpy())
+        obs, reward, terminated, truncated, info = core.step(physical.reshape(slots.B, slots.N, 2))
+        reward = reward.reshape(slots.S)
+        cost = COST_OF_MASK[info["violations"]].reshape(slots.S)
+        buf.episode_return += reward
+        buf.episode_cost += cost
+        ended = terminated | truncated
+        slot_ended = np.repeat(ended, slots.N)
+        buf.raw_obs = obs
+        if ended.any():
+            if expert is not None:  # the laws of the copies that reset start over
+                expert.restart(ended)
+            final = _time_limited(cfg, slots, buf, t, terminated, truncated, info)
+            if final is not None:
+                finals.append(final)
+            rollout_costs.append(_episodes_ended(slots, buf, progress, ended, slot_ended))
+        buf.rew[t] = torch.as_tensor(reward, device=device)
+        buf.done[t] = torch.as_tensor(slot_ended, device=device)
+        if buf.cost is not None:
+            buf.cost[t] = torch.as_tensor(cost, device=device)
+        buf.next_obs = slots.policy_input(cfg, obs, buf.sent)
+        learner.timesteps += int(buf.live_slots.sum()) if slots.variable else slots.n_live
+        if slots.variable:  # the envs that reset drew new formations
+            buf.live = core.live
+            buf.live_slots = buf.live.reshape(-1)
+        progress.maybe_write(learner.timesteps, learner.lam())
         if bar is not None:
-            bar.close()
-    progress.maybe_write(timesteps, lam_now(), force=True)
-    path = save("model", interrupted)
-    return FastRun(path, timesteps, interrupted, lam_now())
+            bar.update(int(buf.live_samples[t].sum()) if slots.variable else slots.n_live)
+    return rollout_costs, finals
+
+
+def _time_limited(
+    cfg: FastPPOConfig,
+    slots: _Slots,
+    buf: _Rollout,
+    t: int,
+    terminated: NDArray[np.bool_],
+    truncated: NDArray[np.bool_],
+    info: Mapping[str, Any],
+) -> _Final | None:
+    """The slots whose episode hit its time limit at step ``t`` (``truncated and not
+    terminated``) and the policy's input at their final observations (None: no such slot)."""
+    limit = np.repeat(truncated & ~terminated, slots.N)
+    if not limit.any():
+        return None
+    index = np.flatnonzero(limit)
+    final = info["final_observation"].reshape(slots.S, slots.K)[limit]
+    where = torch.as_tensor(index, device=slots.device)
+    return t, index, slots.policy_input(cfg, final, buf.sent[where])
+
+
+def _episodes_ended(
+    slots: _Slots,
+    buf: _Rollout,
+    progress: _Progress,
+    ended: NDArray[np.bool_],
+    slot_ended: NDArray[np.bool_],
+) -> NDArray[np.float64]:
+    """Close the episodes of the copies that ``ended``: their slots start over (standstill
+    sent, return and cost zero), the live followers' returns and costs and the teams'
+    successes go to ``progress``; returns the follower episodes' costs."""
+    # the slots that start over have sent nothing yet
+    buf.sent[torch.as_tensor(slot_ended, device=slots.device)] = buf.standstill
+    done = slot_ended & buf.live_slots
+    costs = buf.episode_cost[done].copy()
+    team = (buf.episode_cost.reshape(slots.B, slots.N) == 0) | ~buf.live
+    progress.add(buf.episode_return[done].copy(), costs, team.all(1)[ended])
+    buf.episode_return[slot_ended] = 0.0
+    buf.episode_cost[slot_ended] = 0.0
+    return costs
+
+
+# --- advantages -----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Behaviour:
+    """The behaviour policy's ``log π(a_t|o_t)`` ``(T, S)`` and the GAE advantages and returns
+    of the reward (and of the cost: PPO-Lagrangian)."""
+
+    logp: torch.Tensor
+    advantages: torch.Tensor
+    returns: torch.Tensor
+    cost_advantages: torch.Tensor | None
+    cost_returns: torch.Tensor | None
+
+
+def _behaviour(
+    cfg: FastPPOConfig, slots: _Slots, net: ActorCritic, buf: _Rollout, finals: list[_Final]
+) -> _Behaviour:
+    """The behaviour policy's ``log π`` and values of the rollout, the time-limit bootstraps
+    (``r + γ V(o_T)``, ``c + γ V_c(o_T)``, added to the stored rewards and costs), then
+    GAE(γ, λ_GAE) of the reward and of the cost (under ``torch.no_grad``)."""
+    T, S, n_in, device = slots.T, slots.S, slots.n_in, slots.device
+    mean = net.actor(buf.obs.reshape(T * S, n_in)) + buf.base.reshape(T * S, 2)
+    logp = gaussian_log_prob(buf.act.reshape(T * S, 2), mean, net.log_std).reshape(T, S)
+    values, cvalues = net.critics(buf.obs.reshape(T * S, n_in))
+    val_buf = values.reshape(T, S)
+    cval_buf = None if cvalues is None else cvalues.reshape(T, S)
+    next_value, next_cvalue = net.critics(buf.next_obs)
+    if finals:
+        final_obs = torch.cat([f for _, _, f in finals])
+        v_final, c_final = net.critics(final_obs)
+        at = 0
+        for t, index, _ in finals:
+            rows = slice(at, at + len(index))
+            where = torch.as_tensor(index, device=device)
+            buf.rew[t, where] += cfg.gamma * v_final[rows]
+            if buf.cost is not None and c_final is not None:
+                buf.cost[t, where] += cfg.gamma * c_final[rows]
+            at += len(index)
+
+    advantages, returns = _gae(buf.rew, val_buf, buf.done, next_value, cfg)
+    cost_adv = cost_returns = None
+    if buf.cost is not None and cval_buf is not None and next_cvalue is not None:
+        cost_adv, cost_returns = _gae(buf.cost, cval_buf, buf.done, next_cvalue, cfg)
+    return _Behaviour(logp, advantages, returns, cost_adv, cost_returns)
+
+
+def _dual_ascent(multiplier: LagrangeMultiplier, rollout_costs: list[NDArray[np.float64]]) -> float:
+    """The multiplier's dual ascent on the rollout's follower-episode costs, before the update:
+    ``λ ← clip(λ + η (Ĵ_c - b), 0, λ_max)``; returns the new ``λ``."""
+    costs_all = np.concatenate(rollout_costs) if rollout_costs else np.zeros(0)
+    return multiplier.update(costs_all)
+
+
+# --- the PPO update -------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Samples:
+    """A rollout's live samples, flattened: the policy's inputs, the actions, the law's part
+    of the mean (zero unless residual), ``log π_old``, the advantages and returns (and the cost
+    advantages, scaled by ``cost_advantage``, and cost returns)."""
+
+    obs: torch.Tensor
+    act: torch.Tensor
+    base: torch.Tensor
+    logp: torch.Tensor
+    adv: torch.Tensor
+    ret: torch.Tensor
+    cadv: torch.Tensor | None
+    cret: torch.Tensor | None
+
+
+def _live_samples(
+    cfg: FastPPOConfig, slots: _Slots, buf: _Rollout, behaviour: _Behaviour
+) -> _Samples:
+    """The live samples of the rollout: the slots live when each was observed."""
+
+    def flat(x: torch.Tensor) -> torch.Tensor:
+        if slots.variable:
+            return x[buf.live_samples]  # (samples, ...): the slots live when observed
+        x = x if slots.n_live == slots.S else x[:, slots.live_flat]
+        return x.reshape(-1, *x.shape[2:])
+
+    b_obs, b_act, b_logp = flat(buf.obs), flat(buf.act), flat(behaviour.logp)
+    b_base = flat(buf.base)
+    b_adv, b_ret = flat(behaviour.advantages), flat(behaviour.returns)
+    b_cadv = b_cret = None
+    if behaviour.cost_advantages is not None and behaviour.cost_returns is not None:
+        b_cadv, b_cret = flat(behaviour.cost_advantages), flat(behaviour.cost_returns)
+        b_cadv = scaled_cost_advantages(b_cadv, cfg.cost_advantage)
+    return _Samples(b_obs, b_act, b_base, b_logp, b_adv, b_ret, b_cadv, b_cret)
+
+
+def _update(cfg: FastPPOConfig, learner: _Learner, b: _Samples, lam: float) -> None:
+    """PPO's update: ``n_epochs`` passes over minibatches of the live samples, each a step of
+    Adam on ``-L + c_v (value losses) - c_e H (+ c_a drift)``, the gradient norm clipped. The
+    first ``value_warmup`` rollouts of the run train the critic(s) alone."""
+    net, optimizer, gen = learner.net, learner.optimizer, learner.gen
+    n = b.obs.shape[0]
+    warmup = learner.rollouts < cfg.value_warmup
+    learner.rollouts += 1
+    net.train()
+    for _epoch in range(cfg.n_epochs):
+        order = torch.randperm(n, generator=gen, device=b.obs.device)
+        for start in range(0, n, cfg.batch_size):
+            idx = order[start : start + cfg.batch_size]
+            if len(idx) < 2:
+                continue  # no standardised advantage of one sample
+            loss = _minibatch_loss(cfg, learner, b, idx, lam, warmup)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
+            optimizer.step()
+
+
+def _minibatch_loss(
+    cfg: FastPPOConfig,
+    learner: _Learner,
+    b: _Samples,
+    idx: torch.Tensor,
+    lam: float,
+    warmup: bool,
+) -> torch.Tensor:
+    """The loss of the minibatch ``idx``: the clipped surrogate ``L = E[min(ρ A, clip(ρ, 1 -
+    ε, 1 + ε) A)]`` (``A`` of :func:`surrogate_advantages`), the squared-error value losses,
+    the entropy bonus and the anchor's drift ``c_a E ||mu_theta(o) - mu_0(o)||^2``; in the
+    value warm-up, the value losses alone (no gradient reaches the actor or ``log_std``)."""
+    net, anchor = learner.net, learner.anchor
+    own, value, cvalue = net(b.obs[idx])
+    mean = own + b.base[idx]  # b.base is zero unless residual
+    logp = gaussian_log_prob(b.act[idx], mean, net.log_std)
+    ratio = torch.exp(logp - b.logp[idx])
+    adv = surrogate_advantages(b.adv[idx], None if b.cadv is None else b.cadv[idx], lam)
+    clipped = torch.clamp(ratio, 1.0 - cfg.clip_range, 1.0 + cfg.clip_range)
+    policy_loss = -torch.min(adv * ratio, adv * clipped).mean()
+    value_loss = ((value - b.ret[idx]) ** 2).mean()
+    if cvalue is not None and b.cret is not None:
+        value_loss = value_loss + ((cvalue - b.cret[idx]) ** 2).mean()
+    entropy = (0.5 + _LOG_SQRT_2PI + net.log_std).sum()
+    loss = policy_loss - cfg.ent_coef * entropy + cfg.vf_coef * value_loss
+    if cfg.anchor_coef > 0:
+        # to the start network's output, or (residual, no start) to zero
+        if anchor is not None:
+            with torch.no_grad():
+                target = anchor.actor(b.obs[idx])
+            own = own - target
+        drift = (own**2).sum(-1).mean()
+        loss = loss + cfg.anchor_coef * drift
+    if warmup:  # no gradient reaches the actor or log_std
+        loss = cfg.vf_coef * value_loss
+    return loss
 
 
 def _digest(array: NDArray[Any]) -> str:

@@ -601,6 +601,104 @@ def fast_actor(model: Any, clip: bool = True) -> FastActor | None:
     return FastActor(forward, low, high, module=policy)
 
 
+def _read_metadata(meta_file: Path) -> tuple[dict[str, Any], int]:
+    """A model's ``model.json`` and its ``format_version``; ``FileNotFoundError`` if it is
+    missing, ``ValueError`` if it is not a readable one of this code's versions."""
+    if not meta_file.is_file():
+        raise FileNotFoundError(
+            f"{meta_file} not found: a learned policy needs the JSON written beside its zip "
+            "(action range, observation normalisation, control period)"
+        )
+    try:
+        meta = json.loads(meta_file.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{meta_file} is not valid JSON: {e}") from None
+    except RecursionError:
+        raise ValueError(f"{meta_file} is not valid JSON: nested too deep") from None
+    if not isinstance(meta, dict) or meta.get("format") != METADATA_FORMAT:
+        raise ValueError(f"{meta_file} is not a {METADATA_FORMAT} file")
+    version = meta.get("format_version", 0)
+    if not isinstance(version, int) or version > METADATA_VERSION:
+        raise ValueError(
+            f"{meta_file} has format_version {version!r}; this code reads up to {METADATA_VERSION}"
+        )
+    return meta, version
+
+
+def _check_zip(path: Path, meta: Mapping[str, Any], version: int, meta_file: Path) -> None:
+    """Refuse a zip whose SHA-256 is not the one its JSON records (``ValueError``); a
+    ``format_version`` 1 JSON records none: warn once per file that it cannot be checked."""
+    where = str(meta_file)
+    if meta.get("zip_sha256") is not None:
+        reason = zip_mismatch(path, meta)
+        if reason is not None:
+            raise ValueError(f"{where}: refusing to load: {reason}")
+        return
+    if version >= 2:
+        raise ValueError(
+            f"{where}: format_version {version} but no zip_sha256: cannot tell whether "
+            f"{path.name} belongs to it"
+        )
+    key = meta_file.resolve()
+    if key not in _WARNED_UNCHECKED:
+        _WARNED_UNCHECKED.add(key)
+        warnings.warn(
+            f"{where} predates zip hashes (format_version {version}): cannot check "
+            f"that {path.name} belongs to it",
+            UserWarning,
+            stacklevel=3,  # the caller of LearnedPolicy.load
+        )
+
+
+def _load_model(
+    path: Path, meta: Mapping[str, Any], meta_file: Path, device: str
+) -> tuple[BaseAlgorithm | MLPActor, tuple[Any, Any]]:
+    """The model of ``path`` by ``meta``'s ``engine`` (SB3, or an exported RLlib actor) and
+    its input and output sizes (None where a space has no shape)."""
+    engine = str(meta.get("engine", "sb3")).lower()
+    if engine == "rllib":
+        actor = meta.get("actor") or {}
+        if actor.get("type", "mlp") != "mlp" or actor.get("activation", "tanh") != "tanh":
+            raise ValueError(f"{meta_file}: unknown exported actor {actor!r}")
+        mlp = MLPActor.load(path)
+        return mlp, (mlp.input_dim, mlp.output_dim)
+    if engine == "sb3":
+        algo = str(meta["algo"]).lower()
+        if algo not in ALGORITHMS:
+            raise ValueError(
+                f"{meta_file}: unknown algo {algo!r}, expected one of {list(ALGORITHMS)}"
+            )
+        model = ALGORITHMS[algo].load(path, device=device)
+        obs_shape = getattr(model.observation_space, "shape", None) or (None,)
+        act_shape = getattr(model.action_space, "shape", None) or (None,)
+        return model, (obs_shape[0], act_shape[0])
+    raise ValueError(f"{meta_file}: unknown engine {engine!r}, expected one of {ENGINES}")
+
+
+def _input_layout(
+    meta: Mapping[str, Any], dims: tuple[Any, Any], meta_file: Path
+) -> tuple[int, tuple[str, ...] | None]:
+    """The env observation's length a model of input and output sizes ``dims`` reads (its
+    input less a previous command's two values) and the recorded observation layout (None:
+    not recorded); ``ValueError`` if they are not a known layout mapped to 2 actions."""
+    where = str(meta_file)
+    extra = ACT_SIZE if meta.get("previous_command", False) else 0
+    n_obs = None if dims[0] is None else dims[0] - extra
+    if n_obs not in OBSERVATION_LAYOUTS or dims[1] != ACT_SIZE:
+        read = f"{dims[0]} ({n_obs} + the previous command)" if extra else dims[0]
+        raise ValueError(
+            f"{meta_file}: the model maps {read} -> {dims[1]}, expected "
+            f"{_sizes_text(None)}{' + 2' if extra else ''} -> {ACT_SIZE}"
+        )
+    layout = _parse_layout(meta.get("observation_layout"), where)
+    if layout is not None and len(layout) != n_obs:
+        raise ValueError(
+            f"{meta_file}: observation_layout has {len(layout)} names, the model reads "
+            f"{n_obs} observations"
+        )
+    return n_obs, layout
+
+
 class LearnedPolicy:
     """A trained model (SB3, or an RLlib actor) acting for every follower (parameter sharing).
 
@@ -744,84 +842,14 @@ class LearnedPolicy:
         if path.is_dir():
             path = path / "model.zip"
         meta_file = metadata_path(path)
-        if not meta_file.is_file():
-            raise FileNotFoundError(
-                f"{meta_file} not found: a learned policy needs the JSON written beside its zip "
-                "(action range, observation normalisation, control period)"
-            )
-        try:
-            meta = json.loads(meta_file.read_text())
-        except (UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise ValueError(f"{meta_file} is not valid JSON: {e}") from None
-        except RecursionError:
-            raise ValueError(f"{meta_file} is not valid JSON: nested too deep") from None
-        if not isinstance(meta, dict) or meta.get("format") != METADATA_FORMAT:
-            raise ValueError(f"{meta_file} is not a {METADATA_FORMAT} file")
-        version = meta.get("format_version", 0)
-        if not isinstance(version, int) or version > METADATA_VERSION:
-            raise ValueError(
-                f"{meta_file} has format_version {version!r}; this code reads up to "
-                f"{METADATA_VERSION}"
-            )
+        meta, version = _read_metadata(meta_file)
         if not path.is_file():
             raise FileNotFoundError(f"{path} not found (its JSON {meta_file.name} is there)")
         where = str(meta_file)
-        if meta.get("zip_sha256") is None:
-            if version >= 2:
-                raise ValueError(
-                    f"{where}: format_version {version} but no zip_sha256: cannot tell whether "
-                    f"{path.name} belongs to it"
-                )
-            key = meta_file.resolve()
-            if key not in _WARNED_UNCHECKED:
-                _WARNED_UNCHECKED.add(key)
-                warnings.warn(
-                    f"{where} predates zip hashes (format_version {version}): cannot check "
-                    f"that {path.name} belongs to it",
-                    UserWarning,
-                    stacklevel=2,
-                )
-        else:
-            reason = zip_mismatch(path, meta)
-            if reason is not None:
-                raise ValueError(f"{where}: refusing to load: {reason}")
+        _check_zip(path, meta, version, meta_file)
         _check_metadata(meta, where)
-        engine = str(meta.get("engine", "sb3")).lower()
-        model: BaseAlgorithm | MLPActor
-        dims: tuple[Any, Any]
-        if engine == "rllib":
-            actor = meta.get("actor") or {}
-            if actor.get("type", "mlp") != "mlp" or actor.get("activation", "tanh") != "tanh":
-                raise ValueError(f"{meta_file}: unknown exported actor {actor!r}")
-            model = MLPActor.load(path)
-            dims = (model.input_dim, model.output_dim)
-        elif engine == "sb3":
-            algo = str(meta["algo"]).lower()
-            if algo not in ALGORITHMS:
-                raise ValueError(
-                    f"{meta_file}: unknown algo {algo!r}, expected one of {list(ALGORITHMS)}"
-                )
-            model = ALGORITHMS[algo].load(path, device=device)
-            obs_shape = getattr(model.observation_space, "shape", None) or (None,)
-            act_shape = getattr(model.action_space, "shape", None) or (None,)
-            dims = (obs_shape[0], act_shape[0])
-        else:
-            raise ValueError(f"{meta_file}: unknown engine {engine!r}, expected one of {ENGINES}")
-        # the env observation's length: the input less a previous command's two values
-        extra = ACT_SIZE if meta.get("previous_command", False) else 0
-        n_obs = None if dims[0] is None else dims[0] - extra
-        if n_obs not in OBSERVATION_LAYOUTS or dims[1] != ACT_SIZE:
-            read = f"{dims[0]} ({n_obs} + the previous command)" if extra else dims[0]
-            raise ValueError(
-                f"{meta_file}: the model maps {read} -> {dims[1]}, expected "
-                f"{_sizes_text(None)}{' + 2' if extra else ''} -> {ACT_SIZE}"
-            )
-        layout = _parse_layout(meta.get("observation_layout"), where)
-        if layout is not None and len(layout) != n_obs:
-            raise ValueError(
-                f"{meta_file}: observation_layout has {len(layout)} names, the model reads "
-                f"{n_obs} observations"
-            )
+        model, dims = _load_model(path, meta, meta_file, device)
+        n_obs, layout = _input_layout(meta, dims, meta_file)
         return cls(
             model,
             action_range=parse_action_range(meta["action_range"], where),
@@ -861,85 +889,117 @@ class LearnedPolicy:
         A model evaluated on its own training scenario gets no note (a procedural training
         split: a note that the layouts are not held out).
         """
-        refusals: list[str] = []
-        notes: list[str] = []
-        meta = self.metadata
         agents = list(env.possible_agents)
         obs_space = env.observation_space(agents[0])
         act_space = env.action_space(agents[0])
         source = getattr(env, "source", None)
         cfg = getattr(source, "config", None)
-        shape = tuple(obs_space.shape)
+        refusals = self._layout_refusals(cfg, tuple(obs_space.shape), tuple(act_space.shape))
+        notes: list[str] = []
+        period = self._period_mismatch(float(env.control_period))
+        if period is not None and allow_control_period:
+            notes.append(period + " (allowed: allow_control_period)")
+        elif period is not None:
+            refusals.append(
+                period + " (make the env with control_period=policy.control_period, or pass "
+                "allow_control_period=True to test the policy at another period)"
+            )
+        notes += self._follower_notes(len(agents))
+        scenario = self._scenario_note(source, cfg)
+        if scenario is not None:
+            notes.append(scenario)
+        notes += self._range_notes(obs_space, act_space)
+        if refusals:
+            raise ValueError(
+                f"model trained on {self.scenario!r} cannot act meaningfully in this env: "
+                + "; ".join(refusals)
+            )
+        return notes
+
+    def _layout_refusals(
+        self, cfg: Any, shape: tuple[int, ...], act_shape: tuple[int, ...]
+    ) -> list[str]:
+        """Why an env of observation shape ``shape``, action shape ``act_shape`` and scenario
+        config ``cfg`` (None: unknown) has another observation or action layout."""
+        refusals: list[str] = []
         env_layout = (
             observation_names(cfg) if cfg is not None else OBSERVATION_LAYOUTS.get(shape[0])
         )
         if shape != (self.observation_size,):
             refusals.append(_observation_mismatch(self.observation_layout, shape, env_layout))
-        if tuple(act_space.shape) != (ACT_SIZE,):
-            refusals.append(
-                f"env actions have shape {act_space.shape}, the model outputs {ACT_SIZE}"
-            )
+        if act_shape != (ACT_SIZE,):
+            refusals.append(f"env actions have shape {act_shape}, the model outputs {ACT_SIZE}")
         for key, current in (
             ("observation_layout", env_layout if shape == (self.observation_size,) else None),
             ("action_layout", ACTION_LAYOUT),
         ):
-            recorded = meta.get(key)
+            recorded = self.metadata.get(key)
             if recorded is not None and current is not None and tuple(recorded) != current:
                 refusals.append(f"{key}: trained on {list(recorded)}, the env has {list(current)}")
-        period = float(env.control_period)
-        if not math.isclose(period, self.control_period, rel_tol=1e-9, abs_tol=0.0):
-            text = (
-                f"control period: trained at {self.control_period:g} s, the env steps at "
-                f"{period:g} s"
-            )
-            if allow_control_period:
-                notes.append(text + " (allowed: allow_control_period)")
-            else:
-                refusals.append(
-                    text + " (make the env with control_period=policy.control_period, or pass "
-                    "allow_control_period=True to test the policy at another period)"
-                )
-        trained_n = meta.get("n_followers")
-        drawn = _drawn_followers(meta.get("scenario_config"))
-        if drawn is not None and not drawn[0] <= len(agents) <= drawn[1]:
-            notes.append(
+        return refusals
+
+    def _period_mismatch(self, period: float) -> str | None:
+        """How an env's control period ``period`` [s] differs from the training one (None:
+        it does not)."""
+        if math.isclose(period, self.control_period, rel_tol=1e-9, abs_tol=0.0):
+            return None
+        return (
+            f"control period: trained at {self.control_period:g} s, the env steps at {period:g} s"
+        )
+
+    def _follower_notes(self, n_agents: int) -> list[str]:
+        """A note if an env's ``n_agents`` followers are not the training formation's."""
+        trained_n = self.metadata.get("n_followers")
+        drawn = _drawn_followers(self.metadata.get("scenario_config"))
+        if drawn is not None and not drawn[0] <= n_agents <= drawn[1]:
+            return [
                 f"followers: trained with {drawn[0]}-{drawn[1]} drawn per episode, the env has "
-                f"{len(agents)} (allowed: one shared per-follower policy)"
-            )
-        elif drawn is None and trained_n is not None and int(trained_n) != len(agents):
-            notes.append(
-                f"followers: trained with {trained_n}, the env has {len(agents)} (allowed: one "
+                f"{n_agents} (allowed: one shared per-follower policy)"
+            ]
+        if drawn is None and trained_n is not None and int(trained_n) != n_agents:
+            return [
+                f"followers: trained with {trained_n}, the env has {n_agents} (allowed: one "
                 "shared per-follower policy)"
-            )
+            ]
+        return []
+
+    def _scenario_note(self, source: Any, cfg: Any) -> str | None:
+        """How an env's scenario (``source``, its config ``cfg``) relates to the training one
+        (None: it is the training scenario, not a procedural split)."""
         fingerprint = self.scenario_fingerprint
         if cfg is None:
-            notes.append("the env exposes no resolved scenario config: scenario not compared")
-        elif fingerprint is None:
-            notes.append(
+            return "the env exposes no resolved scenario config: scenario not compared"
+        if fingerprint is None:
+            return (
                 f"model.json records no training scenario content (only the name "
                 f"{self.scenario!r}): scenario not compared"
             )
-        else:
-            given = config_fingerprint(cfg)
-            mapping = config_mapping(cfg)
-            trained_map = meta.get("scenario_config")
-            if given != fingerprint:
-                fields = (
-                    scenario_differences(trained_map, mapping)
-                    if isinstance(trained_map, Mapping)
-                    else []
-                )
-                notes.append(
-                    f"scenario: trained on {_family(trained_map, self.scenario)} "
-                    f"({fingerprint[:12]}), the env is {_family(mapping, cfg.name)} "
-                    f"({given[:12]}); allowed (an evaluation on another scenario)"
-                    + (f"; differs in {'; '.join(fields)}" if fields else "")
-                )
-            elif getattr(source, "procedural", False):
-                notes.append(
-                    f"scenario: the env draws from the training layouts "
-                    f"({_family(mapping, cfg.name)}): not held out"
-                )
+        given = config_fingerprint(cfg)
+        mapping = config_mapping(cfg)
+        trained_map = self.metadata.get("scenario_config")
+        if given != fingerprint:
+            fields = (
+                scenario_differences(trained_map, mapping)
+                if isinstance(trained_map, Mapping)
+                else []
+            )
+            return (
+                f"scenario: trained on {_family(trained_map, self.scenario)} "
+                f"({fingerprint[:12]}), the env is {_family(mapping, cfg.name)} "
+                f"({given[:12]}); allowed (an evaluation on another scenario)"
+                + (f"; differs in {'; '.join(fields)}" if fields else "")
+            )
+        if getattr(source, "procedural", False):
+            return (
+                f"scenario: the env draws from the training layouts "
+                f"({_family(mapping, cfg.name)}): not held out"
+            )
+        return None
+
+    def _range_notes(self, obs_space: Any, act_space: Any) -> list[str]:
+        """Notes if an env's observations can exceed the training normalisation, or the
+        action range its actuator limits."""
+        notes: list[str] = []
         if self.obs_scale is not None:
             bound = np.maximum(np.abs(obs_space.low), np.abs(obs_space.high))
             over = [
@@ -964,11 +1024,6 @@ class LearnedPolicy:
                     f"{r.omega_high:g} rad/s) exceeds the env's actuator limits (|u| <= "
                     f"{high[0]:g}, |omega| <= {high[1]:g}): the env clips the commands"
                 )
-        if refusals:
-            raise ValueError(
-                f"model trained on {self.scenario!r} cannot act meaningfully in this env: "
-                + "; ".join(refusals)
-            )
         return notes
 
     def bind(self, env: Any) -> None:

@@ -873,118 +873,161 @@ class _RunLogs:
         self.tb.close()
 
 
+@dataclasses.dataclass
+class _Counts:
+    """What :func:`_train_algo` carries from one iteration to the next: the agent transitions
+    (``timesteps``) and env steps sampled, the multiplier ``λ`` (``ppo_lagrangian``; else
+    None), the ``λ`` the last iteration's rewards were shaped with, and its result."""
+
+    timesteps: int = 0
+    env_steps: int = 0
+    multiplier: LagrangeMultiplier | None = None
+    used: float | None = None
+    last_result: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+
 def _train_algo(
     cfg: TrainConfig, plan: RunPlan, algo: Any, probe: PlatoonMultiAgentEnv
 ) -> tuple[Path, bool]:
-    """:func:`train_rllib`'s loop on the built ``algo``, in the prepared ``--out``."""
-    out = cfg.out_dir
-    ckpt_dir = out / RLLIB_CHECKPOINT
-    timesteps = env_steps = 0
+    """:func:`train_rllib`'s loop on the built ``algo``, in the prepared ``--out``: an
+    iteration at a time, a checkpoint every ``checkpoint_every`` transitions, the model (and a
+    last checkpoint) at the end or at Ctrl-C."""
+    ckpt_dir = cfg.out_dir / RLLIB_CHECKPOINT
     lagrangian = cfg.algo == "ppo_lagrangian"
-    multiplier = (
-        LagrangeMultiplier(budget=cfg.cost_budget, lr=cfg.lagrangian_lr) if lagrangian else None
+    counts = _Counts(
+        multiplier=LagrangeMultiplier(budget=cfg.cost_budget, lr=cfg.lagrangian_lr)
+        if lagrangian
+        else None
     )
     if plan.mode == "resume":
-        assert plan.source is not None
-        algo.restore_from_path(str(plan.source.resolve()))
-        timesteps = plan.timesteps
-        env_steps = int(plan.stored.get("env_steps", 0) or 0)
-        stored = plan.stored.get("lagrange_multiplier")
-        if multiplier is not None and stored is not None:
-            multiplier.value = float(stored)
-        print(plan.message, file=sys.stderr)
-    segment = Segment(plan, timesteps)
-    logs = _RunLogs(cfg, segment.timesteps_start if plan.mode == "resume" else None, timesteps)
-    last_result: dict[str, Any] = {}
-
-    def metadata(**extra: Any) -> dict[str, Any]:
-        timing = segment.metadata(timesteps)
-        wall = timing["wall_time_s"]
-        lam = {} if multiplier is None else {"lagrange_multiplier": multiplier.value}
-        return {
-            "engine": "rllib",
-            "algo": cfg.algo,
-            **env_metadata(cfg, probe.env),
-            "sensor_profile": cfg.sensor_profile,
-            "observation_normalization": None
-            if probe.obs_scale is None
-            else {"type": "fixed_scale", "scale": [float(s) for s in probe.obs_scale]},
-            "action_range": cfg.action_range.to_dict(),
-            "actor": {
-                "type": "mlp",
-                "activation": "tanh",
-                "hidden": net_arch(cfg),
-            },
-            "critic": cfg.critic,
-            "timesteps": timesteps,
-            "env_steps": env_steps,
-            "timesteps_requested": cfg.timesteps,
-            "num_env_runners": cfg.num_env_runners,
-            "num_envs_per_env_runner": cfg.n_envs,
-            "num_learners": cfg.num_learners,
-            "rllib_checkpoint": RLLIB_CHECKPOINT,
-            **lam,
-            **timing,
-            "env_steps_per_s": round(env_steps / wall, 1) if wall > 0 else None,
-            "episode_return_mean": last_result.get("env_runners", {}).get("episode_return_mean"),
-            "episode_len_mean": last_result.get("env_runners", {}).get("episode_len_mean"),
-            "ray": _cluster_record(algo, cfg),
-            **extra,
-            "config": dataclasses.asdict(cfg),
-            "versions": library_versions(ray, torch, gym),
-            "command": sys.argv,
-        }
+        _restore(plan, algo, counts)
+    segment = Segment(plan, counts.timesteps)
+    resume_from = segment.timesteps_start if plan.mode == "resume" else None
+    logs = _RunLogs(cfg, resume_from, counts.timesteps)
 
     def save(name: str, **extra: Any) -> Path:
         actor = export_actor(learner_weights(algo))
-        return save_exported_policy(actor, out / f"{name}.zip", metadata(**extra))
+        meta = _rllib_metadata(cfg, algo, probe, segment, counts, **extra)
+        return save_exported_policy(actor, cfg.out_dir / f"{name}.zip", meta)
 
     bar: Any = None
     if cfg.progress_bar:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=cfg.timesteps, initial=timesteps, unit="step")
-    last_ckpt = timesteps
+        bar = tqdm(total=cfg.timesteps, initial=counts.timesteps, unit="step")
+    last_ckpt = counts.timesteps
     interrupted = False
-    used: float | None = None if multiplier is None else multiplier.value
+    counts.used = None if counts.multiplier is None else counts.multiplier.value
     try:
-        while timesteps < cfg.timesteps:
-            if multiplier is not None:
-                # Every iteration (a restarted runner would start from 0 again).
-                used = multiplier.value
-                _on_runners(algo, cfg, functools.partial(_set_multiplier, value=used))
-            result = algo.train()
-            last_result = result
-            timesteps += _sampled(result, "num_agent_steps_sampled")
-            env_steps += _sampled(result, "num_env_steps_sampled")
-            outcomes = [o for batch in _on_runners(algo, cfg, _pop_outcomes) for o in batch or []]
-            if multiplier is not None:
-                # Dual ascent on the follower episodes' costs, as SB3's LagrangianCallback:
-                # the new λ shapes the next iteration's rewards.
-                multiplier.update([c for o in outcomes for c in o.costs])
-            logs.iteration(
-                timesteps, outcomes, result, None if multiplier is None else multiplier.value, used
-            )
-            if bar is not None:
-                bar.n = min(timesteps, cfg.timesteps)
-                bar.refresh()
-            if cfg.verbose:
-                runners = result.get("env_runners", {})
-                print(
-                    f"timesteps {timesteps}  return {runners.get('episode_return_mean')}  "
-                    f"length {runners.get('episode_len_mean')}",
-                    file=sys.stderr,
-                )
-            if cfg.checkpoint_every > 0 and timesteps - last_ckpt >= cfg.checkpoint_every:
-                last_ckpt = timesteps
+        while counts.timesteps < cfg.timesteps:
+            _iteration(cfg, algo, counts, logs)
+            _report(cfg, counts, bar)
+            if cfg.checkpoint_every > 0 and counts.timesteps - last_ckpt >= cfg.checkpoint_every:
+                last_ckpt = counts.timesteps
                 _atomic_dir(lambda p: algo.save_to_path(str(p.resolve())), ckpt_dir)
                 save("checkpoint")
     except KeyboardInterrupt:
         interrupted = True
-        report_interrupt(timesteps)
+        report_interrupt(counts.timesteps)
     if bar is not None:
         bar.close()
-    logs.close(timesteps, used)
+    logs.close(counts.timesteps, counts.used)
     _atomic_dir(lambda p: algo.save_to_path(str(p.resolve())), ckpt_dir)
     save("checkpoint")
     return save("model", interrupted=interrupted), interrupted
+
+
+def _restore(plan: RunPlan, algo: Any, counts: _Counts) -> None:
+    """Continue from the plan's RLlib checkpoint: the algorithm's state, the counts and ``λ``."""
+    assert plan.source is not None
+    algo.restore_from_path(str(plan.source.resolve()))
+    counts.timesteps = plan.timesteps
+    counts.env_steps = int(plan.stored.get("env_steps", 0) or 0)
+    stored = plan.stored.get("lagrange_multiplier")
+    if counts.multiplier is not None and stored is not None:
+        counts.multiplier.value = float(stored)
+    print(plan.message, file=sys.stderr)
+
+
+def _iteration(cfg: TrainConfig, algo: Any, counts: _Counts, logs: _RunLogs) -> None:
+    """One ``algo.train()`` iteration, ``λ`` sent to the runners before it and updated by dual
+    ascent on its follower episodes' costs after it; its counts and logs."""
+    multiplier = counts.multiplier
+    if multiplier is not None:
+        # Every iteration (a restarted runner would start from 0 again).
+        counts.used = multiplier.value
+        _on_runners(algo, cfg, functools.partial(_set_multiplier, value=counts.used))
+    result = algo.train()
+    counts.last_result = result
+    counts.timesteps += _sampled(result, "num_agent_steps_sampled")
+    counts.env_steps += _sampled(result, "num_env_steps_sampled")
+    outcomes = [o for batch in _on_runners(algo, cfg, _pop_outcomes) for o in batch or []]
+    if multiplier is not None:
+        # Dual ascent on the follower episodes' costs, as SB3's LagrangianCallback:
+        # the new λ shapes the next iteration's rewards.
+        multiplier.update([c for o in outcomes for c in o.costs])
+    lam = None if multiplier is None else multiplier.value
+    logs.iteration(counts.timesteps, outcomes, result, lam, counts.used)
+
+
+def _report(cfg: TrainConfig, counts: _Counts, bar: Any) -> None:
+    """An iteration's progress: the bar (if any), and (``verbose``) its return and length."""
+    if bar is not None:
+        bar.n = min(counts.timesteps, cfg.timesteps)
+        bar.refresh()
+    if cfg.verbose:
+        runners = counts.last_result.get("env_runners", {})
+        print(
+            f"timesteps {counts.timesteps}  return {runners.get('episode_return_mean')}  "
+            f"length {runners.get('episode_len_mean')}",
+            file=sys.stderr,
+        )
+
+
+def _rllib_metadata(
+    cfg: TrainConfig,
+    algo: Any,
+    probe: PlatoonMultiAgentEnv,
+    segment: Segment,
+    counts: _Counts,
+    **extra: Any,
+) -> dict[str, Any]:
+    """What a saved point's ``model.json`` records (``extra``: e.g. ``interrupted``)."""
+    timesteps, env_steps, multiplier = counts.timesteps, counts.env_steps, counts.multiplier
+    timing = segment.metadata(timesteps)
+    wall = timing["wall_time_s"]
+    lam = {} if multiplier is None else {"lagrange_multiplier": multiplier.value}
+    runners = counts.last_result.get("env_runners", {})
+    return {
+        "engine": "rllib",
+        "algo": cfg.algo,
+        **env_metadata(cfg, probe.env),
+        "sensor_profile": cfg.sensor_profile,
+        "observation_normalization": None
+        if probe.obs_scale is None
+        else {"type": "fixed_scale", "scale": [float(s) for s in probe.obs_scale]},
+        "action_range": cfg.action_range.to_dict(),
+        "actor": {
+            "type": "mlp",
+            "activation": "tanh",
+            "hidden": net_arch(cfg),
+        },
+        "critic": cfg.critic,
+        "timesteps": timesteps,
+        "env_steps": env_steps,
+        "timesteps_requested": cfg.timesteps,
+        "num_env_runners": cfg.num_env_runners,
+        "num_envs_per_env_runner": cfg.n_envs,
+        "num_learners": cfg.num_learners,
+        "rllib_checkpoint": RLLIB_CHECKPOINT,
+        **lam,
+        **timing,
+        "env_steps_per_s": round(env_steps / wall, 1) if wall > 0 else None,
+        "episode_return_mean": runners.get("episode_return_mean"),
+        "episode_len_mean": runners.get("episode_len_mean"),
+        "ray": _cluster_record(algo, cfg),
+        **extra,
+        "config": dataclasses.asdict(cfg),
+        "versions": library_versions(ray, torch, gym),
+        "command": sys.argv,
+    }
