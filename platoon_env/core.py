@@ -109,6 +109,13 @@ def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
         p["leader_speed_bound"] = float(np.max(np.abs(u)))
     p["lookahead"] = cfg.leader.lookahead
     p["leader_turn_rate"] = cfg.leader.max_turn_rate
+    # A pure-pursuit leader that keeps the robots' drive (leader.drive): its rate limits.
+    rob = cfg.robot
+    limited = cfg.leader.drive != "free" and not cfg.leader.trajectory
+    limited = limited and (rob.accel_max is not None or rob.alpha_max is not None)
+    p["leader_rate_limited"] = limited
+    p["leader_accel"] = math.inf if rob.accel_max is None else rob.accel_max
+    p["leader_alpha"] = math.inf if rob.alpha_max is None else rob.alpha_max
     p["d_des"] = cfg.formation.d_des
     # The distance error is normalised by d_con - d_des, the bearing error by beta_con.
     p["reward_d_scale"] = cfg.camera.range - cfg.formation.d_des

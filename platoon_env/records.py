@@ -75,6 +75,11 @@ PARAMS_DTYPE = np.dtype(
         ("leader_speed_bound", _F8),  # [m/s] bound on the leader's |u| at speed factor 1
         ("lookahead", _F8),  # [m]
         ("leader_turn_rate", _F8),  # [rad/s] bound on the leader's |omega|
+        # pure pursuit within the robots' rate limits (leader.drive check/retime): the changes
+        # of the leader's u and omega per sub-step bounded, and braking towards the path's end
+        ("leader_rate_limited", np.bool_),
+        ("leader_accel", _F8),  # [m/s^2] bound on the change of the leader's u
+        ("leader_alpha", _F8),  # [rad/s^2] bound on the change of the leader's omega
         # formation and reward (platoon_env.reward)
         ("d_des", _F8),  # [m]
         ("reward_d_scale", _F8),  # [m] d_con - d_des, normalises e_d

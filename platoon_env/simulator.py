@@ -40,7 +40,7 @@ import numpy as np
 from numba import njit, prange
 
 from platoon_env.dynamics.actuators import actuate
-from platoon_env.dynamics.leader import leader_command, replay_leader
+from platoon_env.dynamics.leader import leader_command, limit_leader_rates, replay_leader
 from platoon_env.dynamics.unicycle import unicycle_arc
 from platoon_env.geometry.sensing import (
     SENSE_BETA,
@@ -142,6 +142,8 @@ def advance_substep(
             ep.leader_progress = s_new
             if arrived:
                 ep.leader_arrived = True
+        if p.leader_rate_limited:
+            u0, w0 = limit_leader_rates(u0, w0, ep.leader_u, ep.leader_omega, p)
         x, y, th = unicycle_arc(poses[0, 0], poses[0, 1], poses[0, 2], u0, w0, h)
         poses[0, 0], poses[0, 1], poses[0, 2] = x, y, th
     ep.leader_u = u0

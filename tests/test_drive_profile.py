@@ -3,9 +3,9 @@
 * ``turtlebot3_waffle_pi`` extends ``aruco`` with the robot's velocity box: commands beyond it
   are clipped, the applied velocity never exceeds it.
 * ``leader.drive``: ``"check"`` refuses a leader beyond the robots' drive naming the field,
-  ``"retime"`` slows it (a trajectory stretched in time, a path's speed and turn rate lowered)
-  and refuses what slowing cannot fit (a pure-pursuit leader under acceleration limits);
-  ``"free"`` (the default) keeps every shipped scenario as it was.
+  ``"retime"`` slows it (a trajectory stretched in time, a path's speed and turn rate lowered;
+  a pure pursuit is rate-limited); ``"free"`` (the default) keeps every shipped scenario as it
+  was.
 * The old ``aruco`` results stay distinguishable: its fingerprints are unchanged
   (``tests/test_fingerprints.py``) and differ from the new profile's.
 """
@@ -63,18 +63,44 @@ def test_study_b_s_leader_already_fits_the_drive() -> None:
 
 
 @pytest.mark.parametrize("scenario", ["study_a", "study_c"])
-def test_a_pure_pursuit_leader_under_acceleration_limits_is_refused(scenario: str) -> None:
-    with pytest.raises(ScenarioError, match=r"leader\.path: a pure-pursuit leader has no "):
-        platoon_env.make(scenario, sensor_profile=PROFILE)
-    # without the acceleration limits, retiming lowers its speed to the box
+def test_a_pure_pursuit_leader_keeps_the_drive_by_construction(scenario: str) -> None:
+    """Under the profile a path leader is slowed to the velocity box and its pure pursuit is
+    rate-limited (it ramps up, turns and brakes within accel_max and alpha_max)."""
+    env = platoon_env.make(scenario, sensor_profile=PROFILE, terminate_on=[])
+    lead = env.scenario.config.leader
+    assert lead.speed * (1 + lead.speed_variation) <= 0.26 + 1e-12
+    assert lead.max_turn_rate == 1.5  # already within omega_max
+    env.reset(seed=0)
+    velocities = [env.leader_velocity]
+    for _ in range(3000):
+        env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})
+        velocities.append(env.leader_velocity)
+    v = np.array(velocities)
+    dt = env.control_period
+    assert np.abs(v[:, 0]).max() <= 0.26 and np.abs(v[:, 1]).max() <= 1.5 + 1e-12
+    assert np.abs(np.diff(v[:, 0])).max() <= 2.5 * dt + 1e-12
+    assert np.abs(np.diff(v[:, 1])).max() <= 3.2 * dt + 1e-12
+    assert np.abs(np.diff(v[:, 1])).max() > 0  # it did turn
+    # the same scenario without the profile's drive rule: pure pursuit as before (a jump)
+    free = platoon_env.make(scenario, terminate_on=[])
+    free.reset(seed=0)
+    free.step({a: np.zeros(2, dtype=np.float32) for a in free.agents})
+    assert free.leader_velocity[0] > 2.5 * dt
+
+
+def test_retime_lowers_a_path_leader_to_the_box() -> None:
     cfg = apply_overrides(
-        load_config(scenario),
+        load_config("study_a"),
         {"robot": {"u_max": 0.26, "omega_max": 1.0}, "leader": {"drive": "retime"}},
     )
     lead = cfg.leader
     assert lead.speed * (1 + lead.speed_variation) <= 0.26 + 1e-12
     assert lead.max_turn_rate <= 1.0
     assert leader_drive_excess(cfg) == []
+    with pytest.raises(ScenarioError, match=r"leader\.speed: the leader's speed"):
+        apply_overrides(
+            load_config("study_a"), {"robot": {"u_max": 0.26}, "leader": {"drive": "check"}}
+        )
 
 
 def _slow_box() -> dict[str, object]:

@@ -76,7 +76,9 @@ def test_slack_is_the_least_normalised_margin() -> None:
     np.testing.assert_allclose(witness[0], ep.poses[0], atol=1e-4)
 
 
-def test_a_task_that_cannot_be_built_is_reported_not_run() -> None:
-    refused = feasibility.refusals(["study_a/turtlebot3_waffle_pi", "study_b/turtlebot3_waffle_pi"])
-    assert list(refused) == ["study_a/turtlebot3_waffle_pi"]
-    assert "leader.path" in refused["study_a/turtlebot3_waffle_pi"]
+def test_a_task_that_cannot_be_built_is_reported_not_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    strict = {"robot": {"u_max": 0.1}, "leader": {"drive": "check"}}
+    monkeypatch.setitem(feasibility.CONDITIONS, "strict", strict)
+    refused = feasibility.refusals(["study_a/strict", "study_b/turtlebot3_waffle_pi"])
+    assert list(refused) == ["study_a/strict"]
+    assert "leader.speed" in refused["study_a/strict"]

@@ -377,7 +377,11 @@ def main(argv: list[str] | None = None) -> str:
         if result.interrupted:
             raise SystemExit(130)
     table = report(result, tasks, refused)
-    paths = [figure(result, t, args.out, stamp) for t in tasks if t.startswith("study_b/")]
+    # The figures go where the page points: figures/ beside the page (--doc's, else --out's).
+    page_dir = args.out if args.doc is None else args.doc.parent
+    paths = [
+        figure(result, t, page_dir / "figures", stamp) for t in tasks if t.startswith("study_b/")
+    ]
     page = _page(table, stamp, [p for p in paths if p is not None], args.seeds)
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out / "feasibility.md", page)

@@ -117,7 +117,8 @@ def leader_command(
     ``route`` is the path ``(M, 2)`` (or a :data:`~platoon_env.records.Route`'s ``(M, 4)``:
     its first two columns) and its cumulative arc length; ``pose`` the leader's
     ``(x, y, theta)``; ``s`` its progress; ``p`` a :data:`~platoon_env.records.PARAMS_DTYPE`
-    record (``leader_speed``, ``lookahead``, ``leader_turn_rate``, ``substep``);
+    record (``leader_speed``, ``lookahead``, ``leader_turn_rate``, ``substep``; with
+    ``leader_rate_limited`` it brakes in time to stop at the end within ``leader_accel``);
     ``speed_factor`` the episode's ``f`` (the leader drives at ``f * leader_speed``). Returns
     ``(u, omega, s_new, arrived)``: the updated progress and whether the leader has reached the
     end (then ``u = omega = 0``).
@@ -136,6 +137,9 @@ def leader_command(
     dist = math.hypot(tx - x, ty - y)
     alpha = wrap_angle(math.atan2(ty - y, tx - x) - theta)
     u = speed
+    if p.leader_rate_limited:
+        # Brake in time: within the acceleration bound the leader stops at the path's end.
+        u = min(u, math.sqrt(2.0 * p.leader_accel * max(total - s_new, 0.0)))
     if total - s_new < lookahead:
         # Final approach: arrive at the end point without overshooting it.
         u = min(speed, to_end / h)
@@ -144,6 +148,23 @@ def leader_command(
     omega = 2.0 * u * math.sin(alpha) / max(dist, 1e-9)
     omega = min(max_turn_rate, max(-max_turn_rate, omega))
     return u, omega, s_new, False
+
+
+@njit(cache=True)
+def limit_leader_rates(
+    u: float, omega: float, u_prev: float, omega_prev: float, p: np.record
+) -> tuple[float, float]:
+    """A pure-pursuit leader's command ``(u, omega)`` for one sub-step of ``h = p.substep``
+    within the robots' rate limits (``leader.drive`` ``check``/``retime``, ``p.leader_accel``,
+    ``p.leader_alpha``): each moves from the last sub-step's ``(u_prev, omega_prev)`` by at most
+    ``accel h`` and ``alpha h``. After arriving (a command of zero) the leader so coasts to a
+    stop within the bound."""
+    du = p.leader_accel * p.substep
+    dw = p.leader_alpha * p.substep
+    return (
+        min(u_prev + du, max(u_prev - du, u)),
+        min(omega_prev + dw, max(omega_prev - dw, omega)),
+    )
 
 
 @njit(cache=True)

@@ -244,10 +244,9 @@ def leader_drive_excess(cfg: ScenarioConfig) -> list[tuple[str, float, float, st
     value, limit, field, where)`` for each bound exceeded, ``where`` the leader's field that
     does. A timed trajectory: its peaks (:func:`trajectory_rates`) at the fastest speed factor
     against every bound set. A path (pure pursuit): ``speed * (1 + speed_variation)`` against
-    ``u_max`` and ``max_turn_rate`` against ``omega_max``; pure pursuit has no acceleration
-    model (it starts at full speed, its turn rate jumps at the vertices), so a path leader
-    exceeds any acceleration bound that is set (give it a timed trajectory instead,
-    ``scripts/plan_leader_trajectory.py``)."""
+    ``u_max`` and ``max_turn_rate`` against ``omega_max``; its accelerations keep the bounds by
+    construction (with ``leader.drive`` set, the pure pursuit itself is rate-limited and brakes
+    in time, :func:`platoon_env.dynamics.leader.limit_leader_rates`)."""
     lead = cfg.leader
     out = []
     if lead.trajectory:
@@ -258,10 +257,8 @@ def leader_drive_excess(cfg: ScenarioConfig) -> list[tuple[str, float, float, st
                 out.append((name, value, limit, field, f"leader.trajectory[{k}]"))
         return out
     fastest = lead.speed * (1.0 + lead.speed_variation)
-    for name, limit, field, power in _drive_limits(cfg):
-        if power == 2:
-            out.append((name, math.inf, limit, field, "leader.path"))
-        elif name == "speed" and fastest > limit:
+    for name, limit, field, _ in _drive_limits(cfg):
+        if name == "speed" and fastest > limit:
             out.append((name, fastest, limit, field, "leader.speed"))
         elif name == "turn rate" and lead.max_turn_rate > limit:
             out.append((name, lead.max_turn_rate, limit, field, "leader.max_turn_rate"))
@@ -277,8 +274,8 @@ def fit_leader_to_drive(cfg: ScenarioConfig) -> ScenarioConfig:
       acceleration bounds (velocities scale by ``1 / s``, accelerations by ``1 / s^2``), its
       ``speed`` the new mean speed; the path driven is the same, only slower;
     * a path: ``speed`` lowered to ``u_max / (1 + speed_variation)`` and ``max_turn_rate`` to
-      ``omega_max`` where they exceed them (acceleration bounds cannot be met by pure pursuit:
-      :func:`check_leader_drive` refuses that).
+      ``omega_max`` where they exceed them (the rate-limited pure pursuit keeps the acceleration
+      bounds by construction).
 
     Idempotent: a fitted leader is returned unchanged.
     """
@@ -326,14 +323,6 @@ def check_leader_drive(cfg: ScenarioConfig, path: str) -> None:
     if not excess:
         return
     name, value, limit, field, where = excess[0]
-    if math.isinf(value):
-        raise field_error(
-            f"{path}.{where}",
-            f"a pure-pursuit leader has no {name} bound, but {field} = {limit:g} is set and "
-            f"leader.drive = {lead.drive!r} asks the leader to keep it: give the leader a "
-            "timed trajectory (leader.trajectory) planned within the drive, or set "
-            "leader.drive: free",
-        )
     fastest = (
         " at the fastest speed factor 1 + leader.speed_variation" if lead.speed_variation else ""
     )
