@@ -24,9 +24,23 @@ Safety rules:
   and how to release it (:meth:`Store.release_run`, ``python -m experiments.store STORE
   --release RUN``). A finished row is never overwritten: two evaluators into one store give one
   row per episode.
+* A claim of a run on another host (a copied store, or a container sharing the file) cannot be
+  checked against a process: it is taken over once that run has written nothing to the store
+  for :data:`FOREIGN_CLAIM_STALE` seconds (taking over a live run's cell only repeats work: the
+  first finished row is kept, and an episode is a pure function of its key).
+* Waiting for the write lock is bounded too (``timeout``, SQLite's busy timeout): then a
+  :class:`StoreError` names the runs this store marks as running (the likely holders) and
+  what to do, never a bare "database is locked".
 * A file that is not an evaluation store (another SQLite database, a damaged one) is refused
   before anything is written into it; a damaged page or an unreadable row met later is a
   :class:`StoreError` naming the file (and the row), never a raw ``sqlite3`` error.
+* Every row read back is validated before it is trusted (:meth:`Store.episodes`,
+  :meth:`Store.runs`, :meth:`Store.scenario_config`, and the runs :meth:`Store.claim` looks
+  at): each column's type, a JSON column an object, a run's status one of
+  :data:`RUN_STATUSES` and its pid a process id, a finished episode of a measure in
+  :data:`EPISODE_METRICS_MEASURES` holding every field of :data:`EPISODE_METRICS` with its
+  type. A row that fails is one :class:`StoreError` naming the file, the row (its key) and the
+  field, never a traceback from deep inside a report.
 * ``failed`` rows (the episode raised) are retried by the next run; ``refused`` rows (the
   policy declined the configuration, e.g. the filtered PPC without a feasible funnel) are a
   result, like ``done``.
@@ -53,7 +67,12 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 __all__ = [
+    "EPISODE_METRICS",
+    "EPISODE_METRICS_MEASURES",
     "FINISHED",
+    "FOREIGN_CLAIM_STALE",
+    "MAX_PID",
+    "RUN_STATUSES",
     "SCHEMA_VERSION",
     "STATUSES",
     "TABLES",
@@ -71,6 +90,54 @@ SCHEMA_VERSION = 1
 STATUSES: tuple[str, ...] = ("running", "done", "failed", "refused")
 #: The statuses a run does not run again.
 FINISHED: frozenset[str] = frozenset({"done", "refused"})
+#: Run statuses: ``running`` until :meth:`Store.finish_run` records how it ended
+#: (``finished``, ``interrupted``, ``failed``), or :meth:`Store.release_run` ``released`` it.
+RUN_STATUSES: tuple[str, ...] = ("running", "finished", "interrupted", "failed", "released")
+#: Largest process id a ``runs`` row may hold (``pid_t`` is a signed 32-bit integer).
+MAX_PID = 2**31 - 1
+#: [s] How long a run on another host may write nothing to the store (no claim, no result)
+#: before its claims are taken over. This host cannot look at that run's process; a live
+#: evaluator writes a row with every finished cell (episodes of this benchmark take seconds),
+#: so five minutes of silence means it is gone (a copied store: its claims are as old as the
+#: copy, and are taken over at once). Its times are that host's clock: a clock far behind
+#: only makes a live run's cells run twice (the first finished row is kept).
+FOREIGN_CLAIM_STALE = 300.0
+
+#: The metrics of :func:`platoon_env.rollout.episode_metrics` (``docs/metrics.md``) and their
+#: types: ``bool``, ``str``, ``count`` (an integer >= 0), ``number`` (an integer or a float;
+#: ``inf``/``-inf``/``nan`` as :data:`NONFINITE` writes them). A finished (``done``) row of a
+#: measure in :data:`EPISODE_METRICS_MEASURES` must hold each, of its type.
+EPISODE_METRICS: dict[str, str] = {
+    "success": "bool",
+    "violation": "str",
+    "time_to_violation": "number",
+    "rms_e_d": "number",
+    "rms_e_beta": "number",
+    "max_abs_e_d": "number",
+    "max_abs_e_beta": "number",
+    "min_inter_robot_distance": "number",
+    "min_obstacle_clearance": "number",
+    "control_effort": "number",
+    "peak_u": "number",
+    "peak_omega": "number",
+    "command_rate_u": "number",
+    "command_rate_omega": "number",
+    "steps": "count",
+    "sim_time": "number",
+    "leader_arrived": "bool",
+    "lost_sight_steps": "count",
+    "funnel_exits": "count",
+}
+#: The measures whose metrics include :data:`EPISODE_METRICS` (the default measure and the
+#: comparison's, which extend it); a row of another measure is checked for its shape only (a
+#: JSON object), since only its measure knows its fields.
+EPISODE_METRICS_MEASURES: frozenset[str] = frozenset(
+    {
+        "platoon_env.rollout:episode_metrics",
+        "experiments.studies.comparison:comparison_metrics",
+        "experiments.studies.comparison:fig15_metrics",
+    }
+)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (
@@ -150,6 +217,147 @@ def _decode_nonfinite(metrics: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def _shown(value: Any) -> str:
+    """``value`` for an error message: its ``repr`` (control characters escaped), cut short."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _name(value: Any) -> str:
+    """A name or fingerprint read from a row, for a message: as it is if it is plain printable
+    text, else :func:`_shown` (a terminal escape sequence is never printed raw)."""
+    if isinstance(value, str) and value.isprintable() and 0 < len(value) <= 80:
+        return value
+    return _shown(value)
+
+
+def _short(value: Any) -> str:
+    """A key field for a message: a fingerprint's first 12 characters, or :func:`_shown`."""
+    return _name(value)[:12] if isinstance(value, str) and value.isprintable() else _shown(value)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _is_time(value: Any) -> bool:
+    """A finite number >= 0 (a time stamp, a duration)."""
+    return _is_number(value) and math.isfinite(value) and value >= 0
+
+
+#: The test and the wording of each :data:`EPISODE_METRICS` type.
+_KINDS: dict[str, tuple[Any, str]] = {
+    "bool": (lambda v: isinstance(v, bool), "true or false"),
+    "str": (lambda v: isinstance(v, str), "a string"),
+    "count": (lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
+    "number": (_is_number, 'a number (or "inf", "-inf", "nan")'),
+}
+
+
+class _RowError(Exception):
+    """A field of a row that fails validation (turned into a :class:`StoreError` naming the file
+    and the row by :meth:`Store._invalid`)."""
+
+    def __init__(self, field: str, expected: str, value: Any) -> None:
+        super().__init__(f"its {field} must be {expected}, got {_shown(value)}")
+
+
+def _require(ok: bool, field: str, expected: str, value: Any) -> None:
+    if not ok:
+        raise _RowError(field, expected, value)
+
+
+def _check_episode_row(row: Mapping[str, Any]) -> None:
+    """Validate the columns of an ``episodes`` row except its metrics (:func:`_check_metrics`);
+    a failure is a :class:`_RowError` naming the field."""
+    for field in ("policy", "scenario", "overrides", "measure"):
+        _require(
+            isinstance(row[field], str) and row[field] != "",
+            field,
+            "a non-empty string",
+            row[field],
+        )
+    _require(_is_int(row["seed"]), "seed", "an integer", row["seed"])
+    _require(row["status"] in STATUSES, "status", f"one of {', '.join(STATUSES)}", row["status"])
+    _require(_is_int(row["run_id"]) and row["run_id"] > 0, "run_id", "a run number", row["run_id"])
+    for field in ("policy_name", "scenario_name"):
+        value = row[field]
+        _require(
+            isinstance(value, str) and value.isprintable(),
+            field,
+            "printable text (no control characters)",
+            value,
+        )
+    _require(_is_time(row["updated"]), "updated", "a time (a finite number >= 0)", row["updated"])
+    _require(
+        row["wall_time"] is None or _is_time(row["wall_time"]),
+        "wall_time",
+        "empty or a duration (a finite number >= 0) [s]",
+        row["wall_time"],
+    )
+    _require(
+        row["error"] is None or isinstance(row["error"], str),
+        "error",
+        "empty or text",
+        row["error"],
+    )
+    _require(
+        row["metrics"] is None or isinstance(row["metrics"], str),
+        "metrics",
+        "empty or JSON text",
+        row["metrics"],
+    )
+
+
+def _check_metrics(metrics: Any, status: str, measure: str) -> None:
+    """Validate an episode's decoded metrics: a JSON object; a ``done`` row of a measure in
+    :data:`EPISODE_METRICS_MEASURES` holds every :data:`EPISODE_METRICS` field, of its type."""
+    _require(isinstance(metrics, dict), "metrics", "a JSON object", metrics)
+    if status != "done" or measure not in EPISODE_METRICS_MEASURES:
+        return
+    for field, kind in EPISODE_METRICS.items():
+        test, expected = _KINDS[kind]
+        if field not in metrics:
+            raise _RowError(f"metrics.{field}", f"{expected} (the field is missing)", metrics)
+        _require(test(metrics[field]), f"metrics.{field}", expected, metrics[field])
+
+
+def _check_run_row(row: Mapping[str, Any]) -> None:
+    """Validate the columns of a ``runs`` row except its stamp (a JSON object, checked where it
+    is parsed); a failure is a :class:`_RowError` naming the field."""
+    _require(_is_int(row["run_id"]) and row["run_id"] > 0, "run_id", "a run number", row["run_id"])
+    _require(isinstance(row["tool"], str), "tool", "text", row["tool"])
+    _require(_is_time(row["started"]), "started", "a time (a finite number >= 0)", row["started"])
+    _require(
+        row["finished"] is None or _is_time(row["finished"]),
+        "finished",
+        "empty or a time (a finite number >= 0)",
+        row["finished"],
+    )
+    _require(
+        row["status"] in RUN_STATUSES, "status", f"one of {', '.join(RUN_STATUSES)}", row["status"]
+    )
+    _require(
+        _is_int(row["pid"]) and 0 < row["pid"] <= MAX_PID,
+        "pid",
+        f"a process id (an integer in [1, {MAX_PID}])",
+        row["pid"],
+    )
+    _require(isinstance(row["host"], str) and row["host"] != "", "host", "a host name", row["host"])
+    start = row["proc_start"]
+    _require(
+        isinstance(start, str) and (start == "" or start.isdigit()),
+        "proc_start",
+        "empty or a process start time (digits)",
+        start,
+    )
+    _require(isinstance(row["stamp"], str), "stamp", "JSON text", row["stamp"])
+
+
 class StoreError(RuntimeError):
     """A store that cannot be used: not a database, not ours, another schema version, damaged,
     locked too long, or a row that cannot be read."""
@@ -224,6 +432,12 @@ def _proc_state(pid: int) -> str:
     except OSError:
         return ""
     return text.rsplit(")", 1)[1].split()[0]
+
+
+def _is_lock_error(exc: sqlite3.OperationalError) -> bool:
+    """Whether SQLite gave up waiting for a lock (its busy timeout passed)."""
+    text = str(exc).lower()
+    return "locked" in text or "busy" in text
 
 
 def _expected_columns() -> dict[str, list[tuple[Any, ...]]]:
@@ -311,14 +525,21 @@ class Store:
                 f"{self.path}: cannot create its folder {self.path.parent} ({exc.strerror or exc})"
             ) from None
         if not self.path.exists() and not os.access(self.path.parent, os.W_OK | os.X_OK):
-            raise StoreError(f"{self.path}: cannot create the store ({self.path.parent} is not "
-                             "writable)")  # fmt: skip
+            raise StoreError(
+                f"{self.path}: cannot create the store ({self.path.parent} is not writable)"
+            )
+        self._timeout = timeout
+        self._host = socket.gethostname()
         try:
             self._db = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
             self._db.row_factory = sqlite3.Row
             # Look before writing: the WAL pragma and the tables below change the file.
             _check_own(self._db, self.path)
             mode = self._db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+        except sqlite3.OperationalError as exc:
+            message = self._lock_message(exc) if _is_lock_error(exc) else None
+            self._close_quietly()
+            raise StoreError(message or f"{self.path}: not an evaluation store ({exc})") from None
         except sqlite3.DatabaseError as exc:
             self._close_quietly()
             raise StoreError(f"{self.path}: not an evaluation store ({exc})") from None
@@ -327,7 +548,6 @@ class Store:
             raise
         if str(mode).lower() != "wal":
             raise StoreError(f"{self.path}: SQLite refused the WAL journal (got {mode!r})")
-        self._host = socket.gethostname()
         self._db.execute("PRAGMA synchronous=FULL")
         self._db.execute("PRAGMA foreign_keys=ON")  # a no-op inside a transaction
         with self.transaction():
@@ -368,6 +588,8 @@ class Store:
         try:
             yield
         except sqlite3.OperationalError as exc:
+            if _is_lock_error(exc):
+                raise StoreError(self._lock_message(exc)) from None
             raise StoreError(f"{self.path}: {exc}") from None
         except sqlite3.DatabaseError as exc:
             raise StoreError(
@@ -382,6 +604,8 @@ class Store:
         try:
             self._db.execute("BEGIN IMMEDIATE")
         except sqlite3.OperationalError as exc:
+            if _is_lock_error(exc):
+                raise StoreError(self._lock_message(exc)) from None
             raise StoreError(f"{self.path}: could not lock the store ({exc})") from None
         with self._errors():
             try:
@@ -405,11 +629,45 @@ class Store:
             return None
         try:
             return json.loads(text)
-        except ValueError as exc:
+        except (ValueError, RecursionError) as exc:
+            why = "nested too deep" if isinstance(exc, RecursionError) else str(exc)
             raise StoreError(
-                f"{self.path}: {what} is not readable JSON ({exc}); it was not written by this "
+                f"{self.path}: {what} is not readable JSON ({why}); it was not written by this "
                 "code: delete the row (sqlite3) to run it again"
             ) from None
+
+    def _invalid(self, what: str, exc: _RowError) -> StoreError:
+        """The :class:`StoreError` of a row that failed validation: the file, the row
+        (``what``: its table and key) and the field."""
+        return StoreError(
+            f"{self.path}: {what}: {exc}; this code did not write it: delete the row (sqlite3), "
+            "or use another store"
+        )
+
+    def _lock_message(self, exc: sqlite3.OperationalError) -> str:
+        """Why the write lock was not had within the busy timeout, naming the runs this store
+        marks as running (SQLite does not record who holds its lock: one of them, or another
+        program with the file open) and what to do."""
+        lines = []
+        try:
+            rows = self._db.execute(
+                "SELECT run_id, tool, host, pid FROM runs WHERE status = 'running' ORDER BY run_id"
+            ).fetchall()
+        except sqlite3.DatabaseError:  # the file cannot even be read now
+            rows = []
+        for r in rows[:8]:
+            where = "this host" if r["host"] == self._host else f"host {_name(r['host'])}"
+            lines.append(f"  run {r['run_id']} ({_name(r['tool'])}, {where}, pid {r['pid']})")
+        held = (
+            "the runs it marks as running:\n" + "\n".join(lines)
+            if lines
+            else "no run of it is marked as running"
+        )
+        return (
+            f"{self.path}: could not lock the store within {self._timeout:g} s ({exc}): another "
+            f"connection holds it; {held}\nWait for that run to finish and try again, or end it; "
+            "if none is running, another program (an sqlite3 shell?) has the file open: close it"
+        )
 
     # --- runs ---------------------------------------------------------------------------------
 
@@ -428,6 +686,8 @@ class Store:
     def finish_run(self, run_id: int, status: str) -> None:
         """End a run (``finished``, ``interrupted``, ``failed``): its unfinished claims are
         released, so that the next run takes them at once."""
+        if status not in RUN_STATUSES[1:]:
+            raise ValueError(f"status must be one of {', '.join(RUN_STATUSES[1:])}, got {status!r}")
         with self.transaction() as db:
             db.execute("DELETE FROM episodes WHERE run_id = ? AND status = 'running'", (run_id,))
             db.execute(
@@ -441,38 +701,66 @@ class Store:
         is gone from this host (``kill -9``, a crash: it never recorded its end)."""
         rows = self._rows("SELECT * FROM runs ORDER BY run_id")
         wanted = None if run_ids is None else set(run_ids)
-        return [
-            {
-                **dict(r),
-                "stamp": self._json(r["stamp"], f"the stamp of run {r['run_id']}") or {},
-                "state": self._run_state(r),
-            }
-            for r in rows
-            if wanted is None or r["run_id"] in wanted
-        ]
+        out = []
+        for row in rows:
+            r = dict(row)
+            if wanted is not None and r["run_id"] not in wanted:
+                continue
+            self._check_run(r)
+            out.append({**r, "stamp": self._stamp(r), "state": self._run_state(r)})
+        return out
 
-    def _run_state(self, run: sqlite3.Row) -> str:
-        """``running``, ``killed`` (a running run gone from this host), ``stopped`` (its process
-        is stopped, e.g. by Ctrl-Z or ``kill -STOP``), or the status it recorded."""
+    def _check_run(self, run: Mapping[str, Any]) -> None:
+        """Validate a ``runs`` row (:func:`_check_run_row`) before it is used."""
+        try:
+            _check_run_row(run)
+        except _RowError as exc:
+            raise self._invalid(f"the runs row of run {_shown(run['run_id'])}", exc) from None
+
+    def _stamp(self, run: Mapping[str, Any]) -> dict[str, Any]:
+        """The parsed stamp of a (checked) ``runs`` row: a JSON object."""
+        stamp = self._json(run["stamp"], f"the stamp of run {run['run_id']}")
+        try:
+            _require(isinstance(stamp, dict), "stamp", "a JSON object", stamp)
+        except _RowError as exc:
+            raise self._invalid(f"the runs row of run {run['run_id']}", exc) from None
+        out: dict[str, Any] = stamp
+        return out
+
+    def _run_state(self, run: Mapping[str, Any]) -> str:
+        """``running``, ``killed`` (a running run gone from this host), ``stale`` (a running run
+        of another host silent for :data:`FOREIGN_CLAIM_STALE`), ``stopped`` (its process is
+        stopped, e.g. by Ctrl-Z or ``kill -STOP``), or the status it recorded."""
         if run["status"] != "running":
             return str(run["status"])
         if not self._run_alive(run):
-            return "killed"
+            return "killed" if run["host"] == self._host else "stale"
         if run["host"] == self._host and _proc_state(int(run["pid"])) == "T":
             return "stopped"
         return "running"
 
-    def _run_alive(self, run: sqlite3.Row) -> bool:
-        """Whether the run that holds a claim may still finish it."""
+    def _run_alive(self, run: Mapping[str, Any]) -> bool:
+        """Whether the run that holds a claim may still finish it (a checked ``runs`` row)."""
         if run["status"] != "running":
             return False
         if run["host"] != self._host:
-            return True  # cannot look at another machine's processes: trust it, for a while
+            # Another machine's processes cannot be looked at: trust the run while it writes.
+            return time.time() - self._last_write(run) < FOREIGN_CLAIM_STALE
         pid = int(run["pid"])
         if not _pid_alive(pid) or _proc_state(pid) == "Z":
             return False
         start = _proc_start(pid)
         return not (start and run["proc_start"] and start != run["proc_start"])
+
+    def _last_write(self, run: Mapping[str, Any]) -> float:
+        """When run ``run`` last wrote to the store (its start, a claim, a result), by its
+        host's clock."""
+        with self._errors():
+            row = self._db.execute(
+                "SELECT MAX(updated) AS t FROM episodes WHERE run_id = ?", (run["run_id"],)
+            ).fetchone()
+        last = row["t"] if row is not None and _is_time(row["t"]) else 0.0
+        return max(float(run["started"]), float(last))
 
     def holders(self, keys: Iterable[EpisodeKey]) -> list[dict[str, Any]]:
         """The runs holding claims (``running`` rows) on ``keys``: each run's row (with its
@@ -492,17 +780,19 @@ class Store:
         holding run (run, tool, host, pid, state)."""
         lines = []
         for run in self.holders(keys):
-            where = "this host" if run["host"] == self._host else f"host {run['host']}"
+            where = "this host" if run["host"] == self._host else f"host {_name(run['host'])}"
             why = {
                 "stopped": f"its process is stopped: `kill -CONT {run['pid']}` lets it go on",
                 "running": (
                     "it is running on this host: wait for it, or end it"
                     if run["host"] == self._host
-                    else "this host cannot see whether it is still alive (a copied store?)"
+                    else "this host cannot see whether it is still alive (a copied store?); "
+                    f"it last wrote {time.time() - self._last_write(run):.0f} s ago, and its "
+                    f"claims are taken over after {FOREIGN_CLAIM_STALE:.0f} s of silence"
                 ),
             }.get(run["state"], run["state"])
             lines.append(
-                f"  run {run['run_id']} ({run['tool']}, {where}, pid {run['pid']}, started "
+                f"  run {run['run_id']} ({_name(run['tool'])}, {where}, pid {run['pid']}, started "
                 f"{time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(run['started']))}) holds "
                 f"{run['held']} cell(s): {why}"
             )
@@ -563,7 +853,13 @@ class Store:
         rows = self._rows("SELECT config FROM scenarios WHERE fingerprint = ?", (fingerprint,))
         if not rows:
             raise KeyError(fingerprint)
-        out: dict[str, Any] = self._json(rows[0]["config"], f"scenario {fingerprint[:12]}") or {}
+        what = f"the scenarios row of {_name(fingerprint)}"
+        config = self._json(rows[0]["config"], what)
+        try:
+            _require(isinstance(config, dict), "config", "a JSON object", config)
+        except _RowError as exc:
+            raise self._invalid(what, exc) from None
+        out: dict[str, Any] = config
         return out
 
     # --- episodes -----------------------------------------------------------------------------
@@ -582,7 +878,7 @@ class Store:
         busy: list[EpisodeKey] = []
         now = time.time()
         with self.transaction() as db:
-            runs = {r["run_id"]: r for r in db.execute("SELECT * FROM runs").fetchall()}
+            runs = {r["run_id"]: dict(r) for r in db.execute("SELECT * FROM runs").fetchall()}
             alive: dict[int, bool] = {}
             for key in keys:
                 row = db.execute(
@@ -596,6 +892,8 @@ class Store:
                 if row is not None and row["status"] == "running" and row["run_id"] != run_id:
                     owner = row["run_id"]
                     if owner not in alive:
+                        if owner in runs:
+                            self._check_run(runs[owner])
                         alive[owner] = owner in runs and self._run_alive(runs[owner])
                     if alive[owner]:
                         busy.append(key)
@@ -665,15 +963,8 @@ class Store:
                 )
         out = {}
         for r in rows:
+            metrics = self._episode_metrics(dict(r))
             key = EpisodeKey(r["policy"], r["scenario"], r["overrides"], r["seed"], r["measure"])
-            what = (
-                f"the metrics of the episode of {r['policy_name']} on {r['scenario_name']}, seed "
-                f"{r['seed']} (policy {r['policy'][:12]})"
-            )
-            metrics = self._json(r["metrics"], what) or {}
-            if not isinstance(metrics, dict):
-                raise StoreError(f"{self.path}: {what} are not a JSON object: {r['metrics']!r}")
-            metrics = _decode_nonfinite(metrics)
             out[key] = EpisodeRecord(
                 key=key,
                 status=r["status"],
@@ -686,6 +977,30 @@ class Store:
                 error=r["error"] or "",
             )
         return out
+
+    def _episode_metrics(self, row: Mapping[str, Any]) -> dict[str, Any]:
+        """Validate an ``episodes`` row (:func:`_check_episode_row`, :func:`_check_metrics`)
+        and return its metrics, decoded (:func:`_decode_nonfinite`)."""
+        key = ", ".join(
+            f"{field} {_short(row[field])}" for field in ("policy", "scenario", "overrides", "seed")
+        )
+        key += f", measure {_name(row['measure'])}"
+        episode = (
+            f"the episode of {_name(row['policy_name'])} on {_name(row['scenario_name'])}, seed "
+            f"{_shown(row['seed'])} ({key})"
+        )
+        what = f"the episodes row of {episode}"
+        try:
+            _check_episode_row(row)
+            metrics = self._json(row["metrics"], f"the metrics of {episode}")
+            if metrics is None:
+                metrics = {}
+            _require(isinstance(metrics, dict), "metrics", "a JSON object", metrics)
+            metrics = _decode_nonfinite(metrics)
+            _check_metrics(metrics, row["status"], row["measure"])
+        except _RowError as exc:
+            raise self._invalid(what, exc) from None
+        return metrics
 
     def counts(self) -> dict[str, int]:
         """Episodes per status over the whole store."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import sqlite3
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -274,3 +275,155 @@ def test_store_metrics_are_json_and_keep_inf_and_nan(tmp_path: Path) -> None:
     m = got[key].metrics
     assert m["time_to_violation"] == math.inf and m["low"] == -math.inf and math.isnan(m["x"])
     assert m["y"] == 1.5 and got[old].metrics == {"t": math.inf}
+
+
+# --- scenario files: bounded before the expensive work, parsed once ----------------------------
+
+
+def test_a_scenario_file_over_its_limit_is_refused_before_parsing(
+    tmp_path: Path, corridor: dict
+) -> None:
+    """A valid scenario padded with comments just past MAX_SCENARIO_BYTES (1 MiB; it used to be
+    parsed, about 10 s per MiB) is refused at once, naming the limit."""
+    import time
+
+    import yaml
+
+    from platoon_env.scenarios import ScenarioError, load_config, loader
+
+    path = tmp_path / "padded.yaml"
+    text = yaml.safe_dump(corridor)
+    line = "#" + "x" * 1022 + "\n"
+    path.write_text(text + line * ((loader.MAX_SCENARIO_BYTES - len(text)) // len(line) + 1))
+    assert loader.MAX_SCENARIO_BYTES < path.stat().st_size < loader.MAX_YAML_BYTES
+    start = time.perf_counter()
+    with pytest.raises(ScenarioError) as exc:
+        load_config(path)
+    assert time.perf_counter() - start < 1.0
+    assert str(exc.value).startswith(f"{path}: the file is ")
+    assert f"limit of {loader.MAX_SCENARIO_BYTES} bytes (MAX_SCENARIO_BYTES)" in str(exc.value)
+
+
+def _squares(n: int, vertices: int = 4) -> list:
+    """``n`` small polygons of ``vertices`` vertices each, inside the corridor fixture."""
+    import math
+
+    return [
+        [
+            [round(20.0 + 0.001 * i + 0.0004 * math.cos(2 * math.pi * k / vertices), 6),
+             round(1.5 + 0.0004 * math.sin(2 * math.pi * k / vertices), 6)]
+            for k in range(vertices)
+        ]
+        for i in range(n)
+    ]  # fmt: skip
+
+
+#: Scenarios past a count limit: (block, key, value, the error past "scenario.").
+PAST_A_LIMIT = {
+    "obstacles": ("workspace", "obstacles", lambda: _squares(1001),
+                  r"workspace\.obstacles: 1001 polygons.*MAX_OBSTACLES"),
+    "polygon": ("workspace", "obstacles", lambda: _squares(1, 10_001),
+                r"workspace\.obstacles\[0\]: 10001 vertices.*MAX_POLYGON_VERTICES"),
+    "workspace": ("workspace", "obstacles", lambda: _squares(3, 7_000),
+                  r"workspace: more than 20000 vertices.*MAX_WORKSPACE_VERTICES"),
+    "path": ("leader", "path", lambda: [[0.5 + 1e-3 * i, 0.0] for i in range(10_001)],
+             r"leader\.path: 10001 points.*MAX_PATH_POINTS"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", sorted(PAST_A_LIMIT))
+def test_a_scenario_past_a_count_limit_is_refused_before_the_schema(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, corridor: dict, case: str
+) -> None:
+    """Obstacles, vertices and path points are counted before the schema parses them (its checks
+    and the geometry grow with them): a file or a mapping past a limit names the field and the
+    limit; the schema is never called."""
+    import yaml
+
+    from platoon_env.scenarios import ScenarioError, load_config, loader
+
+    block, key, value, match = PAST_A_LIMIT[case]
+    corridor[block][key] = value()
+    path = tmp_path / "big.yaml"
+    path.write_text(yaml.dump(corridor, Dumper=yaml.CSafeDumper, default_flow_style=True))
+    assert path.stat().st_size < loader.MAX_SCENARIO_BYTES  # the count is what is refused
+
+    def never(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the schema parsed a scenario past a limit")
+
+    monkeypatch.setattr(loader, "parse_scenario", never)
+    with pytest.raises(ScenarioError, match=rf"^{path}: scenario\.{match}"):
+        load_config(path)
+    with pytest.raises(ScenarioError, match=rf"^scenario\.{match}"):
+        load_config(corridor)
+
+
+def test_the_count_limits_leave_wide_headroom_for_shipped_and_procedural_scenarios() -> None:
+    """Every shipped scenario file, and the layouts the procedural families draw, lie at least
+    ten times inside each limit (measured: 6.7 kB, 26 obstacles, 171 vertices, 133 path
+    points)."""
+    from importlib import resources
+
+    from platoon_env.scenarios import list_scenarios, load_config, loader
+    from platoon_env.scenarios.source import ProceduralSource
+
+    def counts(cfg: Any) -> tuple[int, int, int, int]:
+        ws = cfg.workspace
+        polygons = list(ws.obstacles)
+        if ws.free_space is not None:
+            polygons += [ws.free_space.exterior, *ws.free_space.holes]
+        sizes = [len(p) for p in polygons]
+        return len(polygons), max(sizes, default=0), sum(sizes), len(cfg.leader.path)
+
+    limits = (loader.MAX_OBSTACLES, loader.MAX_POLYGON_VERTICES, loader.MAX_WORKSPACE_VERTICES,
+              loader.MAX_PATH_POINTS)  # fmt: skip
+    for name in list_scenarios():
+        text = resources.files(loader._DATA).joinpath(f"{name}.yaml").read_bytes()
+        assert 10 * len(text) < loader.MAX_SCENARIO_BYTES, name
+        cfg = load_config(name)
+        layouts = [cfg] if cfg.generator is None else [
+            ProceduralSource(cfg).layout(i).config for i in (0, 1, 2)
+        ]  # fmt: skip
+        for layout in layouts:
+            assert all(10 * n < limit for n, limit in zip(counts(layout), limits, strict=True)), (
+                name, counts(layout))  # fmt: skip
+
+
+def test_a_scenario_file_is_parsed_once_per_process(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """make() twice and the single-follower env (which looked at the file first) parse a file
+    once (each episode of a run used to parse it again); an edited scenario or trajectory file
+    is parsed again."""
+    import shutil
+
+    import platoon_env
+    from platoon_env.gym_env import SingleFollowerEnv
+    from platoon_env.scenarios import ScenarioError, load_config, loader
+
+    data = Path(loader.__file__).parent / "data"
+    path = shutil.copy(data / "study_b.yaml", tmp_path / "b.yaml")
+    shutil.copytree(data / "trajectories", tmp_path / "trajectories")
+    parsed: list[str] = []
+    read_yaml = loader.read_yaml
+
+    def counting(text: str, source: str) -> Any:
+        parsed.append(source)
+        return read_yaml(text, source)
+
+    monkeypatch.setattr(loader, "read_yaml", counting)
+    first = load_config(path)
+    assert len(parsed) == 2  # the scenario and its trajectory file
+    platoon_env.make(path)
+    platoon_env.make(path)
+    SingleFollowerEnv(path)
+    assert load_config(path) is first and len(parsed) == 2
+    assert load_config("study_b") == first  # the shipped file: the same config
+    # An edited trajectory file, then an edited scenario file: parsed again.
+    trajectory = tmp_path / "trajectories" / "study_b_trajectory.yaml"
+    trajectory.write_text("[[0, 0, 0, 0]]\n")
+    with pytest.raises(ScenarioError, match=r"leader\.trajectory"):
+        load_config(path)
+    shutil.copy(data / "trajectories" / "study_b_trajectory.yaml", trajectory)
+    Path(path).write_text(Path(path).read_text().replace("followers: 2", "followers: 3"))
+    assert load_config(path).followers == 3

@@ -21,11 +21,27 @@ Reading YAML (:func:`read_yaml`) is strict, so that no input escapes the schema'
   never executed; a file must be UTF-8 and may hold no control characters but tab, line feed
   and carriage return (YAML's printable set). Every error is a
   :class:`~platoon_env.config.ScenarioError` naming the file and line.
+
+A scenario (:func:`load_config`) is bounded further, before anything expensive is done with it
+(the pure-Python YAML parse costs about 10 s per MiB, the schema and the geometry grow with the
+vertices): a scenario file over :data:`MAX_SCENARIO_BYTES` is refused before it is parsed, and
+a scenario (a file or a mapping) with more obstacles, vertices or path points than
+:data:`MAX_OBSTACLES`, :data:`MAX_POLYGON_VERTICES`, :data:`MAX_WORKSPACE_VERTICES` or
+:data:`MAX_PATH_POINTS` is refused before the schema parses it, naming the field and the limit.
+The largest shipped scenario file is 6.7 kB (study B; its trajectory file 26.7 kB), and the
+largest shipped or procedural layout has 26 obstacles, 171 vertices (one polygon and in all)
+and 133 path points: the limits are 38 to 150 times that.
+
+A scenario file (or shipped name) is parsed once per process: the config of its text (and of
+the trajectory file it names) is kept, keyed by their SHA-256, so that the envs and episodes of
+a run built from one file parse it once; an edited file has another hash and is parsed again.
 """
 
 from __future__ import annotations
 
+import hashlib
 import re
+from collections import OrderedDict
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
@@ -38,7 +54,7 @@ from yaml.events import AliasEvent
 from yaml.nodes import MappingNode, Node, ScalarNode
 from yaml.reader import ReaderError
 
-from platoon_env.config import ScenarioConfig, ScenarioError
+from platoon_env.config import ScenarioConfig, ScenarioError, field_error
 from platoon_env.scenarios.scenario import Scenario, build_scenario
 from platoon_env.scenarios.schema import parse_scenario
 
@@ -51,6 +67,23 @@ ScenarioLike = str | Path | Mapping[str, Any] | ScenarioConfig | Scenario
 MAX_YAML_BYTES = 10 * 1024 * 1024
 #: Deepest nesting of YAML collections (a scenario needs about six: blocks, polygons, points).
 MAX_YAML_DEPTH = 64
+#: [bytes] Largest scenario file: 1 MiB parses in about 10 s (PyYAML in pure Python, measured
+#: on a shared 2-core machine); the largest shipped scenario file is 6.7 kB (study B). A long
+#: timed trajectory belongs in a ``trajectory_file`` (bounded by :data:`MAX_YAML_BYTES`).
+MAX_SCENARIO_BYTES = 1024 * 1024
+#: Most polygons in ``workspace.obstacles``, and in ``workspace.free_space.holes`` (shipped and
+#: procedural layouts: at most 26).
+MAX_OBSTACLES = 1000
+#: Most vertices of one polygon: an obstacle, a hole or ``free_space.exterior`` (shipped and
+#: procedural: at most 171).
+MAX_POLYGON_VERTICES = 10_000
+#: Most vertices of the whole workspace, all its polygons together (shipped and procedural: at
+#: most 171); the schema's checks and the geometry's cost grow with them.
+MAX_WORKSPACE_VERTICES = 20_000
+#: Most points of ``leader.path`` (shipped and procedural: at most 133).
+MAX_PATH_POINTS = 10_000
+#: How many parsed scenario files :func:`load_config` keeps (see the module docstring).
+_PARSED_KEPT = 16
 
 # YAML 1.2 core schema (https://yaml.org/spec/1.2.2/#1032-tag-resolution).
 _BOOL = "tag:yaml.org,2002:bool"
@@ -250,7 +283,27 @@ def _read_text(path: Path) -> str:
 TRAJECTORY_FILE = "trajectory_file"
 
 
-def _with_trajectory_file(data: Any, base: Any, source: str) -> Any:
+def _trajectory_text(ref: Any, where: str, name: str) -> str:
+    """The text of the trajectory file ``ref`` (a :class:`~pathlib.Path` or a package
+    resource), read by :func:`_read_text`'s rules."""
+    if isinstance(ref, Path):
+        if not ref.is_file():
+            raise ScenarioError(f"{where}: no such file {ref}")
+        return _read_text(ref)
+    try:
+        text: str = ref.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"{where}: cannot read {name!r} ({exc})") from None
+    return text
+
+
+def _digest(text: str) -> str:
+    return hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest()
+
+
+def _with_trajectory_file(
+    data: Any, base: Any, source: str, read: list[tuple[Any, str]] | None = None
+) -> Any:
     """``data`` with ``leader.trajectory_file`` replaced by the trajectory it names.
 
     A scenario file may keep a long timed trajectory (a planner's output, a recorded log) in a
@@ -259,6 +312,7 @@ def _with_trajectory_file(data: Any, base: Any, source: str) -> Any:
     YAML document is the list ``[[t, x, y, theta], ...]``. The file is read by the same strict
     rules as a scenario file; it may not lie outside ``base`` (no ``..`` or absolute paths).
     A scenario given as a mapping has no folder: it must give ``trajectory`` itself.
+    ``read``, if given, collects ``(file, SHA-256 of its text)`` of the file read.
     """
     leader = data.get("leader") if isinstance(data, Mapping) else None
     if not isinstance(leader, Mapping) or TRAJECTORY_FILE not in leader:
@@ -275,15 +329,9 @@ def _with_trajectory_file(data: Any, base: Any, source: str) -> Any:
     if rel.is_absolute() or ".." in rel.parts:
         raise ScenarioError(f"{where}: must be a path inside the scenario's folder, got {name!r}")
     ref = base.joinpath(*rel.parts)
-    if isinstance(ref, Path):
-        if not ref.is_file():
-            raise ScenarioError(f"{where}: no such file {ref}")
-        text = _read_text(ref)
-    else:
-        try:
-            text = ref.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ScenarioError(f"{where}: cannot read {name!r} ({exc})") from None
+    text = _trajectory_text(ref, where, name)
+    if read is not None:
+        read.append((ref, _digest(text)))
     samples = read_yaml(text, f"{source} -> {name}")
     out = dict(data)
     out["leader"] = {k: v for k, v in leader.items() if k != TRAJECTORY_FILE}
@@ -291,14 +339,113 @@ def _with_trajectory_file(data: Any, base: Any, source: str) -> Any:
     return out
 
 
+def _count(value: Any) -> int:
+    """How many items a list-like field holds (0 for anything else: the schema reports a
+    field of the wrong type)."""
+    return len(value) if isinstance(value, list | tuple) else 0
+
+
+def check_sizes(data: Any, path: str = "scenario") -> None:
+    """Refuse a scenario mapping with more obstacles, vertices or path points than the limits
+    (:data:`MAX_OBSTACLES`, :data:`MAX_POLYGON_VERTICES`, :data:`MAX_WORKSPACE_VERTICES`,
+    :data:`MAX_PATH_POINTS`): a :class:`ScenarioError` naming the field and the limit, before the
+    schema parses it. Only counts; every other rule is the schema's."""
+    if not isinstance(data, Mapping):
+        return
+    workspace = data.get("workspace")
+    polygons: list[tuple[str, Any]] = []
+    if isinstance(workspace, Mapping):
+        free = workspace.get("free_space")
+        lists = [("obstacles", workspace.get("obstacles"))]
+        if isinstance(free, Mapping):
+            polygons.append(("free_space.exterior", free.get("exterior")))
+            lists.append(("free_space.holes", free.get("holes")))
+        for name, items in lists:
+            n = _count(items)
+            if n > MAX_OBSTACLES:
+                raise field_error(
+                    f"{path}.workspace.{name}",
+                    f"{n} polygons, more than the limit of {MAX_OBSTACLES} (MAX_OBSTACLES)",
+                )
+            if isinstance(items, list | tuple):
+                polygons += [(f"{name}[{i}]", p) for i, p in enumerate(items)]
+    total = 0
+    for name, polygon in polygons:
+        n = _count(polygon)
+        if n > MAX_POLYGON_VERTICES:
+            raise field_error(
+                f"{path}.workspace.{name}",
+                f"{n} vertices, more than the limit of {MAX_POLYGON_VERTICES} "
+                "(MAX_POLYGON_VERTICES)",
+            )
+        total += n
+        if total > MAX_WORKSPACE_VERTICES:
+            raise field_error(
+                f"{path}.workspace",
+                f"more than {MAX_WORKSPACE_VERTICES} vertices in all its polygons "
+                "(MAX_WORKSPACE_VERTICES)",
+            )
+    leader = data.get("leader")
+    n = _count(leader.get("path")) if isinstance(leader, Mapping) else 0
+    if n > MAX_PATH_POINTS:
+        raise field_error(
+            f"{path}.leader.path",
+            f"{n} points, more than the limit of {MAX_PATH_POINTS} (MAX_PATH_POINTS)",
+        )
+
+
+#: Parsed scenario texts: (text's SHA-256, folder) -> (config, the trajectory files it read and
+#: their SHA-256); at most :data:`_PARSED_KEPT`, the least recently used dropped first.
+_PARSED: OrderedDict[tuple[str, str], tuple[ScenarioConfig, tuple[tuple[Any, str], ...]]] = (
+    OrderedDict()
+)
+
+
+def _unchanged(read: tuple[tuple[Any, str], ...]) -> bool:
+    """Whether each trajectory file of ``read`` still has the text of its SHA-256."""
+    try:
+        return all(_digest(_trajectory_text(ref, "", str(ref))) == d for ref, d in read)
+    except ScenarioError:  # gone or unreadable now: the full parse names the problem
+        return False
+
+
+def _parse_text(text: str, base: Any, source: str, *, name_schema_errors: bool) -> ScenarioConfig:
+    """The config of the scenario file text ``text`` (its folder ``base``, named ``source`` in
+    errors; the schema's errors too if ``name_schema_errors``): bounded by
+    :data:`MAX_SCENARIO_BYTES` and :func:`check_sizes`, parsed once per process (the module
+    docstring)."""
+    size = len(text.encode("utf-8", "surrogatepass"))
+    if size > MAX_SCENARIO_BYTES:
+        raise ScenarioError(
+            f"{source}: the file is {size} bytes, more than the limit of {MAX_SCENARIO_BYTES} "
+            "bytes (MAX_SCENARIO_BYTES) for a scenario file: keep a long leader trajectory in a "
+            "trajectory_file"
+        )
+    key = (_digest(text), str(base))
+    kept = _PARSED.get(key)
+    if kept is not None and _unchanged(kept[1]):
+        _PARSED.move_to_end(key)
+        return kept[0]
+    data = read_yaml(text, source)
+    read: list[tuple[Any, str]] = []
+    data = _with_trajectory_file(data, base, source, read)
+    try:
+        check_sizes(data)
+        config = parse_scenario(data)
+    except ScenarioError as exc:
+        if not name_schema_errors:
+            raise
+        raise ScenarioError(f"{source}: {exc}") from exc
+    _PARSED[key] = (config, tuple(read))
+    while len(_PARSED) > _PARSED_KEPT:
+        _PARSED.popitem(last=False)
+    return config
+
+
 def _config_from_file(path: Path) -> ScenarioConfig:
     if not path.is_file():
         raise ScenarioError(f"{path}: no such scenario file")
-    data = _with_trajectory_file(read_yaml(_read_text(path), str(path)), path.parent, str(path))
-    try:
-        return parse_scenario(data)
-    except ScenarioError as exc:
-        raise ScenarioError(f"{path}: {exc}") from exc
+    return _parse_text(_read_text(path), path.parent, str(path), name_schema_errors=True)
 
 
 def load_config(scenario: ScenarioLike) -> ScenarioConfig:
@@ -308,14 +455,17 @@ def load_config(scenario: ScenarioLike) -> ScenarioConfig:
     if isinstance(scenario, ScenarioConfig):
         return scenario
     if isinstance(scenario, Mapping):
+        check_sizes(scenario)
         return parse_scenario(_with_trajectory_file(scenario, None, "scenario"))
     if isinstance(scenario, (str, Path)):
         text = str(scenario)
         if text in list_scenarios():
             ref = resources.files(_DATA).joinpath(f"{text}.yaml")
-            data = read_yaml(ref.read_text(encoding="utf-8"), f"{text}.yaml")
-            return parse_scenario(
-                _with_trajectory_file(data, resources.files(_DATA), f"{text}.yaml")
+            return _parse_text(
+                ref.read_text(encoding="utf-8"),
+                resources.files(_DATA),
+                f"{text}.yaml",
+                name_schema_errors=False,
             )
         path = Path(text)
         if path.suffix in (".yaml", ".yml") or path.exists():
