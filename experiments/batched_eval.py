@@ -132,6 +132,10 @@ class CopyEnv:
     :attr:`poses`, :attr:`sensed`, :attr:`violation_masks`, :attr:`leader_arrived`,
     :attr:`leader_speed_factor`. Every other attribute is ``env``'s: an env of the same
     scenario and ``make()`` keywords, never reset (its spaces, source, control period).
+
+    The fast learner's experts are built on :class:`training.experts.ExpertEnv` instead: the
+    three fields a law reads at construction, fixed for one episode of a copy whose formation
+    no one made env fits.
     """
 
     def __init__(self, env: Any, core: Any, index: int) -> None:

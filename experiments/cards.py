@@ -23,6 +23,7 @@ from experiments.configs import CONFIGS
 from experiments.report import wilson, write_text_atomic
 from experiments.suites import LEADERBOARD_SUITES as SUITES
 from platoon_env.observation import OBS_NAMES_SCALE_FREE, OBS_NAMES_TASK
+from training.algorithms import has_multiplier
 from training.curves import plot_learning_curves, read_progress
 
 if TYPE_CHECKING:
@@ -88,7 +89,7 @@ def _training_summary(meta: Mapping[str, Any]) -> list[str]:
         + (
             f", cost budget {cfg.get('cost_budget')} per follower episode, multiplier step "
             f"{cfg.get('lagrangian_lr')}"
-            if meta.get("algo") == "ppo_lagrangian"
+            if has_multiplier(str(meta.get("algo")))
             else ""
         ),
         f"- trained on `{meta.get('scenario')}` with sensor profile "
@@ -162,7 +163,7 @@ def _end_cost(p: Mapping[str, NDArray[np.float64]], budget: float | None) -> str
 
 def cost_budget(meta: Mapping[str, Any]) -> float | None:
     """The cost budget of a ``ppo_lagrangian`` model's ``model.json`` (else None)."""
-    if meta.get("algo") != "ppo_lagrangian":
+    if not has_multiplier(str(meta.get("algo"))):
         return None
     budget = (meta.get("config") or {}).get("cost_budget")
     return None if budget is None else float(budget)

@@ -22,7 +22,7 @@ from training.bc import (
     BatchedExpert,
     BCConfig,
     Collector,
-    CopyEnv,
+    ExpertEnv,
     action_error,
     to_normalised,
     train_bc,
@@ -65,7 +65,7 @@ def test_the_expert_of_a_copy_is_the_ppc_law_on_that_copy() -> None:
     cfg = ppo_config()
     core, obs = make_core(cfg)
     expert = BatchedExpert(core)
-    law = PPCPolicy(CopyEnv(tuple(core.possible_agents), core.control_period, core.scenarios[2]))
+    law = PPCPolicy(ExpertEnv(tuple(core.possible_agents), core.control_period, core.scenarios[2]))
     commands = expert.act(obs)
     mine = law.act({a: obs[2, i, :7] for i, a in enumerate(core.possible_agents)})
     for i, agent in enumerate(core.possible_agents):

@@ -8,7 +8,7 @@ law instead:
 1. **Expert.** The law acts for every env copy of a :class:`platoon_env.batched.BatchedPlatoon`:
    one policy per copy (``ppc``: :class:`baselines.PPCPolicy`; ``filtered_ppc``:
    :class:`baselines.filtered_ppc.FilteredPPCPolicy`), built through a small
-   :class:`~baselines.policy.PolicyEnv` shim (:class:`CopyEnv`: the copy's followers, the
+   :class:`~baselines.policy.PolicyEnv` shim (:class:`ExpertEnv`: the copy's followers, the
    control period and *the copy's current scenario*) and rebuilt and reset at each episode
    start of that copy. It is fed its copy's observations as the core gives them, in whatever
    layout :class:`~training.fast_ppo.FastPPOConfig`'s observation options make, and reads its
@@ -85,7 +85,7 @@ from numpy.typing import NDArray
 from platoon_env.batched import BatchedPlatoon
 from platoon_env.scenarios.fingerprint import file_sha256
 from training.config import BOUNDS, ENV_FIELDS, env_metadata
-from training.experts import EXPERTS, BatchedExpert, CopyEnv, to_normalised
+from training.experts import EXPERTS, BatchedExpert, ExpertEnv, to_normalised
 from training.fast_ppo import (
     ActorCritic,
     FastPPOConfig,
@@ -111,7 +111,7 @@ __all__ = [
     "BCRun",
     "BatchedExpert",
     "Collector",
-    "CopyEnv",
+    "ExpertEnv",
     "Rollout",
     "action_error",
     "to_normalised",

@@ -38,6 +38,7 @@ from platoon_env.scenarios.schema import (
     ScenarioError,
 )
 from platoon_env.scenarios.source import MixtureSource
+from training.algorithms import ALGORITHMS, clones, is_clone, trained_by
 from training.experts import EXPERTS
 from training.policies import ACTION_LAYOUT, scenario_differences
 from training.vec_env import ActionRange
@@ -50,6 +51,7 @@ __all__ = [
     "FAST_ALGOS",
     "FAST_ONLY",
     "PPO_ALGOS",
+    "RLLIB_ALGOS",
     "Bound",
     "TrainConfig",
     "auto_device",
@@ -69,11 +71,14 @@ __all__ = [
     "scenario_option",
 ]
 
-#: The algorithms trained by SB3's PPO (with their rollout-size rules).
-PPO_ALGOS = ("ppo", "ppo_lagrangian")
+#: The algorithms trained by SB3's PPO (with their rollout-size rules): the table's PPO
+#: learners that are not clones.
+PPO_ALGOS = tuple(a.name for a in ALGORITHMS.values() if a.sb3_class == "ppo" and not a.clone)
 #: The algorithms of ``--engine fast`` (:mod:`training.fast_ppo`; ``bc_*``: :mod:`training.bc`,
 #: behaviour cloning of the PPC law with DAgger, then that PPO fine-tuning).
-FAST_ALGOS = ("ppo", "ppo_lagrangian", "bc_ppo", "bc_ppo_lagrangian")
+FAST_ALGOS = trained_by("fast")
+#: The algorithms of ``--engine rllib`` (:mod:`training.rllib`).
+RLLIB_ALGOS = trained_by("rllib")
 #: How PPO-Lagrangian scales the cost advantages ``A_c`` (``cost_advantage``): ``centred`` per
 #: minibatch only (OmniSafe's PPOLag), or ``standardised`` over the rollout first (unit
 #: standard deviation), so that the penalised surrogate ``(Â_r - λ Â_c) / (1 + λ)`` keeps the
@@ -105,9 +110,9 @@ class TrainConfig:
     algo: str = _opt(
         "ppo",
         "learning algorithm (ppo_lagrangian: PPO with a Lagrange multiplier on info['cost'], "
-        "see training/lagrangian.py; bc_ppo, bc_ppo_lagrangian (--engine fast): clone the PPC "
+        f"see training/lagrangian.py; {', '.join(clones())} (--engine fast): clone the PPC "
         "law with DAgger, then fine-tune, training/bc.py)",
-        choices=("ppo", "sac", "ppo_lagrangian", "bc_ppo", "bc_ppo_lagrangian"),
+        choices=tuple(ALGORITHMS),
     )
     scenario: str = _opt("study_c", "shipped scenario name or YAML path to train on")
     timesteps: int = _opt(1_000_000, "total follower transitions (SB3 timesteps) to train for")
@@ -499,13 +504,13 @@ def check_config(cfg: TrainConfig) -> list[str]:
     reason = device_error(cfg.device)
     if reason is not None:
         bad("device", reason)
-    if cfg.engine == "rllib" and cfg.algo not in PPO_ALGOS:
-        bad("algo", f"--engine rllib trains ppo and ppo_lagrangian, got {cfg.algo!r}")
+    if cfg.engine == "rllib" and cfg.algo not in RLLIB_ALGOS:
+        bad("algo", f"--engine rllib trains {' and '.join(RLLIB_ALGOS)}, got {cfg.algo!r}")
     if cfg.engine == "rllib" and cfg.batched:
         bad("batched", "--engine rllib samples with its own env runners, not --batched")
     if cfg.engine == "fast" and cfg.algo not in FAST_ALGOS:
         bad("algo", f"--engine fast trains {', '.join(FAST_ALGOS)}, got {cfg.algo!r}")
-    if cfg.engine != "fast" and cfg.algo.startswith("bc_"):
+    if cfg.engine != "fast" and is_clone(cfg.algo):
         bad("algo", f"{cfg.algo} trains with --engine fast, got --engine {cfg.engine}")
     if cfg.engine == "fast" and cfg.batched:
         bad("batched", "--engine fast always steps the batched core; --batched is sb3's adapter")
@@ -513,15 +518,15 @@ def check_config(cfg: TrainConfig) -> list[str]:
         for name in FAST_ONLY:
             if getattr(cfg, name) is not None:
                 bad(name, f"is an option of --engine fast, got --engine {cfg.engine}")
-    if not cfg.algo.startswith("bc_"):
+    if not is_clone(cfg.algo):
         for name in (f for f in BOUNDS if f.startswith("bc_")):
             if getattr(cfg, name) is not None:
-                bad(name, f"is an option of --algo bc_ppo / bc_ppo_lagrangian, got {cfg.algo}")
+                bad(name, f"is an option of --algo {' / '.join(clones())}, got {cfg.algo}")
     if cfg.previous_command and cfg.engine != "fast":
         bad("previous_command", f"is an option of --engine fast, got --engine {cfg.engine}")
-    if cfg.previous_command and cfg.algo.startswith("bc_"):
+    if cfg.previous_command and is_clone(cfg.algo):
         bad("previous_command", f"the clone reads the observation only (--algo {cfg.algo})")
-    if cfg.residual is not None and cfg.algo.startswith("bc_"):
+    if cfg.residual is not None and is_clone(cfg.algo):
         bad("residual", f"starts from the law itself, not from a clone (--algo {cfg.algo})")
     if cfg.init_from is not None and not str(cfg.init_from).endswith(".zip"):
         bad("init_from", f"must be the path of a model .zip, got {cfg.init_from!r}")
@@ -677,7 +682,7 @@ RUN_FIELDS_COMMON = (
     "net_arch",
 )
 #: The options SB3's PPO and SAC take under their own names (:func:`sb3_options`).
-SB3_OPTIONS: dict[str, tuple[str, ...]] = {
+_SB3_CLASS_OPTIONS: dict[str, tuple[str, ...]] = {
     "ppo": (
         "learning_rate",
         "n_steps",
@@ -701,14 +706,17 @@ SB3_OPTIONS: dict[str, tuple[str, ...]] = {
         "gradient_steps",
     ),
 }
-SB3_OPTIONS["ppo_lagrangian"] = SB3_OPTIONS["ppo"]
+#: The same, by algorithm: its SB3 class's (none for a clone, which the fast learner trains).
+SB3_OPTIONS: dict[str, tuple[str, ...]] = {
+    a.name: _SB3_CLASS_OPTIONS[a.sb3_class] for a in ALGORITHMS.values() if not a.clone
+}
 #: The options that define a run of one algorithm: what its learner is given (beyond the
-#: common ones), and for ppo_lagrangian the multiplier's budget and step size.
+#: common ones), and with a Lagrange multiplier its budget and step size.
 RUN_FIELDS_ALGO: dict[str, tuple[str, ...]] = {
     algo: tuple(name for name in names if name not in RUN_FIELDS_COMMON)
+    + (("cost_budget", "lagrangian_lr") if ALGORITHMS[algo].lagrangian else ())
     for algo, names in SB3_OPTIONS.items()
 }
-RUN_FIELDS_ALGO["ppo_lagrangian"] += ("cost_budget", "lagrangian_lr")
 #: The options that define a run of one engine.
 RUN_FIELDS_ENGINE: dict[str, tuple[str, ...]] = {
     "sb3": (),

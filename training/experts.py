@@ -28,7 +28,7 @@ from platoon_env.action_range import ActionRange
 from platoon_env.batched import BatchedPlatoon
 from platoon_env.scenarios.scenario import Scenario
 
-__all__ = ["EXPERTS", "BatchedExpert", "CopyEnv", "to_normalised"]
+__all__ = ["EXPERTS", "BatchedExpert", "ExpertEnv", "to_normalised"]
 
 #: The analytic laws a learner can clone or build on, by registry name.
 EXPERTS: dict[str, Callable[..., Policy]] = {
@@ -40,9 +40,16 @@ EXPERTS: dict[str, Callable[..., Policy]] = {
 
 # ------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class CopyEnv:
-    """One env copy of a batched core as a :class:`~baselines.policy.PolicyEnv`: what the
-    analytic laws read at construction (its followers, the control period, its scenario)."""
+class ExpertEnv:
+    """What an expert law is built on for one episode of one env copy of a batched core: the
+    :class:`~baselines.policy.PolicyEnv` fields the analytic laws read at construction (the
+    copy's followers in that episode, the control period, its scenario), fixed for the episode.
+
+    Not a view of the copy (that is :class:`experiments.batched_eval.CopyEnv`, which follows the
+    copy's state and answers everything else from a made env): the fast learner's cores draw a
+    formation per layout, so no one made env fits every copy, and the law only needs these
+    three fields; :class:`BatchedExpert` builds a new one at each of the copy's episodes.
+    """
 
     possible_agents: tuple[str, ...]
     control_period: float
@@ -65,7 +72,7 @@ def to_normalised(
 
 class BatchedExpert:
     """An analytic law acting for every env copy of ``core``: one policy per copy
-    (:data:`EXPERTS`), built on :class:`CopyEnv` and reset at each episode start of its copy.
+    (:data:`EXPERTS`), built on :class:`ExpertEnv` and reset at each episode start of its copy.
 
     :meth:`restart` (after a reset of some copies) rebuilds theirs from their new scenarios;
     :meth:`act` feeds each copy's policy that copy's observations and returns the commands
@@ -87,7 +94,7 @@ class BatchedExpert:
         scenario = self.core.scenarios[b]
         n = int(scenario.config.followers)
         agents = tuple(self.core.possible_agents[:n])
-        env = CopyEnv(agents, float(self.core.control_period), scenario)
+        env = ExpertEnv(agents, float(self.core.control_period), scenario)
         policy = EXPERTS[self.name](env, **self.options)
         policy.reset()
         if b < len(self._agents):

@@ -127,6 +127,7 @@ from platoon_env.scenarios.fingerprint import file_sha256
 from platoon_env.scenarios.scenario import Scenario
 from platoon_env.scenarios.source import ScenarioSource, scenario_source
 from platoon_env.violations import VIOLATION_INFO
+from training.algorithms import has_multiplier, trained_by
 from training.config import (
     BOUNDS,
     COST_ADVANTAGES,
@@ -164,8 +165,9 @@ __all__ = [
     "train_fast",
 ]
 
-#: What :func:`train_fast` trains: PPO, or PPO with a cost critic and a Lagrange multiplier.
-ALGOS = ("ppo", "ppo_lagrangian")
+#: What :func:`train_fast` trains: PPO, or PPO with a cost critic and a Lagrange multiplier
+#: (the fast engine's algorithms but the clones, which :mod:`training.bc` trains).
+ALGOS = trained_by("fast", clones=False)
 #: What ``model.json`` names as the trainer of this module's models.
 TRAINER = "training.fast_ppo"
 #: The two saved points of a run: the final model and the latest checkpoint.
@@ -315,7 +317,7 @@ class FastPPOConfig:
     @property
     def lagrangian(self) -> bool:
         """Whether the run has a cost critic and a multiplier."""
-        return self.algo == "ppo_lagrangian"
+        return has_multiplier(self.algo)
 
 
 #: The bounds of this learner's own options (the shared ones are :data:`training.config.BOUNDS`).

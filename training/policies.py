@@ -91,6 +91,7 @@ from platoon_env.observation import (
     observation_names,
 )
 from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping, file_sha256
+from training.algorithms import ALGORITHMS as TRAINING_ALGORITHMS
 from training.experts import EXPERTS, to_normalised
 from training.forward import MLPForward, sb3_forward
 from training.vec_env import ActionRange
@@ -113,9 +114,15 @@ __all__ = [
     "zip_mismatch",
 ]
 
-#: The SB3 algorithms a learned policy can be, by the name stored in ``model.json``.
-#: The SB3 class that loads a model.zip of each ``algo`` (PPO-Lagrangian is SB3's PPO).
-ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "ppo_lagrangian": PPO}
+#: The SB3 classes of :attr:`training.algorithms.Algorithm.sb3_class`.
+_SB3_CLASSES: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC}
+#: The SB3 algorithms a learned policy can be, by the name stored in ``model.json``: the SB3
+#: class that loads a model.zip of each ``algo`` (PPO-Lagrangian is SB3's PPO).
+ALGORITHMS: dict[str, type[BaseAlgorithm]] = {
+    a.name: _SB3_CLASSES[a.sb3_class]
+    for a in TRAINING_ALGORITHMS.values()
+    if not a.clone  # a clone's model.json names the algorithm that fine-tuned it
+}
 METADATA_FORMAT = "platoon_env.learned_policy"
 #: 2: ``zip_sha256``, the resolved scenario, the observation/action layout and the training
 #: segments are recorded. 1: none of them (still read; see the module doc).

@@ -92,6 +92,7 @@ from platoon_env.action_range import ActionRange, check_action_range, normalised
 from platoon_env.env import PlatoonParallelEnv
 from platoon_env.observation import ACT_SIZE, OBS_SIZE
 from platoon_env.scenarios.schema import VIOLATION_CAUSES
+from training.algorithms import has_multiplier, trained_by
 from training.config import TrainConfig, checked, env_metadata, env_overrides, net_arch
 from training.curves import PROGRESS_FILE, ProgressLog
 from training.lagrangian import LagrangeMultiplier
@@ -140,7 +141,7 @@ MODULE_ID = "shared_follower"
 CRITICS = ("local", "central")
 #: The ``--algo`` values the RLlib engine trains: PPO, and PPO on rewards penalised by a
 #: Lagrange multiplier on ``info["cost"]`` (:mod:`training.lagrangian`'s rule).
-LAGRANGIAN_ALGOS = ("ppo", "ppo_lagrangian")
+LAGRANGIAN_ALGOS = trained_by("rllib")
 #: Episode records an env keeps for the driver (:meth:`PlatoonMultiAgentEnv.pop_outcomes`);
 #: ``platoon-train`` collects them every iteration, far below this.
 MAX_RECORDED_EPISODES = 100_000
@@ -893,7 +894,7 @@ def _train_algo(
     iteration at a time, a checkpoint every ``checkpoint_every`` transitions, the model (and a
     last checkpoint) at the end or at Ctrl-C."""
     ckpt_dir = cfg.out_dir / RLLIB_CHECKPOINT
-    lagrangian = cfg.algo == "ppo_lagrangian"
+    lagrangian = has_multiplier(cfg.algo)
     counts = _Counts(
         multiplier=LagrangeMultiplier(budget=cfg.cost_budget, lr=cfg.lagrangian_lr)
         if lagrangian

@@ -140,6 +140,7 @@ from stable_baselines3.common.vec_env import VecMonitor
 
 from platoon_env.env import PlatoonParallelEnv
 from platoon_env.scenarios.schema import VIOLATION_CAUSES, ScenarioError
+from training.algorithms import finetune_algo, has_multiplier, is_clone, trained_by
 from training.batched_vec_env import BatchedPlatoonVecEnv
 from training.bc import BC_DIR, FINETUNE, BCConfig, train_bc_ppo
 from training.config import (
@@ -339,7 +340,7 @@ def fast_defaults(cfg: TrainConfig, given: set[str]) -> TrainConfig:
     what was trained."""
     fast = FastPPOConfig()
     bc = BCConfig()
-    bc_algo = cfg.algo.startswith("bc_")
+    bc_algo = is_clone(cfg.algo)
     changes: dict[str, Any] = {}
     for f in dataclasses.fields(TrainConfig):
         if f.name in given:
@@ -370,7 +371,7 @@ def fast_config(cfg: TrainConfig) -> FastPPOConfig:
         if not hasattr(cfg, name) or getattr(cfg, name) is None:
             continue
         values[name] = getattr(cfg, name)
-    values["algo"] = cfg.algo.removeprefix("bc_")
+    values["algo"] = finetune_algo(cfg.algo)
     if cfg.device == "auto":
         values["device"] = auto_device()
     if "net_arch" in values:
@@ -404,7 +405,7 @@ def train_fast_engine(cfg: TrainConfig, plan: RunPlan) -> tuple[Path, bool]:
         )
     try:
         fast = fast_config(cfg)
-        if cfg.algo.startswith("bc_"):
+        if is_clone(cfg.algo):
             run = train_bc_ppo(bc_config(cfg), fast, out, resume=cfg.resume)
         else:
             run = train_fast(fast, out, resume=cfg.resume)
@@ -462,7 +463,7 @@ def build_vec_env(cfg: TrainConfig) -> PlatoonVecEnv | BatchedPlatoonVecEnv:
 def lagrangian_env(cfg: TrainConfig, venv: Any, multiplier: float | None = None) -> Any:
     """``venv`` with the rewards penalised by the Lagrange multiplier (``ppo_lagrangian``;
     ``multiplier``: its value to resume from), else ``venv`` itself."""
-    if cfg.algo != "ppo_lagrangian":
+    if not has_multiplier(cfg.algo):
         return venv
     lam = LagrangeMultiplier(budget=cfg.cost_budget, lr=cfg.lagrangian_lr)
     if multiplier is not None:
@@ -486,7 +487,10 @@ def build_model(cfg: TrainConfig, venv: Any, tensorboard_log: str | None = None)
         return PPO("MlpPolicy", lagrangian_env(cfg, venv), policy_kwargs=layers, **kwargs)
     if cfg.algo == "sac":
         return SAC("MlpPolicy", venv, policy_kwargs={"net_arch": arch}, **kwargs)
-    raise ValueError(f"unknown algo {cfg.algo!r}; expected 'ppo', 'sac' or 'ppo_lagrangian'")
+    known = trained_by("sb3")
+    raise ValueError(
+        f"unknown algo {cfg.algo!r}; expected {', '.join(map(repr, known[:-1]))} or {known[-1]!r}"
+    )
 
 
 def run_metadata(

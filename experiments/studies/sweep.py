@@ -293,6 +293,7 @@ def _fast_differences(cfg: Any, meta: dict[str, Any], recorded: dict[str, Any]) 
     ``platoon-train`` makes of the configuration's, but those a resume may change and the
     fine-tuning's ``init_from`` (the run's own clone); an option recorded before it existed
     counts as its default. A ``bc_*`` configuration must have been trained by the cloner."""
+    from training.algorithms import is_clone
     from training.fast_ppo import RESUMABLE_CHANGES, FastPPOConfig, json_config
     from training.train import fast_config
 
@@ -304,7 +305,7 @@ def _fast_differences(cfg: Any, meta: dict[str, Any], recorded: dict[str, Any]) 
         stored = recorded.get(key, defaults.get(key))
         if key not in skip and stored != value:
             out.append(f"{key}: stored {stored!r}, given {value!r}")
-    trainer = "training.bc" if cfg.algo.startswith("bc_") else "training.fast_ppo"
+    trainer = "training.bc" if is_clone(cfg.algo) else "training.fast_ppo"
     if meta.get("trainer") != trainer:
         out.append(f"trainer: stored {meta.get('trainer')!r}, given {trainer!r}")
     return out
