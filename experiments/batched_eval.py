@@ -17,7 +17,8 @@ evenly among its cells.
 
 **One policy per copy.** Policies are stateful (PPC's funnels, the filters, a residual
 policy's law), so every copy has its own, built by :func:`~experiments.policies.build_policy`
-on a :class:`CopyEnv`: copy ``b`` of the core seen as the env ``run_cell`` gives the policy. It
+on a copy view (:meth:`~platoon_env.batched.BatchedPlatoon.copy_view`): copy ``b`` of the
+core seen as the env ``run_cell`` gives the policy. It
 answers what changes with an episode (the scenario: a procedural layout drawn by the copy's
 seed; the agents, the step limit, the state, the RNG) from the core's copy ``b`` and everything
 else (the spaces, the source, the control period, ...) from one ``platoon_env.make`` env of the
@@ -122,112 +123,6 @@ def chunk_cells(
     return out
 
 
-class CopyEnv:
-    """Copy ``index`` of a :class:`~platoon_env.batched.BatchedPlatoon` as the
-    :class:`~platoon_env.env.PlatoonParallelEnv` a policy is built on and reset with.
-
-    What an episode changes is copy ``index``'s: :attr:`scenario` (its current layout),
-    :attr:`layout_index`, :attr:`agents` (none until :meth:`start`, as an env before its
-    reset), :attr:`max_episode_steps`, :attr:`np_random`, :attr:`sim_time`, :attr:`steps`,
-    :attr:`poses`, :attr:`sensed`, :attr:`violation_masks`, :attr:`leader_arrived`,
-    :attr:`leader_speed_factor`. Every other attribute is ``env``'s: an env of the same
-    scenario and ``make()`` keywords, never reset (its spaces, source, control period).
-
-    The fast learner's experts are built on :class:`training.experts.ExpertEnv` instead: the
-    three fields a law reads at construction, fixed for one episode of a copy whose formation
-    no one made env fits.
-    """
-
-    def __init__(self, env: Any, core: Any, index: int) -> None:
-        self._env = env
-        self._core = core
-        self._index = index
-        self._started = False
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._env, name)
-
-    def start(self) -> None:
-        """The copy's episode began (it was reset): :attr:`agents` are its followers."""
-        self._started = True
-
-    @property
-    def scenario(self) -> Any:
-        """The copy's current scenario (a procedural source: the layout its reset drew)."""
-        return self._core.scenarios[self._index]
-
-    @property
-    def layout_index(self) -> int | None:
-        """The copy's procedural layout number (None for a fixed workspace)."""
-        return self.scenario.layout_index if self._core.source.procedural else None
-
-    @property
-    def agents(self) -> list[str]:
-        """The copy's live followers (none before its first reset)."""
-        if not self._started:
-            return []
-        return list(self._core.possible_agents[: int(self._core.n_active[self._index])])
-
-    @property
-    def max_episode_steps(self) -> int:
-        """The copy's step limit of its current episode."""
-        return int(self._core.step_limits[self._index])
-
-    @property
-    def np_random(self) -> np.random.Generator:
-        """The copy's own RNG."""
-        rng: np.random.Generator = self._core._core.rngs[self._index]
-        return rng
-
-    @property
-    def sim_time(self) -> float:
-        """The copy's simulated time [s]."""
-        return float(self._core.sim_time[self._index])
-
-    @property
-    def steps(self) -> int:
-        """Steps taken in the copy's episode."""
-        return int(self._core.steps[self._index])
-
-    @property
-    def poses(self) -> np.ndarray:
-        """The copy's ground-truth poses ``(N+1, 3)`` (a copy)."""
-        out: np.ndarray = self._core.poses[self._index]
-        return out
-
-    @property
-    def sensed(self) -> np.ndarray:
-        """The copy's ground-truth sensing ``(N, 9)`` of its last step (a copy)."""
-        out: np.ndarray = self._core.sensed[self._index]
-        return out
-
-    @property
-    def applied_velocities(self) -> np.ndarray:
-        """The copy's applied ``[u, omega]`` ``(n, 2)`` of its last step (a copy)."""
-        out: np.ndarray = self._core.applied_velocities[self._index, : len(self.agents)]
-        return out
-
-    def snapshot(self) -> Any:
-        """The copy's whole state (:meth:`~platoon_env.batched.BatchedPlatoon.snapshot`): what
-        the privileged oracle (:mod:`baselines.oracle`) plans from."""
-        return self._core.snapshot(self._index)
-
-    @property
-    def violation_masks(self) -> np.ndarray:
-        """The copy's violation bit masks ``(N,)`` of its last step (a copy)."""
-        return self._core._core.violations[self._index].copy()  # type: ignore[no-any-return]
-
-    @property
-    def leader_arrived(self) -> bool:
-        """Whether the copy's leader has reached its path's end."""
-        return bool(self._core.leader_arrived[self._index])
-
-    @property
-    def leader_speed_factor(self) -> float:
-        """The copy's leader speed factor of this episode."""
-        return float(self._core.leader_speed_factor[self._index])
-
-
 def _refused(exc: ValueError) -> str:
     return f"{type(exc).__name__}: {exc}"
 
@@ -328,7 +223,7 @@ def _run_chunk(copies: list[_Copy]) -> bool:
     env = platoon_env.make(first.cell.scenario, **kwargs)
     for c in live:
         try:
-            c.env = CopyEnv(env, core, c.index)
+            c.env = core.copy_view(c.index, env)
             loaded = None if template is None else copy.deepcopy(template)
             try:
                 c.policy = build_policy(spec, c.env, planned=c.rc.key.policy, loaded=loaded)

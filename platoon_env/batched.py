@@ -51,7 +51,7 @@ from platoon_env.realism import drawn_keys, realism_table
 from platoon_env.scenarios.scenario import Scenario
 from platoon_env.scenarios.source import SourceLike, scenario_source
 
-__all__ = ["BatchedPlatoon"]
+__all__ = ["BatchedPlatoon", "CopyView"]
 
 
 class BatchedPlatoon:
@@ -388,9 +388,128 @@ class BatchedPlatoon:
         active[idx] = True
         core.run(active, 0)
 
+    def copy_view(self, index: int, env: Any) -> CopyView:
+        """Copy ``index`` seen as a :class:`~platoon_env.env.PlatoonParallelEnv`
+        (:class:`CopyView`): what an episode changes is the copy's, everything else ``env``'s
+        (a ``platoon_env.make`` env of the same scenario and keywords, never reset)."""
+        if isinstance(index, bool) or not isinstance(index, int | np.integer):
+            raise TypeError(f"index must be an integer, got {index!r}")
+        if not 0 <= index < self.batch_size:
+            raise ValueError(f"index must be in [0, {self.batch_size}), got {index}")
+        return CopyView(env, self, int(index))
+
     def __repr__(self) -> str:
         return (
             f"BatchedPlatoon({self.scenario.name!r}, batch_size={self.batch_size}, "
             f"followers={self.n_followers}, n_threads={self.n_threads}, "
             f"auto_reset={self.auto_reset})"
         )
+
+
+class CopyView:
+    """Copy ``index`` of a :class:`BatchedPlatoon` seen as the
+    :class:`~platoon_env.env.PlatoonParallelEnv` a policy is built on and reset with
+    (:meth:`BatchedPlatoon.copy_view`; the batched evaluator, :mod:`experiments.batched_eval`,
+    builds one policy per copy on these).
+
+    What an episode changes is copy ``index``'s: :attr:`scenario` (its current layout),
+    :attr:`layout_index`, :attr:`agents` (none until :meth:`start`, as an env before its
+    reset), :attr:`max_episode_steps`, :attr:`np_random`, :attr:`sim_time`, :attr:`steps`,
+    :attr:`poses`, :attr:`sensed`, :attr:`violation_masks`, :attr:`leader_arrived`,
+    :attr:`leader_speed_factor`, :attr:`applied_velocities`, :meth:`snapshot`. Every other
+    attribute is ``env``'s: an env of the same scenario and ``make()`` keywords, never reset
+    (its spaces, source, control period).
+
+    The fast learner's experts are built on :class:`training.experts.ExpertEnv` instead: the
+    three fields a law reads at construction, fixed for one episode of a copy whose formation
+    no one made env fits.
+    """
+
+    def __init__(self, env: Any, core: BatchedPlatoon, index: int) -> None:
+        self._env = env
+        self._core = core
+        self._index = index
+        self._started = False
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._env, name)
+
+    def start(self) -> None:
+        """The copy's episode began (it was reset): :attr:`agents` are its followers."""
+        self._started = True
+
+    @property
+    def scenario(self) -> Any:
+        """The copy's current scenario (a procedural source: the layout its reset drew)."""
+        return self._core.scenarios[self._index]
+
+    @property
+    def layout_index(self) -> int | None:
+        """The copy's procedural layout number (None for a fixed workspace)."""
+        return self.scenario.layout_index if self._core.source.procedural else None
+
+    @property
+    def agents(self) -> list[str]:
+        """The copy's live followers (none before its first reset)."""
+        if not self._started:
+            return []
+        return list(self._core.possible_agents[: int(self._core.n_active[self._index])])
+
+    @property
+    def max_episode_steps(self) -> int:
+        """The copy's step limit of its current episode."""
+        return int(self._core.step_limits[self._index])
+
+    @property
+    def np_random(self) -> np.random.Generator:
+        """The copy's own RNG."""
+        rng: np.random.Generator = self._core._core.rngs[self._index]
+        return rng
+
+    @property
+    def sim_time(self) -> float:
+        """The copy's simulated time [s]."""
+        return float(self._core.sim_time[self._index])
+
+    @property
+    def steps(self) -> int:
+        """Steps taken in the copy's episode."""
+        return int(self._core.steps[self._index])
+
+    @property
+    def poses(self) -> np.ndarray:
+        """The copy's ground-truth poses ``(N+1, 3)`` (a copy)."""
+        out: np.ndarray = self._core.poses[self._index]
+        return out
+
+    @property
+    def sensed(self) -> np.ndarray:
+        """The copy's ground-truth sensing ``(N, 9)`` of its last step (a copy)."""
+        out: np.ndarray = self._core.sensed[self._index]
+        return out
+
+    @property
+    def applied_velocities(self) -> np.ndarray:
+        """The copy's applied ``[u, omega]`` ``(n, 2)`` of its last step (a copy)."""
+        out: np.ndarray = self._core.applied_velocities[self._index, : len(self.agents)]
+        return out
+
+    def snapshot(self) -> Any:
+        """The copy's whole state (:meth:`~platoon_env.batched.BatchedPlatoon.snapshot`): what
+        the privileged oracle (:mod:`baselines.oracle`) plans from."""
+        return self._core.snapshot(self._index)
+
+    @property
+    def violation_masks(self) -> np.ndarray:
+        """The copy's violation bit masks ``(N,)`` of its last step (a copy)."""
+        return self._core._core.violations[self._index].copy()  # type: ignore[no-any-return]
+
+    @property
+    def leader_arrived(self) -> bool:
+        """Whether the copy's leader has reached its path's end."""
+        return bool(self._core.leader_arrived[self._index])
+
+    @property
+    def leader_speed_factor(self) -> float:
+        """The copy's leader speed factor of this episode."""
+        return float(self._core.leader_speed_factor[self._index])

@@ -130,7 +130,7 @@ def test_oracle_keeps_the_platoon_safe_where_it_starts() -> None:
 
 
 def test_oracle_as_a_batched_copy_matches_the_single_env() -> None:
-    """As a copy of the batched evaluator (``CopyEnv.snapshot``) the oracle plans from its own
+    """As a copy of the batched evaluator (``CopyView.snapshot``) the oracle plans from its own
     copy's state: the same metrics, to the bit, as ``run_cell``."""
     spec = PolicySpec.of("oracle", **SMALL)
     cells = resolve_cells([Cell.of(spec, "study_c", s, {"max_episode_steps": 30}) for s in (0, 1)])

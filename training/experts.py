@@ -45,7 +45,7 @@ class ExpertEnv:
     :class:`~baselines.policy.PolicyEnv` fields the analytic laws read at construction (the
     copy's followers in that episode, the control period, its scenario), fixed for the episode.
 
-    Not a view of the copy (that is :class:`experiments.batched_eval.CopyEnv`, which follows the
+    Not a view of the copy (that is :class:`platoon_env.batched.CopyView`, which follows the
     copy's state and answers everything else from a made env): the fast learner's cores draw a
     formation per layout, so no one made env fits every copy, and the law only needs these
     three fields; :class:`BatchedExpert` builds a new one at each of the copy's episodes.
