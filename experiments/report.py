@@ -20,7 +20,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from experiments.significance import wilson as significance_wilson
+from experiments.significance import wilson
 from experiments.stamp import stamp_markdown
 from experiments.store import EpisodeRecord, Store
 
@@ -60,17 +60,6 @@ def file_stem(name: str) -> str:
         return stem
     digest = hashlib.sha256(name.encode("utf-8", "surrogatepass")).hexdigest()[:8]
     return f"{stem[: MAX_STEM - 9] or 'x'}-{digest}"
-
-
-def wilson(successes: int, n: int) -> tuple[float, float]:
-    """The 95 % Wilson score interval of a proportion ``successes / n``, the one rule of the
-    project (:func:`experiments.significance.wilson`, ``scipy.stats.binomtest``); ``(nan,
-    nan)`` for ``n = 0`` (a table cell with no episodes)."""
-    if n == 0:
-        return (math.nan, math.nan)
-    if not 0 <= successes <= n:
-        raise ValueError(f"successes must lie in [0, {n}], got {successes}")
-    return significance_wilson(successes, n)
 
 
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[object]]) -> str:

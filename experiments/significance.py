@@ -70,7 +70,11 @@ def _count(k: int, n: int) -> tuple[int, int]:
 
 
 def wilson(k: int, n: int, confidence: float = 1 - ALPHA) -> tuple[float, float]:
-    """The Wilson score interval of ``k`` successes in ``n`` episodes."""
+    """The Wilson score interval (95 % by default) of ``k`` successes in ``n`` episodes, the
+    project's one implementation (``scipy.stats.binomtest``); ``(nan, nan)`` for ``n = 0`` (a
+    table cell with no episodes), a ``ValueError`` unless ``0 <= k <= n`` are whole numbers."""
+    if n == 0:
+        return (math.nan, math.nan)
     k, n = _count(k, n)
     ci = binomtest(k, n).proportion_ci(confidence_level=confidence, method="wilson")
     return float(ci.low), float(ci.high)

@@ -21,12 +21,13 @@ Units are SI throughout: metres, seconds, radians.
 
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 from collections.abc import Mapping
-from dataclasses import Field, dataclass, field
+from dataclasses import Field, dataclass, field, fields
 from types import MappingProxyType
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 from platoon_env.violations import VIOLATION_CAUSES
 
@@ -365,10 +366,36 @@ class GeneratorConfig:
     formation: FormationRanges | None = None
 
 
-def _range_of(key: str) -> Any:
+#: How a realism field is drawn (:mod:`platoon_env.realism`): uniform in its range, its
+#: reciprocal uniform, or uniform among the whole numbers of control periods in it.
+LINEAR, RECIPROCAL, LATENCY = "linear", "reciprocal", "latency"
+#: Which realism stage a field switches on (the params flags of :class:`StageFlags`): the
+#: random perception (and so the perception), the perception alone, the actuators.
+RANDOM_PERCEPTION, PERCEPTION, ACTUATION = "random_perception", "perceive", "actuate"
+
+
+@dataclass(frozen=True)
+class RealismField:
+    """One field that ``realism`` may draw: its key (the scenario field's dotted path), how it
+    is drawn (:data:`LINEAR`, :data:`RECIPROCAL`, :data:`LATENCY`), the least and greatest
+    value the schema allows it (``hi`` None: unbounded), the
+    :data:`~platoon_env.records.PARAMS_DTYPE` field it is written to, the stage it switches on
+    away from its ideal value (:func:`stage_flags`) and that ideal (None: null)."""
+
+    key: str
+    kind: str
+    lo: float
+    hi: float | None
+    param: str
+    stage: str
+    ideal: float | None
+
+
+def _range_of(spec: RealismField) -> Any:
     """A field of :class:`RealismRanges`: None (not drawn) by default, named in the file by
-    the dotted path ``key`` of the scenario field it draws."""
-    return field(default=None, metadata={"key": key})
+    the dotted path of the scenario field it draws, and described by ``spec``
+    (:data:`REALISM_FIELDS` reads it back)."""
+    return field(default=None, metadata={"key": spec.key, "realism": spec})
 
 
 @dataclass(frozen=True)
@@ -381,22 +408,65 @@ class RealismRanges:
     value. ``camera.frame_rate``, ``robot.accel_max`` and ``robot.alpha_max``, whose ideal is
     null, take ``[lo, null]``: up to a frame every control step, or no bound. ``preset`` names
     a shipped set of ranges (:data:`platoon_env.realism.REALISM_PRESETS`); a range given
-    beside it replaces the preset's for that field.
+    beside it replaces the preset's for that field. The fields' order is the draw order, and
+    each one's :class:`RealismField` is the one description of that realism field
+    (:data:`REALISM_FIELDS`).
     """
 
     preset: str | None = None
-    camera_noise_position: tuple[float, float] | None = _range_of("camera.noise.position")
-    camera_noise_position_per_m: tuple[float, float] | None = _range_of(
-        "camera.noise.position_per_m"
+    camera_noise_position: tuple[float, float] | None = _range_of(
+        RealismField(
+            "camera.noise.position", LINEAR, 0.0, None, "noise_position", RANDOM_PERCEPTION, 0.0
+        )
     )
-    camera_noise_bearing: tuple[float, float] | None = _range_of("camera.noise.bearing")
-    camera_detection: tuple[float, float] | None = _range_of("camera.detection")
-    camera_detection_edge: tuple[float, float] | None = _range_of("camera.detection_edge")
-    camera_frame_rate: tuple[float, float | None] | None = _range_of("camera.frame_rate")
-    camera_latency: tuple[float, float] | None = _range_of("camera.latency")
-    proximity_noise: tuple[float, float] | None = _range_of("proximity.noise")
-    robot_accel_max: tuple[float, float | None] | None = _range_of("robot.accel_max")
-    robot_alpha_max: tuple[float, float | None] | None = _range_of("robot.alpha_max")
+    camera_noise_position_per_m: tuple[float, float] | None = _range_of(
+        RealismField(
+            "camera.noise.position_per_m",
+            LINEAR,
+            0.0,
+            None,
+            "noise_position_per_m",
+            RANDOM_PERCEPTION,
+            0.0,
+        )
+    )
+    camera_noise_bearing: tuple[float, float] | None = _range_of(
+        RealismField(
+            "camera.noise.bearing", LINEAR, 0.0, None, "noise_bearing", RANDOM_PERCEPTION, 0.0
+        )
+    )
+    camera_detection: tuple[float, float] | None = _range_of(
+        RealismField("camera.detection", LINEAR, 0.0, 1.0, "detection", RANDOM_PERCEPTION, 1.0)
+    )
+    camera_detection_edge: tuple[float, float] | None = _range_of(
+        RealismField(
+            "camera.detection_edge", LINEAR, 0.0, 1.0, "detection_edge", RANDOM_PERCEPTION, 0.0
+        )
+    )
+    camera_frame_rate: tuple[float, float | None] | None = _range_of(
+        RealismField("camera.frame_rate", RECIPROCAL, 0.0, None, "frame_period", PERCEPTION, None)
+    )
+    camera_latency: tuple[float, float] | None = _range_of(
+        RealismField("camera.latency", LATENCY, 0.0, None, "latency_steps", PERCEPTION, 0.0)
+    )
+    proximity_noise: tuple[float, float] | None = _range_of(
+        RealismField(
+            "proximity.noise", LINEAR, 0.0, None, "proximity_noise", RANDOM_PERCEPTION, 0.0
+        )
+    )
+    robot_accel_max: tuple[float, float | None] | None = _range_of(
+        RealismField("robot.accel_max", RECIPROCAL, 0.0, None, "accel_max", ACTUATION, None)
+    )
+    robot_alpha_max: tuple[float, float | None] | None = _range_of(
+        RealismField("robot.alpha_max", RECIPROCAL, 0.0, None, "alpha_max", ACTUATION, None)
+    )
+
+
+#: The fields ``realism`` may draw, in draw order: the :class:`RealismField` of each range
+#: field of :class:`RealismRanges` (their one table).
+REALISM_FIELDS: tuple[RealismField, ...] = tuple(
+    f.metadata["realism"] for f in fields(RealismRanges) if "realism" in f.metadata
+)
 
 
 @dataclass(frozen=True)
@@ -446,18 +516,36 @@ def latency_steps(cfg: ScenarioConfig) -> int:
     return round(cfg.camera.latency / cfg.simulation.control_period)
 
 
+class StageFlags(NamedTuple):
+    """Which realism stages the compiled step runs (the params fields of the same names)."""
+
+    random_perception: bool  # some perception realism draws random numbers
+    perceive: bool  # any camera or proximity realism is on
+    actuate: bool  # the actuators' lag or rate limits are on
+
+
+def realism_values(cfg: ScenarioConfig) -> dict[str, Any]:
+    """``{key: value}`` of every :data:`REALISM_FIELDS` field of ``cfg``, in the schema's units
+    (None for null): the scenario field at the key's dotted path."""
+    return {f.key: functools.reduce(getattr, f.key.split("."), cfg) for f in REALISM_FIELDS}
+
+
+def stage_flags(values: Mapping[str, Any], lag: float) -> StageFlags:
+    """The realism stages that run with the realism fields at ``values`` (``{key: value}`` of
+    every :data:`REALISM_FIELDS` field, in the schema's units, None for null:
+    :func:`realism_values`, or an episode's draw, :func:`platoon_env.realism.draw_realism`)
+    and the actuator lag ``lag`` [s]: a stage runs when one of its fields is away from its
+    ideal (a perception field whose stage is the random perception switches on both)."""
+    on = {RANDOM_PERCEPTION: False, PERCEPTION: False, ACTUATION: lag > 0}
+    for f in REALISM_FIELDS:
+        if not on[f.stage]:
+            on[f.stage] = values[f.key] != f.ideal
+    random = on[RANDOM_PERCEPTION]
+    return StageFlags(random, random or on[PERCEPTION], on[ACTUATION])
+
+
 def has_realism(cfg: ScenarioConfig) -> bool:
-    """Whether any sensing or actuation realism differs from the ideal defaults."""
-    cam, rob = cfg.camera, cfg.robot
-    return (
-        cam.noise != CameraNoiseConfig()
-        or cam.detection != 1.0
-        or cam.frame_rate is not None
-        or cam.latency != 0.0
-        or cfg.proximity.noise != 0.0
-        or rob.accel_max is not None
-        or rob.alpha_max is not None
-        or rob.lag != 0.0
-        or cam.detection_edge != 0.0
-        or cfg.realism is not None
-    )
+    """Whether any sensing or actuation realism differs from the ideal defaults: a realism
+    stage runs (:func:`stage_flags`), or a ``realism`` block draws some."""
+    flags = stage_flags(realism_values(cfg), cfg.robot.lag)
+    return flags.perceive or flags.actuate or cfg.realism is not None

@@ -30,6 +30,8 @@ import numba
 import numpy as np
 from gymnasium.utils import seeding
 
+from platoon_env.config import realism_values, stage_flags
+from platoon_env.dynamics.actuators import lag_gain
 from platoon_env.dynamics.leader import trajectory_velocities
 from platoon_env.geometry.grid import EdgeGrid
 from platoon_env.geometry.primitives import wrap_angle
@@ -114,8 +116,9 @@ def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
     limited = cfg.leader.drive != "free" and not cfg.leader.trajectory
     limited = limited and (rob.accel_max is not None or rob.alpha_max is not None)
     p["leader_rate_limited"] = limited
-    p["leader_accel"] = math.inf if rob.accel_max is None else rob.accel_max
-    p["leader_alpha"] = math.inf if rob.alpha_max is None else rob.alpha_max
+    # (inf unless limited: the records of a free leader do not depend on the robot's drive)
+    p["leader_accel"] = math.inf if not limited or rob.accel_max is None else rob.accel_max
+    p["leader_alpha"] = math.inf if not limited or rob.alpha_max is None else rob.alpha_max
     p["d_des"] = cfg.formation.d_des
     # The distance error is normalised by d_con - d_des, the bearing error by beta_con.
     p["reward_d_scale"] = cfg.camera.range - cfg.formation.d_des
@@ -137,19 +140,12 @@ def params_of(cfg: ScenarioConfig, max_episode_steps: int) -> np.void:
     p["frame_period"] = 0.0 if cam.frame_rate is None else 1.0 / cam.frame_rate
     p["latency_steps"] = latency_steps(cfg)
     p["proximity_noise"] = cfg.proximity.noise
-    p["random_perception"] = (
-        cam.noise.position > 0
-        or cam.noise.position_per_m > 0
-        or cam.noise.bearing > 0
-        or cam.detection < 1
-        or cam.detection_edge > 0
-        or cfg.proximity.noise > 0
-    )
-    p["perceive"] = p["random_perception"] or cam.frame_rate is not None or cam.latency > 0
-    p["lag_gain"] = 1.0 if rob.lag == 0 else -math.expm1(-dt / rob.lag)
+    flags = stage_flags(realism_values(cfg), rob.lag)
+    p["random_perception"], p["perceive"] = flags.random_perception, flags.perceive
+    p["lag_gain"] = lag_gain(rob.lag, dt)
     p["accel_max"] = math.inf if rob.accel_max is None else rob.accel_max
     p["alpha_max"] = math.inf if rob.alpha_max is None else rob.alpha_max
-    p["actuate"] = rob.lag > 0 or rob.accel_max is not None or rob.alpha_max is not None
+    p["actuate"] = flags.actuate
     p["scale_free"] = cfg.observation.scale_free
     p["n_followers"] = cfg.followers
     return p

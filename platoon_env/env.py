@@ -42,10 +42,34 @@ from platoon_env.violations import VIOLATION_INFO, VIOLATION_NUMERIC_INFO, first
 _SENSE_ROW = (SENSE_D, SENSE_BETA, SENSE_VISIBLE, SENSE_OCCLUDED, *SENSE_PROXIMITY, SENSE_CLEARANCE)
 if _SENSE_ROW != tuple(range(SENSE_SIZE)):  # pragma: no cover - guards a refactoring mistake
     raise ImportError("env._infos expects the sensing columns in the order of SENSE_NAMES")
-# ... and the reward terms in this order.
-_UNPACKED_REWARD_TERMS = ("distance", "bearing", "effort", "alive", "violation", "wall")
-if REWARD_TERMS != _UNPACKED_REWARD_TERMS:  # pragma: no cover - guards a refactoring mistake
-    raise ImportError(f"env._infos expects reward terms {_UNPACKED_REWARD_TERMS}")
+
+#: The sensing columns that ``info[agent]`` reports under their own names (``diagnostics``).
+SENSE_INFO_KEYS: tuple[str, ...] = ("d", "beta", "d_W_l", "d_W_r", "d_l", "d_r", "clearance")
+#: ``info[agent]``'s keys, in order, in the rich view: the violation entries, then (with
+#: ``diagnostics``) the sensing, its errors ``e_d = d - d_des`` and ``e_beta = beta``,
+#: ``visible`` and the reward terms (a dict by :data:`~platoon_env.reward.REWARD_TERMS`).
+#: The one table of the info's names: the numeric view's and the vector env's derive from it.
+INFO_KEYS: tuple[str, ...] = (
+    "violation",
+    "violations",
+    "cost",
+    "d",
+    "beta",
+    "e_d",
+    "e_beta",
+    *SENSE_INFO_KEYS[2:],
+    "visible",
+    "reward_terms",
+)
+#: How many leading :data:`INFO_KEYS` are the violation entries (all there is without
+#: ``diagnostics``).
+N_VIOLATION_INFO = 3
+#: ``info[agent]``'s keys, in order, in the numeric view: the rich view's, with the causes as
+#: ``violation_mask`` and the reward terms flat (``reward_<term>``).
+NUMERIC_INFO_KEYS: tuple[str, ...] = (
+    *("violation_mask" if key == "violations" else key for key in INFO_KEYS[:-1]),
+    *(f"reward_{term}" for term in REWARD_TERMS),
+)
 
 
 #: The views of ``info`` (``make(..., info_view=...)``): ``"rich"`` (the default: PettingZoo's
@@ -560,42 +584,35 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         infos: dict[str, dict[str, Any]] = {}
         if not self.diagnostics:
             for agent, mask in zip(self.agents, masks):  # noqa: B905 - equal lengths
-                first, causes, cost = VIOLATION_INFO[mask]
-                infos[agent] = {"violation": first, "violations": causes, "cost": cost}
+                infos[agent] = dict(zip(INFO_KEYS, VIOLATION_INFO[mask]))  # noqa: B905
             return infos
         d_des = self._d_des
         rows = zip(self.agents, self._sensed.tolist(), masks)  # noqa: B905 - equal lengths
         for i, (agent, row, mask) in enumerate(rows):
             d, beta, visible, _, wall_l, wall_r, sight_l, sight_r, clearance = row
             first, causes, cost = VIOLATION_INFO[mask]
-            if terms is None:
-                reward_terms = {}
-            else:
-                distance, bearing, effort, alive, violation, wall = terms[i]
-                reward_terms = {
-                    "distance": distance,
-                    "bearing": bearing,
-                    "effort": effort,
-                    "alive": alive,
-                    "violation": violation,
-                    "wall": wall,
-                }
-            infos[agent] = {
-                "violation": first,
-                "violations": causes,
-                "cost": cost,
-                "d": d,
-                "beta": beta,
-                "e_d": d - d_des,
-                "e_beta": beta,
-                "d_W_l": wall_l,
-                "d_W_r": wall_r,
-                "d_l": sight_l,
-                "d_r": sight_r,
-                "clearance": clearance,
-                "visible": visible > 0.0,
-                "reward_terms": reward_terms,
-            }
+            reward_terms = {} if terms is None else dict(zip(REWARD_TERMS, terms[i]))  # noqa: B905
+            infos[agent] = dict(
+                zip(  # noqa: B905 - one value per key of INFO_KEYS
+                    INFO_KEYS,
+                    (
+                        first,
+                        causes,
+                        cost,
+                        d,
+                        beta,
+                        d - d_des,
+                        beta,
+                        wall_l,
+                        wall_r,
+                        sight_l,
+                        sight_r,
+                        clearance,
+                        visible > 0.0,
+                        reward_terms,
+                    ),
+                )
+            )
         return infos
 
     def _numeric_infos(
@@ -616,11 +633,9 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         if not self.diagnostics:
             for agent, mask in zip(self.agents, masks):  # noqa: B905 - equal lengths
                 code, _, cost = VIOLATION_NUMERIC_INFO[mask]
-                infos[agent] = {
-                    "violation": i64(code),
-                    "violation_mask": i64(mask),
-                    "cost": i64(cost),
-                }
+                infos[agent] = dict(
+                    zip(NUMERIC_INFO_KEYS, (i64(code), i64(mask), i64(cost)))  # noqa: B905
+                )
             return infos
         d_des = self._d_des
         no_terms = [0.0] * len(REWARD_TERMS)
@@ -628,30 +643,23 @@ class PlatoonParallelEnv(ParallelEnv):  # type: ignore[misc]
         for i, (agent, row, mask) in enumerate(rows):
             d, beta, visible, _, wall_l, wall_r, sight_l, sight_r, clearance = row
             code, _, cost = VIOLATION_NUMERIC_INFO[mask]
-            distance, bearing, effort, alive, violation, wall = (
-                no_terms if terms is None else terms[i]
+            values = (
+                i64(code),
+                i64(mask),
+                i64(cost),
+                f64(d),
+                f64(beta),
+                f64(d - d_des),
+                f64(beta),
+                f64(wall_l),
+                f64(wall_r),
+                f64(sight_l),
+                f64(sight_r),
+                f64(clearance),
+                i64(1 if visible > 0.0 else 0),
+                *(f64(t) for t in (no_terms if terms is None else terms[i])),
             )
-            infos[agent] = {
-                "violation": i64(code),
-                "violation_mask": i64(mask),
-                "cost": i64(cost),
-                "d": f64(d),
-                "beta": f64(beta),
-                "e_d": f64(d - d_des),
-                "e_beta": f64(beta),
-                "d_W_l": f64(wall_l),
-                "d_W_r": f64(wall_r),
-                "d_l": f64(sight_l),
-                "d_r": f64(sight_r),
-                "clearance": f64(clearance),
-                "visible": i64(1 if visible > 0.0 else 0),
-                "reward_distance": f64(distance),
-                "reward_bearing": f64(bearing),
-                "reward_effort": f64(effort),
-                "reward_alive": f64(alive),
-                "reward_violation": f64(violation),
-                "reward_wall": f64(wall),
-            }
+            infos[agent] = dict(zip(NUMERIC_INFO_KEYS, values, strict=True))
         return infos
 
 

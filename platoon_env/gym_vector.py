@@ -61,7 +61,15 @@ from platoon_env.action_range import (
     physical_actions,
 )
 from platoon_env.batched import BatchedPlatoon
-from platoon_env.env import _check_seed, check_env_keywords, steps_per_second
+from platoon_env.env import (
+    INFO_KEYS,
+    N_VIOLATION_INFO,
+    NUMERIC_INFO_KEYS,
+    SENSE_INFO_KEYS,
+    _check_seed,
+    check_env_keywords,
+    steps_per_second,
+)
 from platoon_env.geometry.sensing import SENSE_NAMES, SENSE_VISIBLE
 from platoon_env.gym_env import GYM_OPTIONS, single_follower
 from platoon_env.observation import ACT_SIZE
@@ -92,9 +100,6 @@ _CAUSES = _objects([causes for _, causes, _ in VIOLATION_INFO])
 _COST = np.array([cost for _, _, cost in VIOLATION_INFO], dtype=np.int64)
 # ``info["violation"]`` of the numeric view: the first cause's code (VIOLATION_CODE_NAMES).
 _CODE = np.array([code for code, _, _ in VIOLATION_NUMERIC_INFO], dtype=np.int64)
-
-#: The sensing columns that the single env's info reports under their own names.
-_SENSE_INFO = ("d", "beta", "d_W_l", "d_W_r", "d_l", "d_r", "clearance")
 
 
 def sub_env_seeds(seed: int, num_envs: int) -> list[int]:
@@ -434,14 +439,12 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         empty ``reward_terms``); the sensing is the core's current one."""
         if self.info_view == "numeric":
             return self._numeric_info_values(masks, terms)
-        values: dict[str, Any] = {
-            "violation": _FIRST_CAUSE[masks],
-            "violations": _CAUSES[masks],
-            "cost": _COST[masks],
-        }
+        values: dict[str, Any] = dict(
+            zip(INFO_KEYS, (_FIRST_CAUSE[masks], _CAUSES[masks], _COST[masks]))  # noqa: B905
+        )
         if self.diagnostics:
             sensed = self.batch.sensed[:, 0]
-            for name in _SENSE_INFO:
+            for name in SENSE_INFO_KEYS:
                 values[name] = sensed[:, SENSE_NAMES.index(name)]
             values["e_d"] = values["d"] - self._d_des
             values["e_beta"] = values["beta"]
@@ -458,29 +461,24 @@ class SingleFollowerVectorEnv(VectorEnv):  # type: ignore[misc]
         (``PlatoonParallelEnv._numeric_infos``, same keys in the same order) as ``int64`` and
         ``float64`` arrays over the sub-envs; the reward terms 0.0 after a reset."""
         masks = masks.astype(np.int64)
-        values: dict[str, np.ndarray] = {
+        columns: dict[str, np.ndarray] = {
             "violation": _CODE[masks],
             "violation_mask": masks.copy(),
             "cost": _COST[masks],
         }
         if not self.diagnostics:
-            return values
+            return {key: columns[key] for key in NUMERIC_INFO_KEYS[:N_VIOLATION_INFO]}
         sensed = self.batch.sensed[:, 0].astype(np.float64)
-        column = {name: sensed[:, SENSE_NAMES.index(name)] for name in _SENSE_INFO}
-        values.update(
-            d=column["d"],
-            beta=column["beta"],
-            e_d=column["d"] - self._d_des,
-            e_beta=column["beta"].copy(),
-        )
-        for name in _SENSE_INFO[2:]:
-            values[name] = column[name]
-        values["visible"] = (sensed[:, SENSE_VISIBLE] > 0.0).astype(np.int64)
+        for name in SENSE_INFO_KEYS:
+            columns[name] = sensed[:, SENSE_NAMES.index(name)]
+        columns["e_d"] = columns["d"] - self._d_des
+        columns["e_beta"] = columns["beta"].copy()
+        columns["visible"] = (sensed[:, SENSE_VISIBLE] > 0.0).astype(np.int64)
         for k, term in enumerate(REWARD_TERMS):
-            values[f"reward_{term}"] = (
+            columns[f"reward_{term}"] = (
                 np.zeros(self.num_envs) if terms is None else terms[:, k].astype(np.float64)
             )
-        return values
+        return {key: columns[key] for key in NUMERIC_INFO_KEYS}
 
 
 def _autoreset_mode(mode: Any) -> AutoresetMode:

@@ -45,53 +45,27 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from platoon_env.config import (
+    LATENCY,
+    LINEAR,
+    REALISM_FIELDS,
+    RECIPROCAL,
+    RealismField,
     RealismRanges,
     ScenarioConfig,
     field_key,
     latency_steps,
     require,
     shown,
+    stage_flags,
 )
-
-#: How a field is drawn (the module docstring).
-LINEAR, RECIPROCAL, LATENCY = "linear", "reciprocal", "latency"
 
 #: Tolerance of "a whole number of control periods" (as the schema's ``camera.latency`` rule).
 _WHOLE = 1e-6
 
-
-@dataclass(frozen=True)
-class RealismField:
-    """One field that ``realism`` may draw: its key (the scenario field's dotted path), how it
-    is drawn, the least and greatest value the schema allows it (``hi`` None: unbounded), and
-    the :data:`~platoon_env.records.PARAMS_DTYPE` field it is written to."""
-
-    key: str
-    kind: str
-    lo: float
-    hi: float | None
-    param: str
-
-
-#: The fields ``realism`` may draw, in draw order (the order of
-#: :class:`~platoon_env.config.RealismRanges`).
-FIELDS: tuple[RealismField, ...] = (
-    RealismField("camera.noise.position", LINEAR, 0.0, None, "noise_position"),
-    RealismField("camera.noise.position_per_m", LINEAR, 0.0, None, "noise_position_per_m"),
-    RealismField("camera.noise.bearing", LINEAR, 0.0, None, "noise_bearing"),
-    RealismField("camera.detection", LINEAR, 0.0, 1.0, "detection"),
-    RealismField("camera.detection_edge", LINEAR, 0.0, 1.0, "detection_edge"),
-    RealismField("camera.frame_rate", RECIPROCAL, 0.0, None, "frame_period"),
-    RealismField("camera.latency", LATENCY, 0.0, None, "latency_steps"),
-    RealismField("proximity.noise", LINEAR, 0.0, None, "proximity_noise"),
-    RealismField("robot.accel_max", RECIPROCAL, 0.0, None, "accel_max"),
-    RealismField("robot.alpha_max", RECIPROCAL, 0.0, None, "alpha_max"),
-)
+#: The fields ``realism`` may draw, in draw order: their one table is
+#: :class:`~platoon_env.config.RealismRanges` (:data:`~platoon_env.config.REALISM_FIELDS`).
+FIELDS: tuple[RealismField, ...] = REALISM_FIELDS
 _BY_KEY: Mapping[str, RealismField] = MappingProxyType({f.key: f for f in FIELDS})
-if tuple(_BY_KEY) != tuple(  # pragma: no cover - guards a refactoring mistake
-    field_key(f) for f in fields(RealismRanges) if f.name != "preset"
-):
-    raise ImportError("platoon_env.realism.FIELDS must list RealismRanges' fields in order")
 
 #: A range as the schema holds it: ``(lo, hi)``, ``hi`` None for "up to null".
 Range = tuple[float, float | None]
@@ -285,8 +259,8 @@ def draw_realism(p: np.void, cfg: ScenarioConfig, rng: np.random.Generator) -> d
     Without a ``realism`` block: nothing is drawn or written, and the result is empty. With
     one: one call ``rng.random(K)``; each drawn field is written to its params field, and the
     flags that switch the perception and actuator stages on (``random_perception``,
-    ``perceive``, ``actuate``) are set as :func:`platoon_env.core.params_of` sets them from a
-    config holding the drawn values.
+    ``perceive``, ``actuate``) are set by :func:`~platoon_env.config.stage_flags`, as
+    :func:`platoon_env.core.params_of` sets them from a config holding the drawn values.
     """
     block = cfg.realism
     if block is None:
@@ -306,18 +280,23 @@ def draw_realism(p: np.void, cfg: ScenarioConfig, rng: np.random.Generator) -> d
         values[param] = x
         p[param] = x
         drawn[key] = reported_value(key, x, dt)
-    random = (
-        values["noise_position"] > 0
-        or values["noise_position_per_m"] > 0
-        or values["noise_bearing"] > 0
-        or values["detection"] < 1
-        or values["detection_edge"] > 0
-        or values["proximity_noise"] > 0
-    )
-    p["random_perception"] = random
-    p["perceive"] = random or values["frame_period"] > 0 or values["latency_steps"] > 0
-    p["actuate"] = plan.lag > 0 or values["accel_max"] < math.inf or values["alpha_max"] < math.inf
+    schema = {f.key: _schema_value(f, values[f.param], dt) for f in FIELDS}
+    p["random_perception"], p["perceive"], p["actuate"] = stage_flags(schema, plan.lag)
     return drawn
+
+
+def _schema_value(f: RealismField, raw: float, dt: float) -> float | None:
+    """The value of field ``f`` in the schema's units, as :func:`~platoon_env.config.stage_flags`
+    reads it, from its params field ``raw``: the frame rate [Hz] of a frame period (None: a
+    frame every control step, period 0), the latency [s] of whole control periods ``dt``, an
+    acceleration limit (None: no bound, ``inf``), the other fields as written."""
+    if f.kind == RECIPROCAL:
+        if f.param == "frame_period":
+            return 1.0 / raw if raw > 0 else None
+        return raw if raw < math.inf else None
+    if f.kind == LATENCY:
+        return raw * dt
+    return raw
 
 
 def reported_value(key: str, raw: float, dt: float) -> float:

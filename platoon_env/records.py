@@ -98,7 +98,8 @@ PARAMS_DTYPE = np.dtype(
         ("physics_substeps", _I8),
         ("max_episode_steps", _I8),
         ("settle_time", _F8),  # [s]
-        # perception (platoon_env.perception, docs/realism.md): what the follower is told
+        # perception (platoon_env.perception, docs/realism.md): what the follower is told; the
+        # stage flags here and in the actuators are platoon_env.config.stage_flags
         ("perceive", np.bool_),  # any camera or proximity realism below is on
         ("random_perception", np.bool_),  # some of it draws random numbers
         ("noise_position", _F8),  # [m] std of each body-frame coordinate ...
