@@ -49,8 +49,8 @@ from baselines.oracle import OracleParams
 from experiments.cli import add_grid_options, count, failed_episodes, new_parser, number, open_store
 from experiments.grid import Cell, GridResult, run_grid
 from experiments.policies import REGISTRY, PolicySpec, analytic_policies, build_policy
-from experiments.report import markdown_table, wilson, write_text_atomic
-from experiments.stamp import metadata_stamp, png_metadata, stamp_markdown
+from experiments.report import markdown_table, provenance_markdown, wilson, write_text_atomic
+from experiments.stamp import metadata_stamp, png_metadata
 from platoon_env.config import ScenarioError
 from platoon_env.geometry.sensing import (
     SENSE_BETA,
@@ -376,13 +376,14 @@ def main(argv: list[str] | None = None) -> str:
         result = run_grid(store, cells, tool=_TOOL, stamp=stamp, workers=args.workers)
         if result.interrupted:
             raise SystemExit(130)
+        provenance = provenance_markdown(store, result.records.values(), result.run_id)
     table = report(result, tasks, refused)
     # The figures go where the page points: figures/ beside the page (--doc's, else --out's).
     page_dir = args.out if args.doc is None else args.doc.parent
     paths = [
         figure(result, t, page_dir / "figures", stamp) for t in tasks if t.startswith("study_b/")
     ]
-    page = _page(table, stamp, [p for p in paths if p is not None], args.seeds)
+    page = _page(table, provenance, [p for p in paths if p is not None], args.seeds)
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out / "feasibility.md", page)
     if args.doc is not None:
@@ -393,7 +394,7 @@ def main(argv: list[str] | None = None) -> str:
     return page
 
 
-def _page(table: str, stamp: dict[str, Any], figures: list[Path], seeds: int) -> str:
+def _page(table: str, provenance: str, figures: list[Path], seeds: int) -> str:
     lines = [
         "# Feasibility: what the privileged oracle achieves on each task",
         "",
@@ -431,7 +432,7 @@ def _page(table: str, stamp: dict[str, Any], figures: list[Path], seeds: int) ->
     ]
     for p in figures:
         lines += [f"![{p.stem}](figures/{p.name})", ""]
-    lines += ["## Provenance", "", stamp_markdown(stamp), ""]
+    lines += ["## Provenance", "", provenance, ""]
     return "\n".join(lines)
 
 
