@@ -59,7 +59,7 @@ def test_a_short_certificate_regenerates_bit_identically(tmp_path: Path) -> None
 def test_slack_is_the_least_normalised_margin() -> None:
     env = platoon_env.make("study_c", max_episode_steps=400)
     ep = run_episode(env, PPCPolicy(env), seed=2, record_signals=False)
-    row = feasibility.certificate(ep)
+    row = feasibility.certify(ep)
     cfg = env.scenario.config
     d = ep.sensed[1:, :, 0]
     beta = ep.sensed[1:, :, 1]
@@ -74,6 +74,16 @@ def test_slack_is_the_least_normalised_margin() -> None:
     witness = np.asarray(row["witness"])
     assert witness.shape[1:] == (cfg.followers + 1, 3)
     np.testing.assert_allclose(witness[0], ep.poses[0], atol=1e-4)
+
+
+def test_a_failed_episode_names_the_follower_that_violated_and_where() -> None:
+    env = platoon_env.make("study_b", sensor_profile="aruco")
+    ep = run_episode(env, PPCPolicy(env), seed=0, record_signals=False)
+    assert ep.first_violation is not None
+    step, cause, follower = ep.first_violation
+    row = feasibility.certify(ep)
+    assert row["violation"] == cause and row["violation_follower"] == follower
+    np.testing.assert_allclose(row["violation_xy"], ep.poses[step + 1, follower, :2], atol=1e-3)
 
 
 def test_a_task_that_cannot_be_built_is_reported_not_run(monkeypatch: pytest.MonkeyPatch) -> None:

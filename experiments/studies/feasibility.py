@@ -77,8 +77,10 @@ STUDIES = ("study_a", "study_b", "study_c")
 TASKS = tuple(f"{s}/{c}" for s in STUDIES for c in CONDITIONS)
 #: [s] The period of a stored witness trajectory.
 WITNESS_PERIOD = 0.1
-#: The measure of the oracle's cells: the episode's metrics, its slack and its witness.
-MEASURE = f"{_TOOL}:certificate"
+#: The measure of the oracle's cells: the episode's metrics, its slack and its witness. (Named
+#: ``certify``: the rows of its first version, ``certificate``, named the follower after the
+#: one that violated; a new name keeps them apart in existing stores.)
+MEASURE = f"{_TOOL}:certify"
 #: The laws the oracle is set beside (the evaluate command's default list).
 LAWS = tuple(analytic_policies("evaluate"))
 #: The constraints whose margins make the slack, and those reported in metres.
@@ -104,7 +106,7 @@ def margins(ep: Episode) -> dict[str, np.ndarray]:
     }
 
 
-def certificate(ep: Episode) -> dict[str, Any]:
+def certify(ep: Episode) -> dict[str, Any]:
     """The oracle episode's row: :func:`~platoon_env.rollout.episode_metrics`, the slack and
     its binding constraint (where, when, which follower), the clearances' minima, the first
     violation's place, and the witness trajectory (poses every :data:`WITNESS_PERIOD` s,
@@ -125,9 +127,9 @@ def certificate(ep: Episode) -> dict[str, Any]:
             out[f"min {key}"] = float(np.min(m[key]))
     first = ep.first_violation
     if first is not None:
-        step, _, i = first
-        out["violation_follower"] = int(i) + 1
-        out["violation_xy"] = [round(float(v), 3) for v in ep.poses[step + 1, i + 1, :2]]
+        step, _, follower = first  # follower 1..N: its row of the poses (row 0 the leader)
+        out["violation_follower"] = int(follower)
+        out["violation_xy"] = [round(float(v), 3) for v in ep.poses[step + 1, follower, :2]]
     stride = max(1, round(WITNESS_PERIOD / ep.control_period))
     out["witness_period"] = stride * ep.control_period
     out["witness"] = np.round(ep.poses[::stride], 4).tolist()
@@ -303,8 +305,8 @@ def figure(result: GridResult, task: str, out: Path, stamp: dict[str, Any]) -> P
             label = "leader" if k == 0 else f"follower {k}"
             ax.plot(xy[:, k, 0], xy[:, k, 1], color=colours[k], lw=1.2, label=label)
         if first is not None:
-            step, cause, i = first
-            ax.plot(*xy[step + 1, i + 1, :2], "rx", ms=10, mew=2, label=f"{cause}")
+            step, cause, follower = first
+            ax.plot(*xy[step + 1, follower, :2], "rx", ms=10, mew=2, label=f"{cause}")
         ax.set_title(f"{title}, seed {seed}")
         ax.set_aspect("equal")
         ax.legend(loc="best", fontsize=7)
