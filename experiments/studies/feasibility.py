@@ -169,7 +169,7 @@ def _task_of(cell: Cell) -> str:
 def _spread(values: list[float]) -> str:
     if not values:
         return "–"
-    return f"{np.median(values):.2f} [{min(values):.2f}, {max(values):.2f}]"
+    return f"{np.median(values):.3f} [{min(values):.3f}, {max(values):.3f}]"
 
 
 def refusals(tasks: Sequence[str]) -> dict[str, str]:
