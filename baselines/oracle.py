@@ -11,16 +11,30 @@ The model is therefore exact: the same unicycle arcs (eq. 1), actuator model (ve
 task (``docs/feasibility.md``), never an entry of the pairwise comparisons: its registry entry,
 its board rows and its cards say *privileged*.
 
-**Plan.** Follower ``i``'s command at step ``t`` is a feedback term on its true distance and
-bearing to its predecessor plus a planned correction held over a *knot* of ``knot`` control
-steps::
+**Plan.** Follower ``i``'s command at step ``t`` is a *base* command plus a planned correction
+held over a *knot* of ``knot`` control steps::
 
-    u_i     = k_u (d_i - d_des) cos(beta_i) + c_u[i, k]
-    omega_i = k_omega beta_i                + c_omega[i, k]      k = (t - t_plan) // knot
+    [u_i, omega_i] = base_i(t) + [c_u[i, k], c_omega[i, k]]      k = (t - t_plan) // knot
 
-(then clipped to the action box by the env, as any policy's command). The feedback keeps the
-followers behind a planning follower reacting to their predecessor inside the rollouts; the
-corrections ``c`` (``horizon`` knots per follower) are what is planned. Planning goes
+(then clipped to the action box by the env, as any policy's command). Two bases
+(``OracleParams.base``):
+
+* **guided** (the default, ``base`` a law of :data:`BASE_LAWS`, ``filtered_ppc_drive``): the
+  base is a law acting on the followers' own sensors, as it does on the board. Each replanning
+  period the oracle first rolls the *incumbent* (the law plus the previous plan's shifted
+  corrections, zero where none are left) out in the model, a copy of the law with its state of
+  now acting on the copy's own observations (the model keeps the env's perception, so its
+  noise, frames and latency are the env's own). When no follower violates a constraint over
+  the horizon the incumbent is kept: where the law is safe the oracle *is* the law, command
+  for command. Otherwise the corrections are searched (below). So the guided oracle completes
+  every episode its law completes, and more;
+* **feedback** (``base="feedback"``): a privileged feedback on the true distance and bearing,
+  with the predecessor's true speed as a feedforward,
+  ``u_i = u_{i-1} cos(theta_{i-1} - theta_i) + k_u (d_i - d_des) cos(beta_i)``,
+  ``omega_i = k_omega beta_i``, corrected every replanning period (the first oracle; it
+  completes fewer study B episodes than the laws, ``docs/feasibility.md``).
+
+The corrections ``c`` (``horizon`` knots per follower) are what is planned. Planning goes
 **sequentially down the chain**: follower 1 first, against the leader's exact future; then
 follower 2 against follower 1's new plan; and so on (the followers behind the one planning keep
 their previous plans, shifted by one replanning period). Each follower's plan is improved by a
@@ -48,25 +62,32 @@ normalised so that 1 is comfortable and 0 the constraint's boundary):
 A follower's plan is scored by its own cost plus ``w_behind`` times the cost of each follower
 behind it (which react through their feedback and previous plans): a plan that leaves no way
 through for the followers behind is not a good plan. Violations do not end the model's
-rollouts (its copies run with ``terminate_on`` empty and no step limit), so that each
-follower's cost counts its own violations.
+rollouts (its copies run with ``terminate_on`` empty), so that each follower's cost counts its
+own violations; the feedback oracle's rollouts also run past the step limit and the leader's
+arrival, the guided oracle's stop where the env's episode would.
 
-**Speed** (one core, measured by ``experiments/studies/feasibility.py``, see
-``docs/feasibility.md``): the ratio of wall time to simulated time is about
-``followers * iterations * samples * horizon * knot / (knot * replan)`` model steps per
-control step, each a fraction of a microsecond per copy in the compiled core.
+**Speed** (one core; ``docs/feasibility.md`` gives the measured ratio of wall time to
+simulated time per task): the feedback oracle simulates ``followers * iterations * samples *
+horizon / replan`` model steps per control step; the guided one ``horizon / replan`` while the
+law is safe (one rollout per plan, each model step a law call of some microseconds and a
+compiled core step) and the feedback oracle's count where it searches.
 """
 
 from __future__ import annotations
 
+import copy
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from baselines.policy import Followers, PolicyEnv
+from baselines.filtered_ppc import FilteredPPCPolicy
+from baselines.filtered_ppc_drive import DriveAwareFilteredPPCPolicy
+from baselines.policy import Policy, PolicyEnv
+from baselines.ppc import PPCPolicy
+from baselines.ppc_tuned import TunedPPCPolicy
 from platoon_env.batched import BatchedPlatoon
 from platoon_env.core import CoreSnapshot
 from platoon_env.geometry.sensing import (
@@ -77,7 +98,18 @@ from platoon_env.geometry.sensing import (
     SENSE_D_SIGHT_RIGHT,
 )
 
-__all__ = ["OracleParams", "OraclePolicy"]
+__all__ = ["BASE_LAWS", "FEEDBACK", "OracleParams", "OraclePolicy"]
+
+#: ``OracleParams.base`` of the unguided oracle: the privileged feedback on ``d`` and ``beta``.
+FEEDBACK = "feedback"
+#: The laws a guided oracle can add its corrections to (their registry names; each acts on the
+#: followers' own sensors, as on the board).
+BASE_LAWS: dict[str, type] = {
+    "ppc": PPCPolicy,
+    "ppc_tuned": TunedPPCPolicy,
+    "filtered_ppc": FilteredPPCPolicy,
+    "filtered_ppc_drive": DriveAwareFilteredPPCPolicy,
+}
 
 
 @dataclass(frozen=True)
@@ -98,6 +130,10 @@ class OracleParams:
         clearance_scale: [m] the clearance that counts as a margin of 1.
         w_violation, w_margin, w_track, w_effort: the cost's weights.
         w_behind: the weight of each follower behind the planning one in its cost.
+        base: the command the corrections are added to: ``"feedback"`` (the privileged
+            feedback on the true ``d``, ``beta``) or a law of :data:`BASE_LAWS` acting on the
+            followers' own sensors (*guided*: the law's commands are kept, uncorrected, as long
+            as the exact model shows them safe over the horizon).
     """
 
     knot: int = 10
@@ -117,9 +153,17 @@ class OracleParams:
     w_track: float = 0.1
     w_effort: float = 0.01
     w_behind: float = 1.0
+    base: str = "filtered_ppc_drive"
 
     def __post_init__(self) -> None:
+        if self.base != FEEDBACK and self.base not in BASE_LAWS:
+            raise ValueError(
+                f"OracleParams.base must be {FEEDBACK!r} or one of {sorted(BASE_LAWS)}, "
+                f"got {self.base!r}"
+            )
         for f in fields(self):
+            if f.name == "base":
+                continue
             value = getattr(self, f.name)
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise TypeError(f"OracleParams.{f.name} must be a number, got {value!r}")
@@ -156,49 +200,66 @@ class OraclePolicy:
             )
         self.params = OracleParams(**params)
         self.env = env
-        self.followers = Followers(env.possible_agents, env.scenario.config)
+        #: The guided oracle's base law (None: the privileged feedback).
+        self.law: Policy | None = (
+            None if self.params.base == FEEDBACK else BASE_LAWS[self.params.base](env)
+        )
         self._model: BatchedPlatoon | None = None
         self._model_scenario: Any = None
         self._rng = np.random.default_rng(0)
         self._plan = np.zeros((0, 0, 2))
         self._t = 0
-        #: Planning statistics of the episode: plans made, model steps simulated.
+        self._interp = _interpolation(self.params.horizon, self.params.smooth)
+        #: Planning statistics of the episode: plans made, model steps simulated, and (guided)
+        #: the plans whose check found the incumbent unsafe and searched for corrections.
         self.plans = 0
         self.model_steps = 0
+        self.searches = 0
 
     # ----------------------------------------------------------------------------------------
     def reset(self, seed: int | None = None) -> None:
-        """A new episode: the plan starts at zero corrections; ``seed`` seeds the search."""
+        """A new episode: the plan starts at zero corrections; ``seed`` seeds the search (and
+        resets the base law)."""
         self._rng = np.random.default_rng(seed)
         self._t = 0
         self._plan = np.zeros((self.params.horizon, 0, 2))
         self.plans = 0
         self.model_steps = 0
+        self.searches = 0
+        if self.law is not None:
+            self.law.reset(seed)
 
     def act(self, observations: dict[str, NDArray[Any]]) -> dict[str, NDArray[np.float32]]:
-        """The commands of every live follower (the observations are not used: the oracle
-        reads the true state)."""
+        """The commands of every live follower (the feedback oracle does not use the
+        observations: it reads the true state; the guided oracle's base law acts on them)."""
         p = self.params
         snap = self.env.snapshot()  # type: ignore[attr-defined]
-        if self._t % (p.knot * p.replan) == 0:
-            self._replan(snap)
-        k = (self._t % (p.knot * p.replan)) // p.knot
         n = int(snap.params[0]["n_followers"])
-        pred_u = self._predecessor_speed(snap.episode["leader_u"], snap.rows["applied"][None], n)
-        cmd = (
-            self._feedback(
+        agents = [a for a in self.env.possible_agents if a in observations] or list(
+            self.env.possible_agents[:n]
+        )
+        if self._t % (p.knot * p.replan) == 0:
+            if self.law is None:
+                self._replan(snap)
+            else:
+                self._replan_guided(snap, agents[:n])
+        k = (self._t % (p.knot * p.replan)) // p.knot
+        if self.law is None:
+            pred_u = self._predecessor_speed(
+                snap.episode["leader_u"], snap.rows["applied"][None], n
+            )
+            base = self._feedback(
                 snap.rows["sensed"][None, :n],
                 snap.rows["poses"][None, : n + 1],
                 pred_u,
                 snap.params[0],
             )[0]
-            + self._plan[k, :n]
-        )
+        else:
+            cmd = self.law.act(observations)
+            base = np.array([cmd[a] for a in agents[:n]], dtype=np.float64)
+        out = base + self._plan[k, :n]
         self._t += 1
-        agents = [a for a in self.env.possible_agents if a in observations] or list(
-            self.env.possible_agents[:n]
-        )
-        return {a: cmd[i].astype(np.float32) for i, a in enumerate(agents)}
+        return {a: out[i].astype(np.float32) for i, a in enumerate(agents)}
 
     # ----------------------------------------------------------------------------------------
     def _feedback(
@@ -235,22 +296,50 @@ class OraclePolicy:
             self._model_scenario = snap.scenario
         return self._model
 
-    def _replan(self, snap: CoreSnapshot) -> None:
-        """Plan every follower's corrections from ``snap``, sequentially down the chain."""
+    def _shifted_plan(self, n: int) -> NDArray[np.float64]:
+        """The previous plan shifted by the executed knots (the warm start): the feedback
+        oracle repeats its last knot, the guided one falls back to the law (zeros)."""
         p = self.params
-        n = int(snap.params[0]["n_followers"])
-        model = self._model_for(snap)
-        start = _planning_snapshot(snap)
-        # Warm start: the previous plan shifted by the executed knots, its last knot repeated.
         plan = np.zeros((p.horizon, n, 2))
         if self._plan.shape[1] == n:
             keep = p.horizon - p.replan
             plan[:keep] = self._plan[p.replan :]
-            plan[keep:] = self._plan[-1]
+            if self.law is None:
+                plan[keep:] = self._plan[-1]
+        return plan
+
+    def _replan(self, snap: CoreSnapshot) -> None:
+        """Plan every follower's corrections from ``snap``, sequentially down the chain."""
+        n = int(snap.params[0]["n_followers"])
+        model = self._model_for(snap)
+        start = _planning_snapshot(snap)
+        plan = self._shifted_plan(n)
         for i in range(n):
-            plan[:, i] = self._improve(model, start, plan, i, n)
+            plan[:, i], _ = self._improve(model, start, plan, i, n)
         self._plan = plan
         self.plans += 1
+
+    def _replan_guided(self, snap: CoreSnapshot, agents: list[str]) -> None:
+        """The guided oracle's plan: the incumbent (the base law plus the shifted corrections)
+        rolled out once in the exact model; kept when no follower violates a constraint over
+        the horizon. Else the corrections are searched up the chain from the first follower
+        that violates (its own corrections first, then its predecessors': no follower's
+        corrections change the constraints of those ahead of it), until a plan is clean."""
+        n = len(agents)
+        model = self._model_for(snap)
+        start = _guided_snapshot(snap)
+        plan = self._shifted_plan(n)
+        self.plans += 1
+        _, violated = self._rollout_guided(model, start, agents, plan, 0, plan[None, :, 0])
+        if not violated[0].any():
+            self._plan = plan
+            return
+        self.searches += 1
+        for i in range(int(np.argmax(violated[0])), -1, -1):
+            plan[:, i], clean = self._improve(model, start, plan, i, n, agents)
+            if clean:
+                break
+        self._plan = plan
 
     def _improve(
         self,
@@ -259,35 +348,39 @@ class OraclePolicy:
         plan: NDArray[np.float64],
         i: int,
         n: int,
-    ) -> NDArray[np.float64]:
+        agents: list[str] | None = None,
+    ) -> tuple[NDArray[np.float64], bool]:
         """Follower ``i``'s best correction sequence ``(horizon, 2)`` found by the
-        cross-entropy search, the others' plans held."""
+        cross-entropy search, the others' plans held (``agents``: the guided oracle's
+        followers, whose search stops at the first iteration that finds a plan without a
+        violation), and whether that plan has none (the feedback oracle: False)."""
         p = self.params
         best = plan[:, i].copy()
         best_cost = math.inf
+        clean = False
         sigma = np.array([p.sigma_u, p.sigma_omega])
         for _ in range(p.iterations):
             trials = best[None] + sigma * self._smooth_noise()
             trials[0] = best  # the incumbent: the plan never gets worse
-            costs = self._rollout(model, start, plan, i, n, trials)
+            if agents is None:
+                costs = self._rollout(model, start, plan, i, n, trials)
+            else:
+                costs, violated = self._rollout_guided(model, start, agents, plan, i, trials)
             k = int(np.argmin(costs))
             if costs[k] < best_cost:
                 best, best_cost = trials[k].copy(), float(costs[k])
+                clean = agents is not None and not violated[k].any()
+            if clean:
+                break
             sigma = sigma / 2.0
-        return best
+        return best, clean
 
     def _smooth_noise(self) -> NDArray[np.float64]:
         """``(samples, horizon, 2)`` standard normal perturbations drawn at every ``smooth``-th
         knot and interpolated linearly between (a few degrees of freedom per sequence, so that
         a small population searches a long horizon)."""
-        p = self.params
-        points = np.arange(0, p.horizon + p.smooth, p.smooth)
-        draws = self._rng.standard_normal((p.samples, points.size, 2))
-        knots = np.arange(p.horizon)
-        out = np.empty((p.samples, p.horizon, 2))
-        for c in range(2):
-            for s in range(p.samples):
-                out[s, :, c] = np.interp(knots, points, draws[s, :, c])
+        draws = self._rng.standard_normal((self.params.samples, self._interp.shape[1], 2))
+        out: NDArray[np.float64] = np.einsum("hp,spc->shc", self._interp, draws)
         return out
 
     def _rollout(
@@ -308,10 +401,7 @@ class OraclePolicy:
         k_count = trials.shape[0]
         actions = np.zeros((k_count, model.n_followers, 2))
         cost = np.zeros(k_count)
-        # Follower i's own cost, and the cost of the followers behind it (w_behind each): a
-        # plan that leaves the followers behind no way through is not a good plan.
-        weights = np.full(n - i, p.w_behind)
-        weights[0] = 1.0
+        weights = self._weights(i, n)
         sensed = start.rows["sensed"][None, :n].repeat(k_count, axis=0)
         poses = start.rows["poses"][None, : n + 1].repeat(k_count, axis=0)
         pred_u = self._predecessor_speed(
@@ -335,8 +425,66 @@ class OraclePolicy:
         self.model_steps += p.horizon * p.knot * k_count
         return cost
 
+    def _rollout_guided(
+        self,
+        model: BatchedPlatoon,
+        start: CoreSnapshot,
+        agents: list[str],
+        plan: NDArray[np.float64],
+        i: int,
+        trials: NDArray[np.float64],
+    ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """As :meth:`_rollout`, for the guided oracle: in each of the first ``len(trials)``
+        copies a copy of the base law (its state now) acts on the copy's own observations
+        (the model keeps the env's perception: same noise, frames and latency), plus the
+        corrections. Returns each trial's cost and whether any follower violated a
+        constraint. A copy stops where the episode would end by the leader's arrival or the
+        step limit."""
+        p = self.params
+        assert self.law is not None
+        n = len(agents)
+        k_count = trials.shape[0]
+        active = np.zeros(model.batch_size, dtype=bool)
+        active[:k_count] = True
+        obs = model.restore(start, envs=active)
+        prm = start.params[0]
+        laws = [copy.deepcopy(self.law) for _ in range(k_count)]
+        actions = np.zeros((model.batch_size, model.n_followers, 2))
+        cost = np.zeros(k_count)
+        violated = np.zeros((k_count, n - i), dtype=bool)
+        weights = self._weights(i, n)
+        steps = 0
+        for knot in range(p.horizon):
+            corr = np.broadcast_to(plan[knot, :n], (k_count, n, 2)).copy()
+            corr[:, i] = trials[:, knot]
+            cost += p.w_effort * np.sum(trials[:, knot] ** 2, axis=1) * p.knot
+            for _ in range(p.knot):
+                live = np.flatnonzero(active[:k_count])
+                if not live.size or violated.any(axis=1).all():
+                    break
+                for k in live.tolist():
+                    cmd = laws[k].act({a: obs[k, j] for j, a in enumerate(agents)})
+                    actions[k, :n] = [cmd[a] for a in agents]
+                actions[:k_count, :n] += corr
+                obs, _, terminated, truncated, info = model.step(actions, envs=active)
+                steps += live.size
+                bad = info["violations"][live, i:n] != 0
+                violated[live] |= bad
+                step_cost = self._step_cost(model.sensed[live, i:n], bad, prm)
+                cost[live] += step_cost @ weights
+                active[live] &= ~(terminated[live] | truncated[live])
+        self.model_steps += steps
+        return cost, violated
+
+    def _weights(self, i: int, n: int) -> NDArray[np.float64]:
+        """Follower ``i``'s own cost (1) and ``w_behind`` for each follower behind it: a plan
+        that leaves the followers behind no way through is not a good plan."""
+        weights = np.full(n - i, self.params.w_behind)
+        weights[0] = 1.0
+        return weights
+
     def _step_cost(
-        self, sensed: NDArray[np.float64], violations: NDArray[np.int64], prm: np.void
+        self, sensed: NDArray[np.float64], violations: NDArray[Any], prm: np.void
     ) -> NDArray[np.float64]:
         """``(K, m)`` the cost of one control step of ``m`` followers from their true sensing
         ``(K, m, SENSE_SIZE)`` and violation masks ``(K, m)`` (the module docstring's terms)."""
@@ -357,16 +505,25 @@ class OraclePolicy:
             cost = cost + p.w_margin * np.maximum(0.0, p.m_safe - m) ** 2
         return cost + p.w_track * (((d - d_des) / (d_con - d_des)) ** 2 + (beta / beta_con) ** 2)
 
-    def describe(self) -> dict[str, Any]:
-        """The parameters, as plain data (for cards and provenance)."""
-        return asdict(self.params)
+
+def _interpolation(horizon: int, smooth: int) -> NDArray[np.float64]:
+    """``(horizon, points)``: linear interpolation from draws at every ``smooth``-th knot (the
+    last point at or past the horizon) to every knot."""
+    points = np.arange(0, horizon + smooth, smooth)
+    out = np.zeros((horizon, points.size))
+    for h in range(horizon):
+        j = min(h // smooth, points.size - 2)
+        w = (h - points[j]) / smooth
+        out[h, j] = 1.0 - w
+        out[h, j + 1] = w
+    return out
 
 
 def _planning_snapshot(snap: CoreSnapshot) -> CoreSnapshot:
-    """``snap`` as the model runs it: without perception (the planner reads the truth), no
-    violation ends a rollout (``terminate_on`` empty), and neither does the step limit or the
-    leader's settle time (a rollout near the episode's end goes on behind the arrived
-    leader)."""
+    """``snap`` as the feedback oracle's model runs it: without perception (the planner reads
+    the truth), no violation ends a rollout (``terminate_on`` empty), and neither does the step
+    limit or the leader's settle time (a rollout near the episode's end goes on behind the
+    arrived leader)."""
     params = snap.params.copy()
     # The planner reads the ground truth only: the model skips the perception pipeline (noise,
     # dropouts, frames, latency), which changes no pose, no sensing and no violation.
@@ -375,6 +532,19 @@ def _planning_snapshot(snap: CoreSnapshot) -> CoreSnapshot:
     params["terminate_mask"] = 0
     params["max_episode_steps"] = np.iinfo(np.int64).max // 2
     params["settle_time"] = 1e12
+    return _with_params(snap, params)
+
+
+def _guided_snapshot(snap: CoreSnapshot) -> CoreSnapshot:
+    """``snap`` as the guided oracle's model runs it: the env's own perception (its base law
+    acts on the observations it would get) and its own end (the leader's arrival, the step
+    limit), but no violation ends a rollout, so that each one's cost counts them all."""
+    params = snap.params.copy()
+    params["terminate_mask"] = 0
+    return _with_params(snap, params)
+
+
+def _with_params(snap: CoreSnapshot, params: NDArray[Any]) -> CoreSnapshot:
     episode = snap.episode.copy()
     episode["terminated"] = False
     episode["truncated"] = False

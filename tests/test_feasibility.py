@@ -92,3 +92,11 @@ def test_a_task_that_cannot_be_built_is_reported_not_run(monkeypatch: pytest.Mon
     refused = feasibility.refusals(["study_a/strict", "study_b/turtlebot3_waffle_pi"])
     assert list(refused) == ["study_a/strict"]
     assert "leader.speed" in refused["study_a/strict"]
+
+
+def test_the_oracle_s_base_is_a_named_option() -> None:
+    assert feasibility._oracle_param("base=feedback") == ("base", "feedback")
+    assert feasibility._oracle_param("base=filtered_ppc") == ("base", "filtered_ppc")
+    assert feasibility._oracle_param("samples=8") == ("samples", 8)
+    with pytest.raises(Exception, match="base must be"):
+        feasibility._oracle_param("base=nothing")

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 import platoon_env
-from baselines.oracle import OracleParams, OraclePolicy
+from baselines.filtered_ppc_drive import DriveAwareFilteredPPCPolicy
+from baselines.oracle import BASE_LAWS, OracleParams, OraclePolicy
 from experiments.batched_eval import run_cells
 from experiments.grid import Cell, resolve_cells, run_cell
 from experiments.policies import REGISTRY, PolicySpec, build_policy
@@ -140,3 +141,59 @@ def test_oracle_as_a_batched_copy_matches_the_single_env() -> None:
         assert one.status == many.status == "done", (one.error, many.error)
         assert one.metrics == many.metrics
     assert single[0].metrics != single[1].metrics
+
+
+def test_oracle_base_is_checked() -> None:
+    with pytest.raises(ValueError, match="base"):
+        OracleParams(base="no_such_law")
+    assert OracleParams().base in BASE_LAWS
+    assert set(BASE_LAWS) <= set(REGISTRY)  # the names a guided oracle takes are laws' names
+
+
+def test_guided_oracle_is_its_law_wherever_the_law_is_safe() -> None:
+    """Where the exact model shows the base law safe over the horizon, the guided oracle sends
+    the law's own commands, to the bit, and never searches."""
+    env = platoon_env.make("study_c", sensor_profile="aruco")
+    twin = platoon_env.make("study_c", sensor_profile="aruco")
+    oracle = OraclePolicy(env, samples=4, horizon=10, knot=5, iterations=1)
+    law = DriveAwareFilteredPPCPolicy(twin)
+    obs, _ = env.reset(seed=2)
+    obs_twin, _ = twin.reset(seed=2)
+    oracle.reset(seed=2)
+    law.reset(seed=2)
+    for _ in range(200):
+        a, b = oracle.act(obs), law.act(obs_twin)
+        assert a.keys() == b.keys()
+        assert all(np.array_equal(a[k], b[k]) for k in a)
+        obs, *_ = env.step(a)
+        obs_twin, *_ = twin.step(b)
+    assert oracle.plans == 40 and oracle.searches == 0
+
+
+class _Halt:
+    """A base law that stops every follower: the leader drives out of their range."""
+
+    def __init__(self, env: Any) -> None:
+        self.agents = list(env.possible_agents)
+
+    def reset(self, seed: int | None = None) -> None:
+        pass
+
+    def act(self, observations: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {a: np.zeros(2, dtype=np.float32) for a in observations}
+
+
+def test_guided_oracle_corrects_a_law_it_sees_fail(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A base law that would lose the leader (it stops) is corrected as soon as the model
+    shows the failure within the horizon: the oracle searches, and keeps the platoon in range
+    for longer than the law alone does."""
+    monkeypatch.setitem(BASE_LAWS, "ppc", _Halt)
+    params = {"base": "ppc", "samples": 16, "horizon": 10, "knot": 10, "iterations": 2}
+    alone = platoon_env.make("study_c")
+    steps_alone = _drive(alone, _Halt(alone), seed=0, steps=1500)
+    assert steps_alone < 1500  # the law alone fails
+    env = platoon_env.make("study_c")
+    oracle = OraclePolicy(env, **params)
+    steps = _drive(env, oracle, seed=0, steps=1500)
+    assert oracle.searches > 0
+    assert steps > steps_alone + 100
