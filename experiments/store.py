@@ -39,8 +39,9 @@ Safety rules:
   at): each column's type, a JSON column an object, a run's status one of
   :data:`RUN_STATUSES` and its pid a process id, a finished episode of a measure in
   :data:`EPISODE_METRICS_MEASURES` holding every field of :data:`EPISODE_METRICS` with its
-  type. A row that fails is one :class:`StoreError` naming the file, the row (its key) and the
-  field, never a traceback from deep inside a report.
+  type (those of :data:`EPISODE_METRICS_LATER` may be missing from older rows). A row that
+  fails is one :class:`StoreError` naming the file, the row (its key) and the field, never a
+  traceback from deep inside a report.
 * ``failed`` rows (the episode raised) are retried by the next run; ``refused`` rows (the
   policy declined the configuration, e.g. the filtered PPC without a feasible funnel) are a
   result, like ``done``.
@@ -68,6 +69,7 @@ from typing import Any, NamedTuple
 
 __all__ = [
     "EPISODE_METRICS",
+    "EPISODE_METRICS_LATER",
     "EPISODE_METRICS_MEASURES",
     "FINISHED",
     "FOREIGN_CLAIM_STALE",
@@ -127,7 +129,24 @@ EPISODE_METRICS: dict[str, str] = {
     "leader_arrived": "bool",
     "lost_sight_steps": "count",
     "funnel_exits": "count",
+    "path_fraction": "number",
+    "min_margin_distance": "number",
+    "min_margin_bearing": "number",
+    "min_margin_clearance": "number",
+    "min_margin_sight": "number",
 }
+#: The fields of :data:`EPISODE_METRICS` added after stores already held rows (the graded
+#: metrics, platoon_env 0.2): a row written before them is valid without them (its reports
+#: show "–"), and a row that holds them holds them of their type.
+EPISODE_METRICS_LATER: frozenset[str] = frozenset(
+    {
+        "path_fraction",
+        "min_margin_distance",
+        "min_margin_bearing",
+        "min_margin_clearance",
+        "min_margin_sight",
+    }
+)
 #: The measures whose metrics include :data:`EPISODE_METRICS` (the default measure and the
 #: comparison's, which extend it); a row of another measure is checked for its shape only (a
 #: JSON object), since only its measure knows its fields.
@@ -321,6 +340,8 @@ def _check_metrics(metrics: Any, status: str, measure: str) -> None:
         return
     for field, kind in EPISODE_METRICS.items():
         test, expected = _KINDS[kind]
+        if field not in metrics and field in EPISODE_METRICS_LATER:
+            continue
         if field not in metrics:
             raise _RowError(f"metrics.{field}", f"{expected} (the field is missing)", metrics)
         _require(test(metrics[field]), f"metrics.{field}", expected, metrics[field])
@@ -536,10 +557,14 @@ class Store:
             # Look before writing: the WAL pragma and the tables below change the file.
             _check_own(self._db, self.path)
             mode = self._db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
-        except sqlite3.OperationalError as exc:
+        except sqlite3.OperationalError as exc:  # the file could not be read or written
             message = self._lock_message(exc) if _is_lock_error(exc) else None
             self._close_quietly()
-            raise StoreError(message or f"{self.path}: not an evaluation store ({exc})") from None
+            raise StoreError(
+                message
+                or f"{self.path}: cannot open the store ({exc}): is its disk full, or the file "
+                "or its folder read-only?"
+            ) from None
         except sqlite3.DatabaseError as exc:
             self._close_quietly()
             raise StoreError(f"{self.path}: not an evaluation store ({exc})") from None

@@ -16,7 +16,14 @@ from typing import Any, Protocol
 import numpy as np
 
 from platoon_env.env import PlatoonParallelEnv
-from platoon_env.geometry.sensing import SENSE_BETA, SENSE_CLEARANCE, SENSE_D, SENSE_VISIBLE
+from platoon_env.geometry.sensing import (
+    SENSE_BETA,
+    SENSE_CLEARANCE,
+    SENSE_D,
+    SENSE_D_SIGHT_LEFT,
+    SENSE_D_SIGHT_RIGHT,
+    SENSE_VISIBLE,
+)
 from platoon_env.safety import first_cause
 
 #: Errors are scored after this initial transient [s] (the funnels start wide, eq. 12).
@@ -43,6 +50,11 @@ METRIC_NAMES: tuple[str, ...] = (
     "leader_arrived",
     "lost_sight_steps",
     "funnel_exits",
+    "path_fraction",
+    "min_margin_distance",
+    "min_margin_bearing",
+    "min_margin_clearance",
+    "min_margin_sight",
 )
 
 
@@ -61,7 +73,10 @@ class Episode:
     ``times`` (T+1,), ``poses`` (T+1, N+1, 3), ``sensed`` (T+1, N, 9) with the ``SENSE_*``
     columns, ``actions`` (T, N, 2) as applied (after clipping), ``violations`` (T, N) masks,
     ``signals`` the policy's internal signals per step (e.g. PPC's performance functions),
-    stacked to arrays (T, N) per name.
+    stacked to arrays (T, N) per name. ``d_col``, ``d_con``, ``beta_con``, ``radius`` are the
+    episode's constraints (eqs. 4-5: the collision distance, the camera's range and half field
+    of view) and the robots' radius, ``path_length`` the leader's path's length [m]
+    (:func:`constraint_margins`, the graded metrics; NaN where not recorded).
     """
 
     scenario: str
@@ -79,6 +94,11 @@ class Episode:
     first_violation: tuple[int, str, int] | None  # (step, cause, follower index 1..N)
     signals: dict[str, np.ndarray] = field(default_factory=dict)
     funnel_exits: int = 0
+    d_col: float = math.nan
+    d_con: float = math.nan
+    beta_con: float = math.nan
+    radius: float = math.nan
+    path_length: float = math.nan
 
     @property
     def steps(self) -> int:
@@ -183,6 +203,7 @@ class EpisodeRecorder:
         ``d_des``), from ``reset(seed)``, with the env's ``control_period`` and how it ended."""
         n = len(self.agents)
         funnel = getattr(policy, "funnel_exits", None)
+        cfg = scenario.config
         return Episode(
             scenario=scenario.name,
             seed=seed,
@@ -199,6 +220,11 @@ class EpisodeRecorder:
             first_violation=self.first,
             signals={k: np.asarray(v) for k, v in self.signals.items()},
             funnel_exits=int(np.sum(funnel)) if funnel is not None else 0,
+            d_col=cfg.safety.d_col,
+            d_con=cfg.camera.range,
+            beta_con=cfg.camera.half_angle,
+            radius=cfg.robot.radius,
+            path_length=float(scenario.path_s[-1]),
         )
 
 
@@ -246,6 +272,48 @@ def run_episode(
     )
 
 
+#: The constraints of :func:`constraint_margins`, in the order of the ``min_margin_*`` metrics.
+MARGINS: tuple[str, ...] = ("distance_collision", "distance_range", "bearing", "clearance", "sight")
+
+
+def constraint_margins(ep: Episode) -> dict[str, np.ndarray]:
+    """Each constraint's normalised margin ``(T, N)`` after every step of ``ep`` (ground
+    truth; 0 at the constraint's bound, negative beyond it):
+
+    * ``distance_collision`` ``(d - d_col) / (d_des - d_col)`` and ``distance_range``
+      ``(d_con - d) / (d_con - d_des)`` (eq. 4-5's distance bounds; 1 at the set point);
+    * ``bearing`` ``(beta_con - |beta|) / beta_con`` (eq. 5; 1 straight ahead);
+    * ``clearance`` ``(c - r) / r``: the clearance to the (inflated) obstacles beyond the
+      robot's radius, in radii;
+    * ``sight`` ``min(d_l, d_r) / r``: the line of sight's clearance to the obstacles on its
+      left and right (0: occluded), in radii.
+    """
+    s = ep.sensed[1:]
+    d, beta = s[..., SENSE_D], s[..., SENSE_BETA]
+    r = ep.radius
+    return {
+        "distance_collision": (d - ep.d_col) / (ep.d_des - ep.d_col),
+        "distance_range": (ep.d_con - d) / (ep.d_con - ep.d_des),
+        "bearing": (ep.beta_con - np.abs(beta)) / ep.beta_con,
+        "clearance": (s[..., SENSE_CLEARANCE] - r) / r,
+        "sight": np.minimum(s[..., SENSE_D_SIGHT_LEFT], s[..., SENSE_D_SIGHT_RIGHT]) / r,
+    }
+
+
+def path_fraction(ep: Episode) -> float:
+    """The fraction of the leader's path completed before the first violation (to the episode's
+    end without one): 1 when the leader arrived with no violation, else the leader's travelled
+    distance up to the violating step over the path's length, at most 1 (a pure-pursuit leader
+    that cuts its corners travels a little less than its path)."""
+    first = ep.first_violation
+    if ep.leader_arrived and first is None:
+        return 1.0
+    end = ep.poses.shape[0] if first is None else first[0] + 2
+    xy = ep.poses[:end, 0, :2]
+    travelled = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+    return min(1.0, travelled / ep.path_length) if ep.path_length > 0 else math.nan
+
+
 def episode_metrics(ep: Episode, transient: float = DEFAULT_TRANSIENT) -> dict[str, Any]:
     """The ``docs/metrics.md`` metrics of one episode.
 
@@ -261,7 +329,12 @@ def episode_metrics(ep: Episode, transient: float = DEFAULT_TRANSIENT) -> dict[s
       consecutive steps of ``|Δu| / control_period``, ``|Δomega| / control_period`` (how fast the
       commands change: a command that switches between its bounds every step is large here,
       a smooth one small; 0 for an episode of one step);
-    * ``lost_sight_steps``: follower-steps without visibility; ``funnel_exits`` (PPC only).
+    * ``lost_sight_steps``: follower-steps without visibility; ``funnel_exits`` (PPC only);
+    * the graded metrics, which show how far an episode got where success is binary:
+      ``path_fraction`` (:func:`path_fraction`), and ``min_margin_distance`` (the smaller of the
+      two distance margins), ``min_margin_bearing``, ``min_margin_clearance``,
+      ``min_margin_sight``: each constraint's smallest normalised margin over followers and
+      steps (:func:`constraint_margins`; negative: the bound was crossed).
     """
     dt = ep.control_period
     sensed = ep.sensed[1:]  # after each step
@@ -290,6 +363,7 @@ def episode_metrics(ep: Episode, transient: float = DEFAULT_TRANSIENT) -> dict[s
     w = ep.actions[:, :, 1]
     steps = u.shape[0] - 1  # consecutive pairs of commands
     first = ep.first_violation
+    m = {k: float(np.min(v)) if v.size else math.nan for k, v in constraint_margins(ep).items()}
     return {
         "success": bool(ep.leader_arrived and first is None),
         "violation": "" if first is None else first[1],
@@ -312,4 +386,9 @@ def episode_metrics(ep: Episode, transient: float = DEFAULT_TRANSIENT) -> dict[s
         "leader_arrived": bool(ep.leader_arrived),
         "lost_sight_steps": int(np.sum(~visible)),
         "funnel_exits": ep.funnel_exits,
+        "path_fraction": path_fraction(ep),
+        "min_margin_distance": min(m["distance_collision"], m["distance_range"]),
+        "min_margin_bearing": m["bearing"],
+        "min_margin_clearance": m["clearance"],
+        "min_margin_sight": m["sight"],
     }

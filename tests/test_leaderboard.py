@@ -187,6 +187,7 @@ def test_tables_and_readme_splice(tmp_path: Path) -> None:
     assert table.count("\n") == 4 and "| ppc | paper | all | 1 × 16 | 1.00 [0.7" in table
     tasks_md = lb.task_table_markdown(board)
     assert "study_a/aruco" in tasks_md and "4/4 [0.51, 1.00] ⊤" in tasks_md
+    assert set(lb.task_graded_markdown(board).split("\n")[2].split(" | ")[1:-1]) == {"–"}
     readme = tmp_path / "README.md"
     readme.write_text(f"intro\n{lb.MARKERS[0]}\nold\n{lb.MARKERS[1]}\nend\n")
     lb.splice_readme(readme, table)
@@ -195,6 +196,28 @@ def test_tables_and_readme_splice(tmp_path: Path) -> None:
     readme.write_text("no markers")
     with pytest.raises(ValueError, match="markers"):
         lb.splice_readme(readme, table)
+
+
+def test_the_graded_table_shows_progress_on_an_unsolved_task() -> None:
+    """Two entries that both fail every episode tie on success; the graded table tells the
+    one that gets further (mean path done, median smallest margin) from the other."""
+    t = _tasks()
+
+    def graded(path: float, margin: float) -> dict:
+        return {
+            **_ep(False, "out_of_fov"),
+            "path_fraction": path,
+            "min_margin_distance": margin + 0.5,
+            "min_margin_bearing": margin,
+        }
+
+    far = [graded(0.9, -0.01), graded(0.7, -0.03), graded(0.8, -0.02)]
+    near = [graded(0.1, -0.2)] * 3
+    board = _board({"a": [{task: far for task in t}], "b": [{task: near for task in t}]})
+    assert lb.task_graded(board, "a", t[0]) == (pytest.approx(0.8), pytest.approx(-0.02))
+    assert lb.task_graded(board, "b", t[0]) == (pytest.approx(0.1), pytest.approx(-0.2))
+    md = lb.task_graded_markdown(board)
+    assert "| a | 0.80 / -0.02 |" in md and "| b | 0.10 / -0.20 |" in md
 
 
 def test_a_tiny_leaderboard_run_writes_its_outputs(

@@ -77,3 +77,64 @@ def test_command_rates_measure_how_fast_the_commands_change() -> None:
 def test_command_rates_of_a_one_step_episode_are_zero() -> None:
     m = episode_metrics(_episode(0.1))
     assert m["command_rate_u"] == 0.0 and m["command_rate_omega"] == 0.0
+
+
+def test_graded_metrics_of_a_synthetic_episode() -> None:
+    """The margins are the formulas of constraint_margins, read at their minimum; the path
+    fraction is the leader's travelled distance over the path's length."""
+    from dataclasses import replace
+
+    from platoon_env.geometry.sensing import (
+        SENSE_CLEARANCE,
+        SENSE_D_SIGHT_LEFT,
+        SENSE_D_SIGHT_RIGHT,
+    )
+
+    ep = _episode(2.0)
+    ep.sensed[:, 0, SENSE_CLEARANCE] = 0.6
+    ep.sensed[:, 0, SENSE_D_SIGHT_LEFT] = 0.45
+    ep.sensed[:, 0, SENSE_D_SIGHT_RIGHT] = 0.9
+    ep.poses[:, 0, 0] = 0.25 * np.arange(21)  # the leader drives 5 m of a 20 m path
+    ep = replace(ep, d_col=0.5, d_con=2.0, beta_con=0.5, radius=0.3, path_length=20.0)
+    m = episode_metrics(ep)
+    # d after each step: 1.01 .. 1.2
+    assert m["min_margin_distance"] == pytest.approx(min((2.0 - 1.2) / 1.0, (1.01 - 0.5) / 0.5))
+    assert m["min_margin_bearing"] == pytest.approx((0.5 - 0.02) / 0.5)
+    assert m["min_margin_clearance"] == pytest.approx(1.0)  # (0.6 - 0.3) / 0.3
+    assert m["min_margin_sight"] == pytest.approx(1.5)  # 0.45 / 0.3
+    assert m["path_fraction"] == pytest.approx(0.25)
+    # Cut at a violation at step 7: the leader had travelled 8 steps' worth (poses 0..8).
+    cut = replace(ep, first_violation=(7, "out_of_range", 1))
+    assert episode_metrics(cut)["path_fraction"] == pytest.approx(8 * 0.25 / 20.0)
+    # Arrived without a violation: the whole path.
+    assert episode_metrics(replace(ep, leader_arrived=True))["path_fraction"] == 1.0
+    # Not recorded (an Episode built without its constraints): NaN, not a number made up.
+    assert np.isnan(episode_metrics(_episode(2.0))["min_margin_distance"])
+
+
+@pytest.mark.parametrize("policy", ["halt", "ppc"])
+def test_graded_metrics_of_real_episodes(policy: str) -> None:
+    """A law that completes study C has the whole path and positive margins; followers that
+    stop lose their leader part of the way, with the violated constraint's margin at or below
+    zero."""
+    import platoon_env
+    from baselines.ppc import PPCPolicy
+    from platoon_env.rollout import run_episode
+
+    class Halt:
+        def reset(self, seed: int | None = None) -> None:
+            pass
+
+        def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+            return {a: np.zeros(2, dtype=np.float32) for a in obs}
+
+    env = platoon_env.make("study_c")
+    ep = run_episode(env, PPCPolicy(env) if policy == "ppc" else Halt(), seed=0)
+    m = episode_metrics(ep)
+    if policy == "ppc":
+        assert m["success"] and m["path_fraction"] == 1.0
+        assert min(m[f"min_margin_{k}"] for k in ("distance", "bearing", "sight")) > 0
+    else:
+        assert not m["success"] and 0.0 < m["path_fraction"] < 0.5
+        bound = {"out_of_range": "distance", "out_of_fov": "bearing", "occluded": "sight"}
+        assert m[f"min_margin_{bound[m['violation']]}"] <= 1e-9

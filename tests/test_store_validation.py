@@ -311,3 +311,18 @@ def test_a_recent_claim_of_another_host_is_waited_for_naming_it(tmp_path: Path) 
         text = store.holders_message([KEY], 600.0)
     assert f"run {holder} (platoon-evaluate, host elsewhere.example, pid 4242" in text
     assert "it last wrote 1" in text and f"after {FOREIGN_CLAIM_STALE:.0f} s of silence" in text
+
+
+def test_rows_written_before_the_graded_metrics_are_still_valid(tmp_path: Path) -> None:
+    """A row without the later fields (EPISODE_METRICS_LATER) reads back; one that holds them
+    must hold numbers."""
+    from experiments.store import EPISODE_METRICS_LATER, _check_metrics
+
+    assert EPISODE_METRICS_LATER <= set(EPISODE_METRICS)
+    measure = sorted(EPISODE_METRICS_MEASURES)[0]
+    old = {k: v for k, v in GOOD.items() if k not in EPISODE_METRICS_LATER}
+    _check_metrics(old, "done", measure)
+    with pytest.raises(Exception, match="path_fraction"):
+        _check_metrics({**old, "path_fraction": "far"}, "done", measure)
+    with pytest.raises(Exception, match="rms_e_d"):
+        _check_metrics({k: v for k, v in old.items() if k != "rms_e_d"}, "done", measure)

@@ -55,14 +55,7 @@ from experiments.policies import REGISTRY, PolicySpec, analytic_policies, build_
 from experiments.report import markdown_table, provenance_markdown, wilson, write_text_atomic
 from experiments.stamp import metadata_stamp, png_metadata
 from platoon_env.config import ScenarioError
-from platoon_env.geometry.sensing import (
-    SENSE_BETA,
-    SENSE_CLEARANCE,
-    SENSE_D,
-    SENSE_D_SIGHT_LEFT,
-    SENSE_D_SIGHT_RIGHT,
-)
-from platoon_env.rollout import Episode, episode_metrics
+from platoon_env.rollout import Episode, constraint_margins, episode_metrics
 from platoon_env.scenarios import load_config
 from platoon_env.scenarios.options import apply_overrides
 
@@ -94,18 +87,15 @@ METRES = ("obstacle clearance", "line of sight clearance")
 def margins(ep: Episode) -> dict[str, np.ndarray]:
     """Each constraint's margin ``(T, n)`` over the episode's steps after the start: the
     normalised distance and bearing margins (0 at the bound, 1 at the set point) and the
-    clearances in metres beyond the bound (:data:`NORMALISED`, :data:`METRES`)."""
-    cfg = load_config(ep.scenario)
-    d_col, d_con = cfg.safety.d_col, cfg.camera.range
-    beta_con, r = cfg.camera.half_angle, cfg.robot.radius
-    s = ep.sensed[1:]
-    d, beta = s[..., SENSE_D], s[..., SENSE_BETA]
+    clearances in metres beyond the bound (:data:`NORMALISED`, :data:`METRES`), from
+    :func:`platoon_env.rollout.constraint_margins` (the episode's own constraints)."""
+    m = constraint_margins(ep)
     return {
-        NORMALISED[0]: (d - d_col) / (ep.d_des - d_col),
-        NORMALISED[1]: (d_con - d) / (d_con - ep.d_des),
-        NORMALISED[2]: (beta_con - np.abs(beta)) / beta_con,
-        METRES[0]: s[..., SENSE_CLEARANCE] - r,
-        METRES[1]: np.minimum(s[..., SENSE_D_SIGHT_LEFT], s[..., SENSE_D_SIGHT_RIGHT]),
+        NORMALISED[0]: m["distance_collision"],
+        NORMALISED[1]: m["distance_range"],
+        NORMALISED[2]: m["bearing"],
+        METRES[0]: m["clearance"] * ep.radius,
+        METRES[1]: m["sight"] * ep.radius,
     }
 
 

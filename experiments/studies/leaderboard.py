@@ -39,7 +39,9 @@ independent tasks):
   episodes of the episode values (those with a finite value: a follower that never saw its
   predecessor has none);
 * per task: the successes with a 95 % Wilson interval, floor (⊥) and ceiling (⊤) flagged, and
-  the most frequent violation;
+  the most frequent violation; beside them the graded outcome (:func:`task_graded`): the mean
+  fraction of the leader's path done before the first violation and the median smallest
+  distance or bearing margin, so that an unsolved task shows progress;
 * **pairwise comparisons**: every pair of entries on every task both ran, a Fisher exact test
   on the pooled episodes, Holm-adjusted over that whole family, with Newcombe's interval of
   the difference; ties at the floor or the ceiling are flagged, not tested; a separation
@@ -315,6 +317,36 @@ def task_table_markdown(board: Board) -> str:
             mark = " ⊥" if rate.floor else " ⊤" if rate.ceiling else ""
             note = f" ({worst.replace('collision_', 'coll. ')})" if worst else ""
             cells_.append(f"{rate}{mark}{note}")
+        lines.append(f"| {e.name} | " + " | ".join(cells_) + " |")
+    return "\n".join(lines) + "\n"
+
+
+#: The normalised margins of the graded table (``platoon_env.rollout.episode_metrics``).
+GRADED_MARGINS: tuple[str, ...] = ("min_margin_distance", "min_margin_bearing")
+
+
+def task_graded(board: Board, entry: str, task: Task) -> tuple[float, float] | None:
+    """``entry``'s graded outcome on ``task`` (runs pooled): the mean ``path_fraction`` and the
+    median over episodes of each one's smallest distance or bearing margin; None without an
+    episode that holds them (not run, or rows written before the graded metrics)."""
+    eps = [m for run in board.metrics[entry] for m in run.get(task, []) if "path_fraction" in m]
+    if not eps:
+        return None
+    path = _finite_mean([m["path_fraction"] for m in eps])
+    margin = [min(float(m[k]) for k in GRADED_MARGINS) for m in eps]
+    return path, float(np.median(margin))
+
+
+def task_graded_markdown(board: Board) -> str:
+    """Per policy and task: the mean fraction of the leader's path done before the first
+    violation, and the median smallest distance or bearing margin (:func:`task_graded`)."""
+    head = "| policy | " + " | ".join(t.label for t in board.tasks) + " |"
+    lines = [head, "|---|" + "---|" * len(board.tasks)]
+    for e in board.entries:
+        cells_ = []
+        for t in board.tasks:
+            graded = task_graded(board, e.name, t)
+            cells_.append("–" if graded is None else f"{_f(graded[0], 2)} / {_f(graded[1], 2)}")
         lines.append(f"| {e.name} | " + " | ".join(cells_) + " |")
     return "\n".join(lines) + "\n"
 
@@ -804,6 +836,13 @@ def leaderboard_markdown(
         "data separates two policies there.\n",
         task_table_markdown(board),
         "![success per task](figures/leaderboard_tasks.png)\n",
+        "## Per task, graded: path done / smallest margin\n",
+        "Success is binary; this table shows how far an unsolved task gets. First number: the "
+        "mean fraction of the leader's path done before the first violation (1: the whole "
+        "path); second: the median over episodes of each episode's smallest normalised "
+        "distance or bearing margin (1 at the set point, 0 at a bound, negative beyond it). "
+        "Definitions: docs/metrics.md. `–`: rows written before these metrics existed.\n",
+        task_graded_markdown(board),
         "## Pairwise comparisons (who beats whom on which task)\n",
         "The family: every pair of policies on every task both ran. Each comparison is a "
         "two-sided Fisher exact test on the 2×2 table of episodes (a configuration's seeds "
