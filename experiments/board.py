@@ -192,8 +192,9 @@ def cells(
 
 @dataclass
 class Board:
-    """The metrics of every episode, ``metrics[entry][run][task]`` = a list over seeds, and
-    the cells that were refused (the policy cannot run there) or failed."""
+    """The metrics of every episode, ``metrics[entry][run][task]`` = a list over seeds (each
+    with its ``seed``: the comparisons pair episodes by it), and the cells that were refused
+    (the policy cannot run there) or failed."""
 
     entries: list[Entry]
     tasks: list[Task]
@@ -274,7 +275,7 @@ def build_board(
                     elif rec.status == "refused":
                         refused[(e.name, t)] = rec.error.strip().splitlines()[-1][:200]
                     else:
-                        eps.append(rec.metrics)
+                        eps.append({**rec.metrics, "seed": seed})
                 if eps:
                     per_task[t] = eps
             runs.append(per_task)

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from experiments.report import write_text_atomic
-from experiments.significance import holm, wilson
+from experiments.significance import holm, mcnemar_exact, wilson
 
 __all__ = [
     "FORMAT",
@@ -225,20 +225,6 @@ def check_compatible(
             f"seeds {missing[:5]}{'...' if len(missing) > 5 else ''} are not in the published "
             f"rows (seeds {published.seeds[0]}..{published.seeds[-1]})"
         )
-
-
-def mcnemar_exact(b: int, c: int) -> float:
-    """The two-sided exact McNemar p-value of ``b`` and ``c`` discordant pairs (one policy
-    succeeds and the other fails, and the reverse): twice the binomial tail of ``min(b, c)``
-    under ``Bin(b + c, 1/2)``, capped at 1 (1 with no discordant pair)."""
-    if b < 0 or c < 0:
-        raise ValueError("counts must be non-negative")
-    n = b + c
-    if n == 0:
-        return 1.0
-    k = min(b, c)
-    tail = sum(math.comb(n, i) for i in range(k + 1)) / 2.0**n
-    return min(1.0, 2.0 * tail)
 
 
 def comparison_markdown(

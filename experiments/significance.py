@@ -24,6 +24,18 @@ so a policy's result on a task is a binomial count ``k`` of ``n``. What this mod
   A comparison in which both are at the floor (0/n) or both at the ceiling (n/n) is a *tie*,
   flagged as such (its p-value is 1: there is nothing to test), never silently counted as
   half a win.
+* **Paired comparisons** (:func:`compare_paired`), for two policies that played the same
+  episode seeds (the board's design: a configuration's training seeds share out the seeds an
+  analytic law plays all of): each seed is a pair of outcomes; the test is the two-sided
+  **exact McNemar** test (:func:`mcnemar_exact`: the binomial test of the discordant pairs,
+  ``scipy.stats.binomtest(b, b + c, 1/2)``), the interval Newcombe's for paired proportions
+  (:func:`newcombe_paired_difference`, method 10 of Newcombe, 1998b: the two Wilson intervals
+  combined with the pairs' correlation ``phi``); it contains its point estimate by
+  construction. Seeds from disjoint blocks (a configuration's runs) pool into one table of
+  pairs: each pair compares the two policies on one seed, so blocks of different difficulty
+  stratify themselves. Ties and Holm's correction as for :func:`compare`; the family is the
+  returned list, so a caller that states two families (the board's confirmatory and
+  exploratory) calls it once per family.
 
 Bootstraps are seeded, so tables regenerate identically.
 """
@@ -46,9 +58,12 @@ __all__ = [
     "Interval",
     "TaskRate",
     "compare",
+    "compare_paired",
     "holm",
+    "mcnemar_exact",
     "mean_success",
     "newcombe_difference",
+    "newcombe_paired_difference",
     "task_rate",
     "wilson",
 ]
@@ -163,6 +178,47 @@ def newcombe_difference(k1: int, n1: int, k2: int, n2: int) -> Interval:
     return Interval(d, max(-1.0, low), min(1.0, high))
 
 
+def newcombe_paired_difference(both: int, only_a: int, only_b: int, neither: int) -> Interval:
+    """``p_A - p_B`` of paired outcomes (``both`` pairs where both succeed, ``only_a`` where
+    only A does, ``only_b`` where only B does, ``neither``) with Newcombe's interval for paired
+    proportions (1998b, method 10): the Wilson intervals of ``p_A`` and ``p_B`` combined with
+    the pairs' correlation ``phi`` (0 where a margin is empty, so that it reduces to
+    :func:`newcombe_difference`'s hybrid interval for ``n`` pairs)."""
+    counts = (both, only_a, only_b, neither)
+    if any(isinstance(x, bool) or int(x) != x or x < 0 for x in counts):
+        raise ValueError(f"pair counts must be integers >= 0, got {counts}")
+    n = both + only_a + only_b + neither
+    if n == 0:
+        raise ValueError("no pairs")
+    k1, k2 = both + only_a, both + only_b
+    p1, p2 = k1 / n, k2 / n
+    l1, u1 = wilson(k1, n)
+    l2, u2 = wilson(k2, n)
+    margins = (both + only_a) * (only_b + neither) * (both + only_b) * (only_a + neither)
+    phi = (both * neither - only_a * only_b) / math.sqrt(margins) if margins else 0.0
+    d = p1 - p2
+    low = d - math.sqrt(max(0.0, (p1 - l1) ** 2 - 2 * phi * (p1 - l1) * (u2 - p2) + (u2 - p2) ** 2))
+    high = d + math.sqrt(
+        max(0.0, (u1 - p1) ** 2 - 2 * phi * (u1 - p1) * (p2 - l2) + (p2 - l2) ** 2)
+    )
+    return Interval(d, max(-1.0, low), min(1.0, high))
+
+
+def mcnemar_exact(b: int, c: int) -> float:
+    """The two-sided exact McNemar p-value of ``b`` and ``c`` discordant pairs (one policy
+    succeeds and the other fails, and the reverse): twice the binomial tail of ``min(b, c)``
+    under ``Bin(b + c, 1/2)``, capped at 1 (1 with no discordant pair); equal to
+    ``scipy.stats.binomtest(b, b + c, 0.5).pvalue``."""
+    if b < 0 or c < 0:
+        raise ValueError("counts must be non-negative")
+    n = b + c
+    if n == 0:
+        return 1.0
+    k = min(b, c)
+    tail = sum(math.comb(n, i) for i in range(k + 1)) / 2.0**n
+    return min(1.0, 2.0 * tail)
+
+
 def holm(p_values: Sequence[float]) -> list[float]:
     """Holm's step-down adjusted p-values (same order as given): the ``i``-th smallest is
     multiplied by ``m - i`` (``i`` from 0), made monotone, capped at 1."""
@@ -225,6 +281,40 @@ def compare(
             diff = newcombe_difference(k1, n1, k2, n2)
             tie = "floor" if k1 == 0 and k2 == 0 else "ceiling" if k1 == n1 and k2 == n2 else ""
             p = 1.0 if tie else float(fisher_exact([[k1, n1 - k1], [k2, n2 - k2]]).pvalue)
+            raw.append((task, a, b, diff, p, tie))
+    tested = [i for i, r in enumerate(raw) if not r[5]]
+    adjusted = holm([raw[i][4] for i in tested]) if tested else []
+    p_holm = [1.0] * len(raw)
+    for i, q in zip(tested, adjusted, strict=True):
+        p_holm[i] = q
+    return [
+        Comparison(t, a, b, d, p, q, tie)
+        for (t, a, b, d, p, tie), q in zip(raw, p_holm, strict=True)
+    ]
+
+
+def compare_paired(
+    outcomes: Mapping[tuple[str, str], Mapping[str, Sequence[tuple[bool, bool]]]],
+) -> list[Comparison]:
+    """The paired family: ``outcomes[(a, b)][task]`` = the pairs ``(a succeeded, b succeeded)``
+    of the episodes both played with the same seed. Each is an exact McNemar test with
+    Newcombe's paired interval (module doc); a pair where both are at the floor or both at the
+    ceiling is a tie, not a test; the p-values of every test returned are Holm-adjusted
+    together."""
+    raw: list[tuple[str, str, str, Interval, float, str]] = []
+    for (a, b), per_task in outcomes.items():
+        for task, pairs in per_task.items():
+            if not pairs:
+                continue
+            both = sum(1 for x, y in pairs if x and y)
+            only_a = sum(1 for x, y in pairs if x and not y)
+            only_b = sum(1 for x, y in pairs if y and not x)
+            neither = len(pairs) - both - only_a - only_b
+            diff = newcombe_paired_difference(both, only_a, only_b, neither)
+            tie = (
+                "floor" if both + only_a + only_b == 0 else "ceiling" if both == len(pairs) else ""
+            )
+            p = 1.0 if tie else mcnemar_exact(only_a, only_b)
             raw.append((task, a, b, diff, p, tie))
     tested = [i for i, r in enumerate(raw) if not r[5]]
     adjusted = holm([raw[i][4] for i in tested]) if tested else []

@@ -12,6 +12,7 @@ pytest.importorskip("rliable")
 
 from experiments.board import episode_seeds, span
 from experiments.policies import PolicySpec
+from experiments.significance import mcnemar_exact
 from experiments.stats import bootstrap_episodes
 from experiments.studies import leaderboard as lb
 from experiments.suites import ARUCO, IDEAL, suite
@@ -239,7 +240,8 @@ def test_a_tiny_leaderboard_run_writes_its_outputs(
             for condition in ("ideal", "aruco"):
                 n = len(suite(suite_name).scenarios)
                 assert f"| {name} | {suite_name} | {condition} | 1 × {n} |" in text
-    assert "## Pairwise comparisons" in text and "tests in the family" in text
+    assert "## Confirmatory comparisons" in text and "## Exploratory comparisons" in text
+    assert "tests in the family" in text
     assert (docs / "figures" / "leaderboard_tasks.png").stat().st_size > 0
     assert (docs / "figures" / "leaderboard_separation.png").stat().st_size > 0
     assert (docs / "figures" / "leaderboard_profiles.png").stat().st_size > 0
@@ -336,3 +338,28 @@ def test_a_readme_that_cannot_be_spliced_is_refused_before_any_episode(
     assert lb.readme_problem(page) is None
     shipped = Path(__file__).resolve().parents[1] / "docs" / "benchmark.md"
     assert lb.readme_problem(shipped) is None  # the default page holds the markers
+
+
+def test_comparisons_pair_episodes_by_seed_across_a_configuration_s_runs() -> None:
+    """A configuration's runs play disjoint seed blocks; the law plays them all: each seed is
+    one pair. The law fails seeds 0-9 and 20-29, the configuration fails 10-19 only: 20 pairs
+    where only it succeeds, 10 where only the law does."""
+    t = _tasks(seeds=40)
+    task = next(x for x in t if x.suite == "paper" and x.condition_label == "aruco")
+
+    def ep(seed: int, ok: bool) -> dict[str, Any]:
+        return {**_ep(ok), "seed": seed}
+
+    law = [{task: [ep(s, s // 10 in (1, 3)) for s in range(40)]}]
+    config = [{task: [ep(s, s // 10 != 1) for s in block]} for block in (range(20), range(20, 40))]
+    board = _board({"filtered_ppc": law, "m": config}, seeds=40)
+    pairs = lb.paired_outcomes(board, "m", "filtered_ppc", task)
+    assert len(pairs) == 40
+    assert sum(1 for a, b in pairs if a and not b) == 20
+    assert sum(1 for a, b in pairs if b and not a) == 10
+    (c,) = [c for c in lb.comparisons(board) if c.task == task.label]
+    assert c.p_value == pytest.approx(mcnemar_exact(20, 10))
+    # the confirmatory family: the learned configuration against the law on the goal's tasks
+    assert [(x.a, x.b, x.task) for x in lb.confirmatory(board)] == [
+        ("m", "filtered_ppc", task.label)
+    ]

@@ -1,5 +1,6 @@
 """experiments.significance: Wilson intervals, the hierarchical bootstrap, Newcombe's
-difference, Fisher's test with Holm's correction and the flagged ties."""
+difference, Fisher's test with Holm's correction and the flagged ties; the paired family
+(exact McNemar, Newcombe's paired interval)."""
 
 from __future__ import annotations
 
@@ -8,9 +9,12 @@ import pytest
 
 from experiments.significance import (
     compare,
+    compare_paired,
     holm,
+    mcnemar_exact,
     mean_success,
     newcombe_difference,
+    newcombe_paired_difference,
     task_rate,
     wilson,
 )
@@ -91,3 +95,50 @@ def test_compare_flags_ties_and_corrects_the_family() -> None:
     assert out["t1"].p_holm == pytest.approx(min(1.0, 2 * out["t1"].p_value))
     with pytest.raises(ValueError):
         compare(rates, [("A", "C")])
+
+
+def test_mcnemar_is_the_binomial_test_of_the_discordant_pairs() -> None:
+    """A worked check against scipy: the exact McNemar p-value is binomtest(b, b + c, 1/2)."""
+    from scipy.stats import binomtest
+
+    for b, c in [(0, 1), (1, 0), (3, 9), (9, 3), (10, 10), (0, 12), (25, 7), (40, 0)]:
+        assert mcnemar_exact(b, c) == pytest.approx(binomtest(b, b + c, 0.5).pvalue, rel=1e-12)
+    assert mcnemar_exact(0, 0) == 1.0
+    with pytest.raises(ValueError):
+        mcnemar_exact(-1, 2)
+
+
+def test_newcombe_paired_interval() -> None:
+    """Uncorrelated pairs (phi = 0) give the unpaired hybrid interval for n pairs; correlated
+    pairs a narrower one; every interval contains its point estimate and stays in [-1, 1]."""
+    # phi = 0: both * neither == only_a * only_b
+    paired = newcombe_paired_difference(4, 4, 2, 2)  # p_A = 8/12, p_B = 6/12
+    unpaired = newcombe_difference(8, 12, 6, 12)
+    assert paired.value == pytest.approx(unpaired.value)
+    assert (paired.low, paired.high) == pytest.approx((unpaired.low, unpaired.high))
+    # the same margins, positively correlated: narrower
+    tight = newcombe_paired_difference(6, 2, 0, 4)
+    assert tight.value == pytest.approx(paired.value)
+    assert tight.high - tight.low < paired.high - paired.low
+    for counts in [(0, 0, 0, 20), (20, 0, 0, 0), (0, 20, 0, 0), (0, 0, 20, 0), (19, 1, 0, 0)]:
+        d = newcombe_paired_difference(*counts)
+        assert -1.0 <= d.low <= d.value <= d.high <= 1.0
+    with pytest.raises(ValueError):
+        newcombe_paired_difference(0, 0, 0, 0)
+
+
+def test_compare_paired_tests_the_discordant_pairs_and_corrects_its_own_family() -> None:
+    pairs_t1 = [(True, False)] * 12 + [(True, True)] * 8  # A wins 12 discordant pairs
+    pairs_t2 = [(False, False)] * 20  # floor
+    pairs_t3 = [(True, False)] * 3 + [(False, True)] * 2 + [(True, True)] * 15
+    out = {
+        c.task: c
+        for c in compare_paired({("A", "B"): {"t1": pairs_t1, "t2": pairs_t2, "t3": pairs_t3}})
+    }
+    assert out["t1"].p_value == pytest.approx(mcnemar_exact(12, 0))
+    assert out["t1"].significant and out["t1"].verdict == "A"
+    assert out["t2"].tie == "floor"
+    assert out["t3"].verdict == "n.s." and out["t3"].difference.value == pytest.approx(0.05)
+    assert out["t1"].p_holm == pytest.approx(min(1.0, 2 * out["t1"].p_value))  # two tests
+    # Pooled unpaired, 20/20 vs 8/20 on t1; paired, the same data is 12 discordant pairs.
+    assert out["t1"].difference.value == pytest.approx(0.6)

@@ -42,10 +42,14 @@ independent tasks):
   the most frequent violation; beside them the graded outcome (:func:`task_graded`): the mean
   fraction of the leader's path done before the first violation and the median smallest
   distance or bearing margin, so that an unsolved task shows progress;
-* **pairwise comparisons**: every pair of entries on every task both ran, a Fisher exact test
-  on the pooled episodes, Holm-adjusted over that whole family, with Newcombe's interval of
-  the difference; ties at the floor or the ceiling are flagged, not tested; a separation
-  figure of who beats whom where;
+* **pairwise comparisons**, in two families each Holm-adjusted on its own: the
+  **confirmatory** one fixed in code (:func:`confirmatory`: each learned configuration
+  against each analytic law on each goal task; the goal reads it) and the **exploratory** one
+  (:func:`comparisons`: every pair of entries on every task both ran). Each comparison pairs
+  the two entries' episodes of the same seed (:func:`paired_outcomes`) and is an exact
+  McNemar test with Newcombe's paired interval of the difference
+  (:func:`experiments.significance.compare_paired`); ties at the floor or the ceiling are
+  flagged, not tested; a separation figure of who beats whom where;
 * the **probability of improvement** of each learned configuration over PPC and the filtered
   PPC, on the success rates of all tasks of both suites, with its interval;
 * **performance profiles** (the fraction of run × task success rates above each threshold);
@@ -92,7 +96,7 @@ from experiments.cli import add_batch_option, add_models_option, add_workers_opt
 from experiments.grid import run_grid, store_file
 from experiments.policies import default_models_dir
 from experiments.report import markdown_table, provenance_markdown, write_text_atomic
-from experiments.significance import Comparison, compare, mean_success, task_rate
+from experiments.significance import Comparison, compare_paired, mean_success, task_rate
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.stats import (
     Aggregate,
@@ -218,7 +222,8 @@ def goal(board: Board, entry: Entry, found: Sequence[Comparison]) -> dict[str, A
     """Whether ``entry`` reaches the learned side's goal (module doc): every run completes
     each paper study under ideal sensing in at least :data:`GOAL_IDEAL_RATE` of its episodes,
     and under aruco the configuration beats :data:`GOAL_REFERENCE` on at least one paper task
-    and loses on none, by the board's Holm-adjusted comparisons ``found``."""
+    and loses on none, by the Holm-adjusted comparisons ``found`` (the board's confirmatory
+    family, :func:`confirmatory`)."""
     ideal = [t for t in board.suite_tasks("paper") if t.condition.label == "ideal"]
     # (runs, tasks) success rates; a task a run has no episode of (NaN) counts as 0
     matrix = np.nan_to_num(board.success_matrix(entry.name, ideal), nan=0.0)
@@ -227,7 +232,7 @@ def goal(board: Board, entry: Entry, found: Sequence[Comparison]) -> dict[str, A
         rates = {t.scenario: float(r) for t, r in zip(ideal, row, strict=True)}
         ok = bool(rates) and all(r >= GOAL_IDEAL_RATE for r in rates.values())
         per_run.append({"run": spec.name, "ideal_rates": rates, "ideal": ok})
-    aruco = {t.label for t in board.suite_tasks("paper") if t.condition.label == "aruco"}
+    aruco = {t.label for t in goal_tasks(board)}
     versus = [c for c in found if c.task in aruco and {c.a, c.b} == {entry.name, GOAL_REFERENCE}]
     wins = sorted(c.task for c in versus if c.verdict == entry.name)
     losses = sorted(c.task for c in versus if c.verdict == GOAL_REFERENCE)
@@ -351,21 +356,61 @@ def task_graded_markdown(board: Board) -> str:
     return "\n".join(lines) + "\n"
 
 
-def comparisons(board: Board) -> list[Comparison]:
-    """The stated family: every pair of board entries on every task both ran, each a Fisher
-    exact test on the runs' pooled episodes, Holm-adjusted together
-    (:func:`experiments.significance.compare`)."""
-    rates = {
-        e.name: {
-            t.label: task_counts(board, e.name, t)
-            for t in board.tasks
-            if task_counts(board, e.name, t)[1] > 0
-        }
-        for e in board.entries
+def paired_outcomes(board: Board, a: str, b: str, task: Task) -> list[tuple[bool, bool]]:
+    """The pairs ``(a succeeded, b succeeded)`` of the episodes ``a`` and ``b`` played on
+    ``task`` with the same seed (an episode's ``seed``; a board made without seeds: its place
+    in its run). A seed either plays more than once (runs that share seeds) pairs run by run,
+    or with the one episode of the other."""
+
+    def by_seed(entry: str) -> dict[int, list[bool]]:
+        out: dict[int, list[bool]] = {}
+        for run in board.metrics[entry]:
+            for i, m in enumerate(run.get(task, [])):
+                out.setdefault(int(m.get("seed", i)), []).append(bool(m["success"]))
+        return out
+
+    mine, theirs = by_seed(a), by_seed(b)
+    pairs: list[tuple[bool, bool]] = []
+    for seed in sorted(set(mine) & set(theirs)):
+        x, y = mine[seed], theirs[seed]
+        if len(x) == 1:
+            x = x * len(y)
+        elif len(y) == 1:
+            y = y * len(x)
+        pairs.extend(zip(x, y, strict=False))
+    return pairs
+
+
+def _family(
+    board: Board, pairs: Sequence[tuple[str, str]], tasks_: Sequence[Task]
+) -> list[Comparison]:
+    outcomes = {
+        (a, b): {t.label: paired_outcomes(board, a, b, t) for t in tasks_} for a, b in pairs
     }
+    return compare_paired(outcomes)
+
+
+def comparisons(board: Board) -> list[Comparison]:
+    """The **exploratory** family: every pair of board entries on every task both ran, paired
+    by episode seed (exact McNemar, Newcombe's paired interval), Holm-adjusted together
+    (:func:`experiments.significance.compare_paired`)."""
     names = [e.name for e in board.entries]
     pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1 :]]
-    return compare(rates, pairs)
+    return _family(board, pairs, board.tasks)
+
+
+def goal_tasks(board: Board) -> list[Task]:
+    """The tasks of the goal's comparisons: the paper studies under aruco."""
+    return [t for t in board.suite_tasks("paper") if t.condition.label == "aruco"]
+
+
+def confirmatory(board: Board) -> list[Comparison]:
+    """The **confirmatory** family, fixed here before any run: each learned configuration
+    against each analytic law of the board on each of the goal's tasks (:func:`goal_tasks`),
+    paired by seed and Holm-adjusted on its own (the goal's verdicts read it)."""
+    laws = [e.name for e in board.entries if not e.learned]
+    learned = [e.name for e in board.entries if e.learned]
+    return _family(board, [(m, law) for m in learned for law in laws], goal_tasks(board))
 
 
 def comparisons_markdown(found: Sequence[Comparison], tasks_: Sequence[Task]) -> str:
@@ -389,7 +434,7 @@ def comparisons_markdown(found: Sequence[Comparison], tasks_: Sequence[Task]) ->
         "",
     ]
     if sig:
-        header = ["task", "A", "B", "success A − B [95 % CI]", "p (Fisher)", "p (Holm)"]
+        header = ["task", "A", "B", "success A − B [95 % CI]", "p (McNemar)", "p (Holm)"]
         rows = [
             (
                 c.task,
@@ -777,7 +822,8 @@ def _publish(
         for e in board.entries
     ]
     found = comparisons(board)
-    goals = [goal(board, e, found) for e in board.entries if e.learned]
+    confirmed = confirmatory(board)
+    goals = [goal(board, e, confirmed) for e in board.entries if e.learned]
     improvements = improvement_markdown(board)
     goal_text = goal_markdown(goals)
     figures = args.docs / "figures"
@@ -787,7 +833,9 @@ def _publish(
     plot_profiles(board, figures / "leaderboard_profiles.png", meta)
     plot_separation(found, board.tasks, figures / "leaderboard_separation.png", meta)
     table = table_markdown(rows)
-    doc = leaderboard_markdown(board, provenance, table, found, improvements, goal_text)
+    doc = leaderboard_markdown(
+        board, provenance, table, found, improvements, goal_text, confirmed=confirmed
+    )
     write_text_atomic(args.docs / "leaderboard.md", doc)
     if not args.no_cards:
         write_cards(board, models, figures / "learning_curves.png", meta)
@@ -807,9 +855,12 @@ def leaderboard_markdown(
     found: Sequence[Comparison],
     improvements: str,
     goal_text: str,
+    *,
+    confirmed: Sequence[Comparison] = (),
 ) -> str:
     """The text of ``docs/leaderboard.md``: the provenance, the suite table, the per-task
-    table, the comparisons, the probability of improvement, the profiles and the goal."""
+    tables, the comparisons (the confirmatory family ``confirmed`` and the exploratory
+    ``found``), the probability of improvement, the profiles and the goal."""
     seeds = "; ".join(_seeds_text(board.suite_tasks(s)[0], span(board.entries)) for s in SUITES)
     doc = [
         "# Leaderboard\n",
@@ -843,13 +894,20 @@ def leaderboard_markdown(
         "distance or bearing margin (1 at the set point, 0 at a bound, negative beyond it). "
         "Definitions: docs/metrics.md. `–`: rows written before these metrics existed.\n",
         task_graded_markdown(board),
-        "## Pairwise comparisons (who beats whom on which task)\n",
-        "The family: every pair of policies on every task both ran. Each comparison is a "
-        "two-sided Fisher exact test on the 2×2 table of episodes (a configuration's seeds "
-        "pooled); the family's p-values are adjusted by Holm's step-down method (family-wise "
-        "error 5 %). A pair at the floor or the ceiling on a task is a tie, not a test. The "
-        "difference interval is Newcombe's hybrid score interval. Method: docs/leaderboard.md "
-        "is written by this tool; the functions are in experiments/significance.py.\n",
+        "## Confirmatory comparisons (the goal's family)\n",
+        "Fixed in code before any run (`confirmatory`): each learned configuration against each "
+        "analytic law on each paper study under aruco. Each comparison pairs the two entries' "
+        "episodes of the same seed (a configuration's training seeds share out the seeds the "
+        "law plays all of) and is a two-sided exact McNemar test on the discordant pairs; the "
+        "family's p-values are Holm-adjusted on their own (family-wise error 5 %). The "
+        "difference interval is Newcombe's for paired proportions. The goal reads this "
+        "family.\n",
+        comparisons_markdown(confirmed, goal_tasks(board)),
+        "## Exploratory comparisons (who beats whom on which task)\n",
+        "The family: every pair of policies on every task both ran, paired by seed as above "
+        "(exact McNemar, Newcombe's paired interval), Holm-adjusted as one family apart from "
+        "the confirmatory one. A pair at the floor or the ceiling on a task is a tie, not a "
+        "test. The functions are in experiments/significance.py.\n",
         comparisons_markdown(found, board.tasks),
         "![who beats whom](figures/leaderboard_separation.png)\n",
         f"## Probability of improvement (success rates of all {len(board.tasks)} tasks)\n",
