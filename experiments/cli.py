@@ -74,7 +74,13 @@ def count(minimum: int = 1, name: str = "count", maximum: int = INT64_MAX) -> Ca
         stripped = text.strip().replace("_", "")
         literal = re.fullmatch(r"[+-]?[0-9]+", stripped) is not None
         if literal:
-            value = int(stripped)
+            try:
+                value = int(stripped)
+            except ValueError:  # more digits than Python reads (4,300): beyond any bound
+                bound = f">= {minimum}" if stripped.startswith("-") else f"<= {maximum}"
+                raise argparse.ArgumentTypeError(
+                    f"must be {bound}, got a number of {len(stripped)} digits"
+                ) from None
         else:
             try:
                 as_float = number(text)

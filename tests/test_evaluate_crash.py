@@ -1,8 +1,10 @@
 """platoon-evaluate as separate processes: two evaluators into one store, and kill -9 of an
-evaluator (its workers die with it; the re-run resumes and loses nothing else)."""
+evaluator (its workers die with it; the re-run resumes and loses nothing else, and gives the
+results of an uninterrupted run: a ``faults`` test, ``pytest -m faults``)."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -11,6 +13,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -92,7 +95,23 @@ def test_two_evaluators_share_one_store(tmp_path: Path) -> None:
     assert "8 episodes summarised (seeds 0..7)" in (out / "summary.md").read_text()
 
 
+def _episodes(out: Path) -> dict[tuple[Any, ...], dict[str, Any]]:
+    """Every episode row of ``out``'s store: its key, status and metrics (run ids, times and
+    names left out: they differ between runs of the same grid)."""
+    with sqlite3.connect(out / "results.sqlite") as db:
+        rows = db.execute(
+            "SELECT policy, scenario, overrides, seed, measure, status, metrics FROM episodes"
+        ).fetchall()
+    db.close()
+    return {tuple(r[:5]): {"status": r[5], "metrics": json.loads(r[6])} for r in rows}
+
+
+@pytest.mark.faults
 def test_kill_9_then_resume(tmp_path: Path) -> None:
+    """kill -9 of an evaluator mid-run, then the same command again: its workers die with it,
+    the re-run runs only the missing episodes, each episode is stored once, and the results
+    are those of an uninterrupted run of the same grid."""
+    uninterrupted = _evaluate(tmp_path / "uninterrupted", "--episodes", "12", "--workers", "2")
     out = tmp_path / "eval"
     proc = _evaluate(out, "--episodes", "12", "--workers", "2")
     deadline = time.monotonic() + 300
@@ -122,3 +141,8 @@ def test_kill_9_then_resume(tmp_path: Path) -> None:
     assert statuses == {1: "running", 2: "finished"}  # the killed run never finished
     # ... and the summary reports it as killed, not as running
     assert "run 1 (killed: its process is gone" in (out / "summary.md").read_text()
+    # The same results as the run that was never interrupted, episode by episode.
+    _, stderr = uninterrupted.communicate(timeout=600)
+    assert uninterrupted.returncode == 0, stderr[-3000:]
+    expected = _episodes(tmp_path / "uninterrupted")
+    assert len(expected) == 12 and _episodes(out) == expected

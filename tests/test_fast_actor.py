@@ -2,7 +2,8 @@
 ``training.policies``): for an SB3 PPO (Gaussian head, Box actions) it computes ``model.predict(obs,
 deterministic=True)`` within float32 rounding without calling ``predict``, each row the same to
 the bit whatever the batch (``tests/test_forward.py``); any other model (SAC) goes through
-``predict``."""
+``predict``. A shipped model is loaded weights-only (``LearnedPolicy.load``) and compared with
+its SB3 object (``LearnedPolicy.load_pickled``)."""
 
 from __future__ import annotations
 
@@ -127,26 +128,28 @@ def assert_predict(policy: LearnedPolicy, obs: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("n", BATCHES)
 def test_shipped_ppo_fast_path_is_predict(n: int, monkeypatch: pytest.MonkeyPatch) -> None:
     policy = LearnedPolicy.load(shipped_model())
+    sb3 = LearnedPolicy.load_pickled(shipped_model()).model  # SB3's own predict
     assert fast_actor(policy.model) is not None
     calls = count_predict(monkeypatch, policy.model)
     obs = observations(n, policy.observation_size, seed=n)
     fast = policy._deterministic(obs)
     assert calls == []  # the fast path does not go through predict
-    expected, _ = policy.model.predict(obs, deterministic=True)
+    expected, _ = sb3.predict(obs, deterministic=True)
     assert fast.dtype == np.float32
     assert_close(fast, expected)
-    space = policy.model.action_space
+    space = sb3.action_space
     assert np.all(fast >= space.low) and np.all(fast <= space.high)
     assert np.any(np.abs(fast) == 1.0)  # some actions were clipped to the box
 
 
 def test_shipped_ppo_act_matches_predict_through_the_scaling() -> None:
     policy = LearnedPolicy.load(shipped_model())
+    sb3 = LearnedPolicy.load_pickled(shipped_model()).model  # SB3's own predict
     obs = observations(2, policy.observation_size, seed=11) * 3.0
     agents = {"follower_0": obs[0], "follower_1": obs[1]}
     actions = policy.act(agents)
     scaled = obs / policy.obs_scale if policy.obs_scale is not None else obs
-    normalised, _ = policy.model.predict(scaled, deterministic=True)
+    normalised, _ = sb3.predict(scaled, deterministic=True)
     assert policy.action_range is not None
     expected = policy.action_range.to_physical(np.asarray(normalised, dtype=np.float32))
     for i, agent in enumerate(agents):

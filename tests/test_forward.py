@@ -91,15 +91,17 @@ def test_rllib_actor_computes_with_the_forward() -> None:
     assert fast is not None and fast.forward is actor.forward
 
 
-def _shipped(name: str) -> LearnedPolicy:
+def _shipped(name: str, pickled: bool = False) -> LearnedPolicy:
+    """A shipped model, weights-only (``load``) or with its SB3 object (``load_pickled``, to
+    compare with SB3)."""
     path = REPO / "models" / name / "model.zip"
     if not path.is_file():
         pytest.skip(f"{name} is not in models/")
-    return LearnedPolicy.load(path)
+    return LearnedPolicy.load_pickled(path) if pickled else LearnedPolicy.load(path)
 
 
 def test_sb3_forward_reads_a_shipped_actor() -> None:
-    policy = _shipped("ppo_ta_aruco_s0")
+    policy = _shipped("ppo_ta_aruco_s0", pickled=True)
     forward = sb3_forward(policy.model.policy)
     assert forward is not None
     x = np.random.default_rng(7).normal(size=(50, forward.input_dim)).astype(np.float32)
@@ -107,6 +109,8 @@ def test_sb3_forward_reads_a_shipped_actor() -> None:
         pi = policy.model.policy
         mean = pi.action_net(pi.mlp_extractor.forward_actor(torch.as_tensor(x))).numpy()
     np.testing.assert_allclose(forward(x), mean, rtol=1e-5, atol=1e-5)
+    # what LearnedPolicy.load reads from the weights alone is that very network
+    assert _shipped("ppo_ta_aruco_s0").model.forward.digest == forward.digest
 
 
 @pytest.mark.parametrize("name", ["ppo_ta_aruco_s0", "residual_drive_aruco_s0"])

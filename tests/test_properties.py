@@ -6,17 +6,21 @@ exception (a traceback); and names that become file names never leave their fold
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
+import functools
+import io
 import json
 import math
 import re
+import time
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
-from experiments.cli import count, number
+from experiments.cli import INT64_MAX, count, number
 from experiments.policies import REGISTRY, PolicySpec
 from experiments.report import MAX_STEM, file_stem
 from experiments.studies.evaluate import nest_assignments, parse_assignment
@@ -76,6 +80,114 @@ def test_count_reads_every_integer(n: int, low: int) -> None:
     else:
         with pytest.raises(argparse.ArgumentTypeError, match=f">= {low}"):
             count(low)(str(n))
+
+
+#: Integers as a command line gives them: digits of any length (past int64, past Python's
+#: 4,300-digit conversion limit), signs, underscores, exponent forms of integral values.
+INTEGERISH = st.one_of(
+    NUMBERISH,
+    st.from_regex(r"\A[-+]?[0-9]{15,25}\Z"),
+    st.integers(4_000, 6_000).map(lambda n: "9" * n),
+    st.integers(-(2**70), 2**70).map(str),
+    st.integers(-(2**70), 2**70).map(lambda n: f"{n:_}"),
+    st.builds(lambda m, e: f"{m}e{e}", st.integers(-99, 99), st.integers(-30, 10**9)),
+)
+
+
+@SETTINGS
+@given(INTEGERISH, st.integers(min_value=0, max_value=3))
+@example("9" * 5000, 0)  # more digits than int() reads: a ValueError before round 4
+@example("9007199254740993", 0)
+@example("9007199254740993e0", 0)
+def test_count_is_an_exact_int64_or_a_usage_error(text: str, low: int) -> None:
+    try:
+        value = count(low, "n")(text)
+    except argparse.ArgumentTypeError:
+        return
+    assert type(value) is int and low <= value <= INT64_MAX
+    digits = text.strip().replace("_", "")
+    if re.fullmatch(r"[+-]?[0-9]+", digits):  # an integer literal: read exactly, not via float
+        assert value == int(digits)
+
+
+@SETTINGS
+@given(st.integers(-(2**70), 2**70), st.integers(0, 3))
+def test_count_reads_every_int64_exactly_and_refuses_the_rest(n: int, low: int) -> None:
+    if low <= n <= INT64_MAX:
+        assert count(low)(str(n)) == n
+    else:
+        with pytest.raises(argparse.ArgumentTypeError, match="must be"):
+            count(low)(str(n))
+
+
+@SETTINGS
+@given(INTEGERISH)
+@example("1e10000000")  # computed as a 10-million-digit integer before round 4 (minutes)
+@example("-1e999999999999")
+@example("9" * 5000)
+@example("9007199254740993")
+@example("9.007199254740993e15")
+def test_an_integer_option_is_an_exact_int64_or_a_usage_error(text: str) -> None:
+    """platoon-train's integer options (training.train.integer): exact (never a float), at
+    most int64 in magnitude, refused at once otherwise."""
+    from decimal import Decimal, InvalidOperation
+
+    pytest.importorskip("stable_baselines3")
+    from training.train import integer
+
+    start = time.perf_counter()
+    try:
+        value = integer(text)
+    except argparse.ArgumentTypeError as exc:
+        assert repr(text)[:40] in str(exc)
+        return
+    finally:
+        assert time.perf_counter() - start < 1.0, f"{text[:40]!r} took too long"
+    assert type(value) is int and abs(value) <= INT64_MAX
+    try:
+        exact = Decimal(text.strip().replace("_", ""))
+    except InvalidOperation:  # int() reads what Decimal does not: non-ASCII digits
+        return
+    assert value == exact
+
+
+@functools.cache
+def _evaluate_seed_type() -> Any:
+    """The type of platoon-evaluate's ``--seed`` (as its parser has it)."""
+    from experiments.studies.evaluate import build_parser
+
+    return next(a.type for a in build_parser()._actions if a.dest == "seed")
+
+
+@SETTINGS
+@given(INTEGERISH)
+@example("9007199254740993")  # stored as ...992 before round 4 (read through float)
+@example("9223372036854775808")  # past SQLite's integers: a traceback before round 4
+def test_a_seed_option_is_an_exact_seed_or_a_usage_error(text: str) -> None:
+    """--seed of platoon-train (a seed of numpy and torch: below 2**32) and of
+    platoon-evaluate (an episode seed the store holds: int64): the exact integer given, or a
+    usage error (exit 2), never a seed other than the one typed."""
+    pytest.importorskip("stable_baselines3")
+    from training.config import MAX_SEED
+    from training.train import parse_args
+
+    literal = re.fullmatch(r"[+-]?[0-9]+", text.strip().replace("_", "")) is not None
+    with contextlib.redirect_stderr(io.StringIO()):
+        try:
+            cfg = parse_args(["--seed", text])
+        except SystemExit as exc:
+            assert exc.code == 2
+        else:
+            assert type(cfg.seed) is int and 0 <= cfg.seed <= MAX_SEED
+            if literal:
+                assert cfg.seed == int(text.strip().replace("_", ""))
+        try:
+            seed = _evaluate_seed_type()(text)
+        except argparse.ArgumentTypeError:
+            return
+    assert type(seed) is int and 0 <= seed <= INT64_MAX
+    if literal:
+        assert seed == int(text.strip().replace("_", ""))
 
 
 @SETTINGS

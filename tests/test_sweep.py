@@ -23,12 +23,26 @@ SHIPPED = ("model.zip", "model.json", "progress.csv")
 
 
 def mark_run(out: Path, name: str) -> None:
-    """Make ``out`` hold a run through ``name`` (a directory for tb/ and rllib_checkpoint/)."""
+    """Make ``out`` hold a run through ``name`` (a directory for tb/ and rllib_checkpoint/; a
+    zip with the JSON that records it, as a save writes them)."""
     out.mkdir(parents=True, exist_ok=True)
     if name in ("tb", "rllib_checkpoint"):
         (out / name).mkdir()
+    elif name.endswith(".zip"):
+        save_pair(out, name.removesuffix(".zip"), b"x")
     else:
         (out / name).write_text("x")
+
+
+def save_pair(out: Path, name: str, data: bytes, **meta: Any) -> None:
+    """``out/NAME.zip`` holding ``data`` and ``out/NAME.json`` recording its SHA-256 (and
+    ``meta``)."""
+    import hashlib
+
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.zip").write_bytes(data)
+    digest = hashlib.sha256(data).hexdigest()
+    (out / f"{name}.json").write_text(json.dumps({"zip_sha256": digest, **meta}))
 
 
 def value_after(args: list[str], flag: str) -> str:
@@ -81,6 +95,72 @@ def test_run_files_without_a_model_start_the_run_over(tmp_path: Path, name: str)
     assert args[-1] == "--force" and "--resume" not in args
     cfg = parse_args(args)
     assert cfg.force and not cfg.resume
+
+
+CUTS = {
+    # a first save cut after its zip (no JSON yet)
+    "zip_without_json": lambda out: (out / "model.zip").write_bytes(b"new"),
+    # a later save cut after its zip: the JSON of the save before
+    "zip_of_another_save": lambda out: (
+        save_pair(out, "model", b"old"),
+        (out / "model.zip").write_bytes(b"new"),
+    ),
+    # a checkpoint of the fast engine cut after its learner state
+    "state_of_another_save": lambda out: (
+        (out / "checkpoint.state.pt").write_bytes(b"new"),
+        save_pair(out, "checkpoint", b"zip", learner_state_sha256="0" * 64),
+    ),
+}
+
+
+@pytest.mark.parametrize("cut", sorted(CUTS))
+def test_a_run_whose_only_save_was_cut_starts_over(tmp_path: Path, cut: str) -> None:
+    """A save cut off between its files (kill -9, a full disk) leaves nothing to continue
+    from: the sweep starts the run over (--force), where --resume would fail it on every
+    re-run (platoon-train: "nothing to resume")."""
+    out = tmp_path / "ppo_ta_aruco" / "s0"
+    out.mkdir(parents=True)
+    (out / "progress.csv").write_text("timesteps\n")
+    CUTS[cut](out)
+    args = run_args(CONFIG, 0, out)
+    assert "--force" in args and "--resume" not in args
+    (reason,) = sweep.cut_saves(out)
+    assert "a save cut off" in reason or "not from the same save" in reason
+
+
+def test_a_cut_model_beside_a_complete_checkpoint_resumes_from_the_checkpoint(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "ppo_ta_aruco" / "s0"
+    save_pair(out, "checkpoint", b"checkpoint")
+    save_pair(out, "model", b"old")
+    (out / "model.zip").write_bytes(b"new")
+    assert run_args(CONFIG, 0, out)[-1] == "--resume"
+    assert [c.split(":")[0] for c in sweep.cut_saves(out)] == ["model"]
+
+
+def test_the_sweep_says_why_it_starts_a_cut_run_over(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    seen: list[list[str]] = []
+
+    class FakePopen:
+        def __init__(self, cmd: list[str], **kwargs: Any) -> None:
+            seen.append(cmd)
+
+        def wait(self, timeout: float | None = None) -> int:
+            return 0
+
+    monkeypatch.setattr(sweep.subprocess, "Popen", FakePopen)
+    out = tmp_path / "ppo_ta_aruco" / "s0"
+    out.mkdir(parents=True)
+    (out / "model.zip").write_bytes(b"new")
+    assert sweep._train(CONFIG, 0, out)[1] == 0
+    assert "--force" in seen[0]
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("ppo_ta_aruco s0: nothing complete to resume (model: model.zip ")
+    assert line.endswith("starting it over") and "\n" not in line
+    assert line in (out / "train.log").read_text()
 
 
 def test_run_dir_layout() -> None:

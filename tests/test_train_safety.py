@@ -232,6 +232,80 @@ def test_resume_continues_from_the_newer_of_checkpoint_and_model(run: Path) -> N
     assert [s["timesteps_start"] for s in meta(run)["segments"]] == [0, 256, 768]
 
 
+@pytest.mark.parametrize("checkpoint", ["complete", "cut"])
+def test_a_run_whose_last_save_was_cut_is_continued_by_the_sweep(
+    run: Path, capsys: pytest.CaptureFixture[str], checkpoint: str
+) -> None:
+    """A save cut off between model.zip and model.json (kill -9 between the two renames): the
+    sweep's re-run continues the run from the complete checkpoint, or with none starts it
+    over, instead of failing it ("nothing to resume") on every re-run."""
+    from experiments.configs import Config
+    from experiments.studies.sweep import cut_saves, run_args
+
+    (run / "model.json").unlink()  # a new model.zip, its JSON not yet in place
+    (run / "model.zip").write_bytes((run / "model.zip").read_bytes() + b"\0")
+    if checkpoint == "cut":  # the checkpoint's zip of a later save beside its JSON
+        (run / "checkpoint.zip").write_bytes((run / "checkpoint.zip").read_bytes() + b"\0")
+    assert len(cut_saves(run)) == (1 if checkpoint == "complete" else 2)
+    config = Config("tiny", "the tiny run", (*TINY, "--timesteps", "512"))
+    args = run_args(config, 0, run)
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    m = meta(run)
+    assert m["timesteps"] == 512 and m["zip_sha256"] == file_sha256(run / "model.zip")
+    if checkpoint == "complete":
+        assert "--resume" in args and "left out: model.zip (no model.json" in err
+        assert [s["resumed_from"] for s in m["segments"]] == [None, "checkpoint.zip"]
+    else:
+        assert "--force" in args and "starting over" in err
+        assert [s["resumed_from"] for s in m["segments"]] == [None]
+    assert cut_saves(run) == []
+    LearnedPolicy.load(run / "model.zip")
+
+
+def test_a_saved_point_appears_whole(tmp_path: Path) -> None:
+    """save_point: a save that fails after its zip (a full disk) leaves the previous point as
+    it was; a SIGTERM that arrives mid-save is delivered once every file is in place; no
+    temporary folder is left either way."""
+    import errno
+    import hashlib
+
+    from training.run import incomplete_point, save_point
+
+    def writer(data: bytes, fail: bool = False, signal_mid_save: bool = False) -> Any:
+        def save(path: Path) -> None:
+            path.write_bytes(data)
+            if signal_mid_save:
+                os.kill(os.getpid(), signal.SIGTERM)
+            if fail:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            digest = hashlib.sha256(data).hexdigest()
+            path.with_suffix(".json").write_text(json.dumps({"zip_sha256": digest}))
+
+        return save
+
+    out = tmp_path / "run"
+    save_point(out / "model.zip", writer(b"first"))
+    with pytest.raises(OSError, match="No space left"):
+        save_point(out / "model.zip", writer(b"second", fail=True))
+    assert (out / "model.zip").read_bytes() == b"first" and incomplete_point(out, "model") is None
+
+    class Stopped(Exception):
+        pass
+
+    def stopped(signum: int, frame: Any) -> None:
+        raise Stopped
+
+    previous = signal.signal(signal.SIGTERM, stopped)
+    try:
+        with pytest.raises(Stopped):
+            save_point(out / "model.zip", writer(b"third", signal_mid_save=True))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert (out / "model.zip").read_bytes() == b"third" and incomplete_point(out, "model") is None
+    assert sorted(p.name for p in out.iterdir()) == ["model.json", "model.zip"]
+
+
 # ------------------------------------------------------------------------------------------------
 # One owner per folder
 # ------------------------------------------------------------------------------------------------

@@ -100,7 +100,13 @@ from training.fast_ppo import (
     train_fast,
 )
 from training.policies import adapter_metadata, save_model
-from training.run import git_commit, library_versions, segment_metadata, timing_metadata
+from training.run import (
+    git_commit,
+    library_versions,
+    save_point,
+    segment_metadata,
+    timing_metadata,
+)
 from training.seeding import process_seed, stream_seed
 from training.vec_env import ActionRange
 
@@ -461,9 +467,43 @@ def _save_clone(
     """Save the clone (``net`` on the CPU) as an ordinary SB3 ``PPO`` zip of the actor (the
     critic is untrained) with its ``model.json`` and ``model.state.pt`` in ``out``; ``started``,
     ``clock`` (``perf_counter`` at the start) and ``commit`` are the run's."""
+
+    def write(tmp: Path) -> Path:
+        return _write_clone(
+            bc,
+            ppo,
+            tmp,
+            core,
+            spec,
+            net,
+            samples_seen,
+            history,
+            started=started,
+            clock=clock,
+            commit=commit,
+        )
+
+    return save_point(out / "model.zip", write)
+
+
+def _write_clone(
+    bc: BCConfig,
+    ppo: FastPPOConfig,
+    path: Path,
+    core: BatchedPlatoon,
+    spec: SlotSpec,
+    net: ActorCritic,
+    samples_seen: int,
+    history: list[dict[str, Any]],
+    *,
+    started: str,
+    clock: float,
+    commit: dict[str, Any],
+) -> Path:
+    """:func:`_save_clone`'s files, written as ``path`` (``model.zip``), ``model.json`` and
+    ``model.state.pt`` in ``path``'s folder."""
     B, N = core.batch_size, core.n_followers
-    out.mkdir(parents=True, exist_ok=True)
-    state_file = out / "model.state.pt"
+    state_file = path.with_suffix(".state.pt")
     torch.save({"network": net.state_dict()}, state_file)
     saver = sb3_model(ppo, spec, max(2, ppo.n_steps * B * N))
     saver.policy.load_state_dict(net.sb3_state_dict())
@@ -500,7 +540,7 @@ def _save_clone(
         "versions": library_versions(stable_baselines3, torch),
         "command": list(sys.argv),
     }
-    return save_model(saver, out / "model.zip", meta)
+    return save_model(saver, path, meta)
 
 
 def action_error(

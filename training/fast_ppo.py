@@ -75,8 +75,9 @@ Files in ``out`` (a directory holding one run):
   ``model.state.pt`` — the learner's state beside it (network with the cost head, optimiser,
   ``λ``), so that a finished run can be continued to more timesteps;
 * ``checkpoint.zip`` + ``.json`` + ``.state.pt`` — the latest checkpoint (every
-  ``checkpoint_every`` transitions, at the end of a rollout), each file replaced atomically,
-  the JSON last and recording both files' SHA-256;
+  ``checkpoint_every`` transitions, at the end of a rollout), replaced whole (the three files
+  written beside them, then renamed into place, the JSON last: :func:`training.run.save_point`),
+  the JSON recording both other files' SHA-256;
 * ``progress.csv`` — the learning curve, :data:`training.curves.PROGRESS_COLUMNS`, a row every
   ``log_every`` follower transitions (team success rate, mean return, mean cost, ``λ``).
 
@@ -145,7 +146,13 @@ from training.curves import PROGRESS_COLUMNS, PROGRESS_FILE, read_rows
 from training.experts import EXPERTS, BatchedExpert, to_normalised
 from training.lagrangian import LagrangeMultiplier
 from training.policies import adapter_metadata, save_model, zip_mismatch
-from training.run import git_commit, library_versions, segment_metadata, timing_metadata
+from training.run import (
+    git_commit,
+    library_versions,
+    save_point,
+    segment_metadata,
+    timing_metadata,
+)
 from training.seeding import env_seeds, process_seed
 from training.vec_env import ActionRange, slot_spaces
 
@@ -1177,10 +1184,18 @@ class _Record:
         )
 
     def save(self, learner: _Learner, name: str, interrupted: bool = False) -> Path:
-        """Save ``learner`` as the point ``name`` (``model`` or ``checkpoint``): the learner
-        state, then the SB3 zip and its JSON (:func:`training.policies.save_model`)."""
+        """Save ``learner`` as the point ``name`` (``model`` or ``checkpoint``), its three files
+        whole (:func:`training.run.save_point`): the learner state, the SB3 zip and its JSON
+        (:func:`training.policies.save_model`)."""
+        return save_point(
+            self.out / f"{name}.zip", lambda tmp: self._write(learner, tmp, interrupted)
+        )
+
+    def _write(self, learner: _Learner, path: Path, interrupted: bool) -> Path:
+        """Write ``learner``'s point as ``path`` (``NAME.zip``), ``NAME.json`` and
+        ``NAME.state.pt``."""
         cfg, stored, timesteps = self.cfg, self.stored, learner.timesteps
-        state_file = self.out / f"{name}.state.pt"
+        state_file = path.with_suffix(".state.pt")
         digest = _atomic_torch_save(learner.state(), state_file)
         sb3_state = learner.net.sb3_state_dict()
         self.saver.policy.load_state_dict({k: v.detach().cpu() for k, v in sb3_state.items()})
@@ -1213,9 +1228,9 @@ class _Record:
             "config": json_config(cfg),
             "versions": library_versions(stable_baselines3, torch),
         }
-        if name == "model":
+        if path.stem == "model":
             meta["interrupted"] = interrupted
-        return save_model(self.saver, self.out / f"{name}.zip", meta)
+        return save_model(self.saver, path, meta)
 
 
 # --- collection -----------------------------------------------------------------------------

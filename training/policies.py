@@ -59,20 +59,45 @@ NumPy alone, so an RLlib model evaluates without Ray installed, through the same
 :class:`LearnedPolicy`. The full RLlib checkpoint (to resume or fine-tune) lies beside it in
 ``DIR/rllib_checkpoint/``.
 
+Nothing :meth:`LearnedPolicy.load` reads can run code (``docs/security.md``):
+
+* an SB3 zip is read **weights-only** (:func:`read_sb3_actor`, giving an :class:`SB3Actor`):
+  its ``policy.pth`` with ``torch.load(weights_only=True)`` (tensors only), and its ``data``
+  entry as plain JSON, of which only SB3's human-readable fields are used (the policy class's
+  module and ``__init__``, ``policy_kwargs``, ``use_sde``, the spaces' type, shape and action
+  bounds); the cloudpickled ``:serialized:`` fields SB3 stores there are never decoded. The
+  actor (PPO's ``mlp_extractor.policy_net`` + ``action_net``, SAC's ``actor.latent_pi`` +
+  ``actor.mu``) is refused unless it is the plain MLP those fields describe, with the
+  activation ``policy_kwargs`` names (SB3 writes ``activation_fn`` there as its class name)
+  or, where it names none, SB3's default for that policy class (PPO Tanh, SAC ReLU; a test
+  compares them with SB3's signatures). The actions are those of the SB3 object's
+  ``predict(obs, deterministic=True)`` within float32 rounding (the PPO path is the very
+  :class:`~training.forward.MLPForward` the SB3 object gave, so the shipped models act to
+  the bit as when they were loaded through SB3);
+* an exported RLlib actor: each array's shape and dtype are read from its ``.npy`` header and
+  checked (the layers chain, at most :data:`MAX_LAYER_UNITS` units per layer and
+  :data:`MAX_PARAMETERS` parameters) before any data is read, then the data with
+  ``allow_pickle=False``.
+
 .. warning::
-    Loading an SB3 model unpickles Python objects from the zip, which can execute arbitrary
-    code. Load only model files you trust. (An exported RLlib actor is read with
-    ``allow_pickle=False``.) The hash check guards against mixed-up files, not against an
-    attacker, who can rewrite both.
+    :meth:`LearnedPolicy.load_pickled` (the full SB3 object, e.g. for its ``predict`` with
+    sampling, or to compare with SB3) and SB3's own ``PPO.load`` / ``SAC.load`` (continuing a
+    training run, ``platoon-train --resume``) unpickle Python objects from the zip, which can
+    execute arbitrary code: use them only on model files you trust. The hash check guards
+    against mixed-up files, not against an attacker, who can rewrite both.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
+import pickle
+import re
 import tempfile
 import warnings
+import zipfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol
@@ -100,14 +125,18 @@ __all__ = [
     "ACTION_LAYOUT",
     "ALGORITHMS",
     "ENGINES",
+    "MAX_LAYER_UNITS",
+    "MAX_PARAMETERS",
     "METADATA_FORMAT",
     "OBSERVATION_LAYOUT",
     "OBSERVATION_LAYOUTS",
     "LearnedPolicy",
     "MLPActor",
+    "SB3Actor",
     "adapter_metadata",
     "metadata_path",
     "parse_action_range",
+    "read_sb3_actor",
     "save_exported_policy",
     "save_model",
     "scenario_differences",
@@ -148,6 +177,18 @@ _LAYOUT_OPTIONS: dict[tuple[str, ...], str] = {
 ACTION_LAYOUT: tuple[str, ...] = ("u", "omega")
 #: The trainers whose models ``LearnedPolicy.load`` reads (``model.json``'s ``engine``).
 ENGINES = ("sb3", "rllib")
+#: The most units (inputs or outputs) of one layer of an actor read from a file, and the most
+#: parameters (weights and biases) of the whole actor: checked on the declared shapes before
+#: any weight is read (an exported actor's ``.npy`` headers; the SB3 ``policy.pth``'s size is
+#: bounded by :data:`_MAX_SB3_POLICY_BYTES` first). The shipped actors have 64 units per layer
+#: and under 6,000 parameters.
+MAX_LAYER_UNITS = 4096
+MAX_PARAMETERS = 10_000_000
+#: The largest SB3 ``policy.pth`` entry read (uncompressed): the actor and a critic of
+#: :data:`MAX_PARAMETERS` float32 values each, plus 1 MiB for torch's framing.
+_MAX_SB3_POLICY_BYTES = 8 * MAX_PARAMETERS + (1 << 20)
+#: The largest SB3 ``data`` entry (JSON) read; the shipped ones are under 20 kB.
+_MAX_SB3_DATA_BYTES = 16 << 20
 
 
 class Predictor(Protocol):
@@ -418,9 +459,26 @@ class MLPActor:
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> MLPActor:
-        """Read the ``.npz`` archive at ``path`` (``allow_pickle=False``)."""
-        with np.load(path, allow_pickle=False) as data:
-            return cls.from_arrays({k: data[k] for k in data.files})
+        """Read the ``.npz`` archive at ``path``: ``W0.npy, b0.npy, ...`` and nothing else.
+
+        Each array's shape and dtype are read from its ``.npy`` header first, and the archive
+        is refused (``ValueError`` naming the file and the array) before any data is read if
+        an array is not a float array, if the layers do not chain (``W{k}`` of shape
+        ``(n_out, n_in)``, ``b{k}`` of ``(n_out,)``, ``n_in`` the previous layer's ``n_out``),
+        or if they exceed :data:`MAX_LAYER_UNITS` units per layer or :data:`MAX_PARAMETERS` in
+        all. The data is then read with ``allow_pickle=False``."""
+        path = Path(path)
+        try:
+            with zipfile.ZipFile(path) as archive:
+                headers = _npz_headers(archive, path)
+                _check_exported_shapes(headers, path)
+                arrays = {
+                    name: _npz_array(archive, info, path, name)
+                    for name, (info, _, _) in headers.items()
+                }
+        except (zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError) as e:
+            raise ValueError(f"{path}: not a readable exported actor (.npz archive): {e}") from None
+        return cls.from_arrays(arrays)
 
     def predict(
         self, observation: NDArray[Any], deterministic: bool = True
@@ -429,14 +487,512 @@ class MLPActor:
         return self.forward(np.asarray(observation, dtype=np.float32)), None
 
 
+#: The members of an exported actor's archive: ``W0.npy``, ``b0.npy``, ``W1.npy``, ...
+_EXPORTED_MEMBER = re.compile(r"([Wb])(0|[1-9][0-9]{0,5})\.npy")
+
+
+def _npz_headers(
+    archive: zipfile.ZipFile, path: Path
+) -> dict[str, tuple[zipfile.ZipInfo, tuple[int, ...], np.dtype[Any]]]:
+    """Each array of an exported actor's archive: its member, and the shape and dtype its
+    ``.npy`` header declares (only the header is read)."""
+    out: dict[str, tuple[zipfile.ZipInfo, tuple[int, ...], np.dtype[Any]]] = {}
+    for info in archive.infolist():
+        if _EXPORTED_MEMBER.fullmatch(info.filename) is None:
+            raise ValueError(
+                f"{path}: unexpected member {info.filename!r}: an exported actor holds only "
+                "W0.npy, b0.npy, W1.npy, b1.npy, ..."
+            )
+        name = info.filename[: -len(".npy")]
+        if name in out:
+            raise ValueError(f"{path}: array {name} is stored twice")
+        try:
+            with archive.open(info) as f:
+                version = np.lib.format.read_magic(f)
+                if version == (1, 0):
+                    shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+                elif version == (2, 0):
+                    shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+                else:
+                    raise ValueError(f".npy format version {version} is not 1.0 or 2.0")
+        except (ValueError, OSError, EOFError, SyntaxError, zipfile.BadZipFile) as e:
+            raise ValueError(f"{path}: array {name}: unreadable .npy header ({e})") from None
+        if dtype.kind != "f" or dtype.itemsize not in (4, 8):
+            raise ValueError(
+                f"{path}: array {name}: dtype {dtype} is not a float32 or float64 array"
+            )
+        out[name] = (info, tuple(int(n) for n in shape), dtype)
+    return out
+
+
+def _check_exported_shapes(
+    headers: Mapping[str, tuple[zipfile.ZipInfo, tuple[int, ...], np.dtype[Any]]], path: Path
+) -> None:
+    """Refuse an exported actor whose declared arrays are not the layers ``W0, b0, ...`` of
+    one MLP within the bounds (:func:`_check_mlp_shapes`); nothing but headers is read."""
+    n = sum(1 for name in headers if name.startswith("W"))
+    for name in [f"{kind}{k}" for k in range(max(n, 1)) for kind in "Wb"]:
+        if name not in headers:
+            raise ValueError(f"{path}: exported actor lacks {name}")
+    expected = {f"{kind}{k}" for k in range(n) for kind in "Wb"}
+    extra = sorted(set(headers) - expected)
+    if extra:
+        raise ValueError(
+            f"{path}: array {extra[0]}: not a layer of the actor (W0..W{n - 1}, b0..b{n - 1})"
+        )
+    _check_mlp_shapes(
+        [(f"W{k}", headers[f"W{k}"][1], f"b{k}", headers[f"b{k}"][1]) for k in range(n)],
+        str(path),
+    )
+
+
+def _npz_array(archive: zipfile.ZipFile, info: zipfile.ZipInfo, path: Path, name: str) -> Any:
+    """The data of one ``.npy`` member (its header already checked), without pickles."""
+    try:
+        with archive.open(info) as f:
+            return np.lib.format.read_array(f, allow_pickle=False)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+        raise ValueError(f"{path}: array {name}: unreadable data ({e})") from None
+
+
+def _check_mlp_shapes(
+    layers: Sequence[tuple[str, tuple[int, ...], str, tuple[int, ...]]], where: str
+) -> None:
+    """Refuse (``ValueError`` naming ``where`` and the array) the declared shapes of an MLP's
+    layers ``(weight name, weight shape, bias name, bias shape)``, in order, unless each
+    weight is ``(n_out, n_in)`` and its bias ``(n_out,)``, each ``n_in`` is the previous
+    ``n_out``, no layer has more than :data:`MAX_LAYER_UNITS` inputs or outputs and all of
+    them hold at most :data:`MAX_PARAMETERS` parameters. Shapes only: checked before any
+    weight is read."""
+    total = 0
+    for w_name, w_shape, b_name, b_shape in layers:
+        for name, shape, ndim in ((w_name, w_shape, 2), (b_name, b_shape, 1)):
+            if len(shape) != ndim:
+                raise ValueError(
+                    f"{where}: array {name}: shape {shape}, a layer's "
+                    f"{'weight' if ndim == 2 else 'bias'} has {ndim} dimension(s)"
+                )
+            if not all(1 <= n <= MAX_LAYER_UNITS for n in shape):
+                raise ValueError(
+                    f"{where}: array {name}: shape {shape} is outside 1..{MAX_LAYER_UNITS} units "
+                    "per layer (training.policies.MAX_LAYER_UNITS): refused before reading it"
+                )
+        total += w_shape[0] * w_shape[1] + b_shape[0]
+        if total > MAX_PARAMETERS:
+            raise ValueError(
+                f"{where}: array {w_name}: the layers up to it hold {total} parameters, more "
+                f"than {MAX_PARAMETERS} (training.policies.MAX_PARAMETERS): refused before "
+                "reading them"
+            )
+    previous: str | None = None
+    previous_out = 0
+    for w_name, w_shape, b_name, b_shape in layers:
+        if b_shape != (w_shape[0],):
+            raise ValueError(
+                f"{where}: array {b_name}: shape {b_shape} does not match {w_name}'s {w_shape}"
+            )
+        if previous is not None and w_shape[1] != previous_out:
+            raise ValueError(
+                f"{where}: array {w_name}: shape {w_shape} takes {w_shape[1]} inputs, "
+                f"{previous} gives {previous_out}"
+            )
+        previous, previous_out = w_name, w_shape[0]
+
+
+class SB3Actor:
+    """The deterministic actor of a Stable-Baselines3 PPO or SAC model read from its weights
+    alone (:func:`read_sb3_actor`; nothing unpickled), with SB3's ``predict`` signature.
+
+    ``predict(obs)`` is what the SB3 object's ``predict(obs, deterministic=True)`` gives,
+    within float32 rounding: PPO (an ``ActorCriticPolicy``): the Gaussian's mean clipped to
+    the action box; SAC (a ``SACPolicy``): ``tanh`` of the mean mapped from ``[-1, 1]`` onto
+    the action box (SB3's ``unscale_action``). Always the deterministic action (as
+    :class:`MLPActor`): it has no sampling. :attr:`forward` computes the network
+    (:class:`~training.forward.MLPForward`; for SAC its last layer's activation is the
+    ``tanh``).
+
+    Args:
+        forward: the actor's network.
+        action_low, action_high: the action box.
+        squash_output: SAC's squashed Gaussian (``tanh``, then the box), else PPO's clip.
+        algo: ``"ppo"`` or ``"sac"``, the SB3 class the zip was saved by.
+    """
+
+    def __init__(
+        self,
+        forward: MLPForward,
+        action_low: NDArray[Any],
+        action_high: NDArray[Any],
+        *,
+        squash_output: bool,
+        algo: str,
+    ) -> None:
+        self.forward = forward
+        self.squash_output = squash_output
+        self.algo = algo
+        low = np.asarray(action_low, dtype=np.float32)
+        high = np.asarray(action_high, dtype=np.float32)
+        if low.shape != (forward.output_dim,) or high.shape != low.shape:
+            raise ValueError(
+                f"action bounds of shape {low.shape} and {high.shape} for "
+                f"{forward.output_dim} outputs"
+            )
+        #: The action box (``Box(low, high)``) the model acts in.
+        self.action_space = spaces.Box(low, high, dtype=np.float32)
+        #: The observations' shape (their bounds are not read: ``-inf..inf``).
+        self.observation_space = spaces.Box(
+            -np.inf, np.inf, shape=(forward.input_dim,), dtype=np.float32
+        )
+
+    @property
+    def input_dim(self) -> int:
+        """Length of an observation."""
+        return self.forward.input_dim
+
+    @property
+    def output_dim(self) -> int:
+        """Length of an action."""
+        return self.forward.output_dim
+
+    def predict(
+        self, observation: NDArray[Any], deterministic: bool = True
+    ) -> tuple[NDArray[np.float32], None]:
+        """The actions ``(B, output_dim)`` for observations ``(B, input_dim)`` (always the
+        deterministic one)."""
+        out = self.forward(np.asarray(observation, dtype=np.float32))
+        low, high = self.action_space.low, self.action_space.high
+        if self.squash_output:  # SB3's BasePolicy.unscale_action, in float32 as there
+            return low + (0.5 * (out + 1.0) * (high - low)), None
+        return np.clip(out, low, high), None
+
+
+#: What :func:`read_sb3_actor` reads of each SB3 class's policy: its class (the data entry's
+#: ``policy_class.__module__`` and ``__init__`` fields), the actor's parameters (the hidden
+#: layers' prefix, the head), the parameters it does not use (value network, critics), the
+#: Gaussian's log-std entries, the default activation of the policy class, and whether the
+#: output is squashed (SAC).
+_SB3_POLICIES: dict[str, dict[str, Any]] = {
+    "ppo": {
+        "module": "stable_baselines3.common.policies",
+        "class": "ActorCriticPolicy",
+        "hidden": "mlp_extractor.policy_net",
+        "head": "action_net",
+        "std": {"log_std": 1},  # a state-independent diagonal Gaussian: (n_actions,)
+        "unused": ("mlp_extractor.value_net.", "value_net."),
+        "activation": "tanh",  # ActorCriticPolicy's activation_fn default, nn.Tanh
+        "squash": False,
+    },
+    "sac": {
+        "module": "stable_baselines3.sac.policies",
+        "class": "SACPolicy",
+        "hidden": "actor.latent_pi",
+        "head": "actor.mu",
+        "std": {"actor.log_std.weight": 2, "actor.log_std.bias": 1},
+        "unused": ("critic.", "critic_target."),
+        "activation": "relu",  # SACPolicy's activation_fn default, nn.ReLU
+        "squash": True,
+    },
+}
+#: ``policy_kwargs['activation_fn']`` as SB3's data entry writes it (``str`` of the class).
+_SB3_ACTIVATIONS = {
+    "<class 'torch.nn.modules.activation.Tanh'>": "tanh",
+    "<class 'torch.nn.modules.activation.ReLU'>": "relu",
+}
+_FLATTEN_EXTRACTOR = "<class 'stable_baselines3.common.torch_layers.FlattenExtractor'>"
+#: The ``policy_kwargs`` that do not change the deterministic actor of a flat Box observation
+#: (the rest are checked: ``net_arch`` against the weights, ``activation_fn``,
+#: ``features_extractor_class``, ``squash_output``, ``use_sde``).
+_SB3_INERT_KWARGS = frozenset(
+    {
+        "log_std_init",
+        "ortho_init",
+        "optimizer_class",
+        "optimizer_kwargs",
+        "n_critics",
+        "share_features_extractor",
+        "normalize_images",
+        "features_extractor_kwargs",
+        "use_expln",
+        "full_std",
+        "clip_mean",
+    }
+)
+
+
+def _zip_entry(archive: zipfile.ZipFile, name: str, limit: int, path: Path) -> bytes:
+    """The bytes of the entry ``name`` (at most ``limit`` bytes, checked before reading)."""
+    try:
+        info = archive.getinfo(name)
+    except KeyError:
+        raise ValueError(f"{path}: holds no {name!r} entry: not an SB3 model zip") from None
+    if info.file_size > limit:
+        raise ValueError(
+            f"{path}: its {name!r} entry is {info.file_size} bytes, more than the {limit} "
+            "this loader reads: refused before reading it"
+        )
+    return archive.read(info)
+
+
+def _shown(value: Any) -> str:
+    """``repr(value)``, cut to 60 characters (a file's content in an error message)."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _plain_fields(value: Any, key: str, path: Path) -> dict[str, Any]:
+    """The readable fields of the data entry's ``key``: a JSON object as SB3 writes it
+    (a plain one, or the first-level fields of a pickled object, the ``:serialized:`` pickle
+    itself left out and never decoded)."""
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{path}: the data entry's {key!r} is {_shown(value)}, not a JSON object")
+    return {k: v for k, v in value.items() if k != ":serialized:"}
+
+
+def _sb3_space(data: Mapping[str, Any], key: str, path: Path) -> int:
+    """The length of the 1-D Box ``key`` (``observation_space``/``action_space``) of the data
+    entry."""
+    space = _plain_fields(data.get(key), key, path)
+    shape = space.get("_shape", space.get("shape"))
+    if not str(space.get(":type:", "")).endswith("spaces.box.Box'>") or not (
+        isinstance(shape, list) and len(shape) == 1 and isinstance(shape[0], int)
+    ):
+        raise ValueError(
+            f"{path}: {key} is {_shown(space.get(':type:'))} of shape {_shown(shape)}: this "
+            "loader reads 1-D Box spaces"
+        )
+    return int(shape[0])
+
+
+def _sb3_action_bounds(data: Mapping[str, Any], n: int, path: Path) -> None:
+    """Refuse an action space other than ``[-1, 1]^n``, the normalised action that
+    ``model.json``'s ``action_range`` maps (``training.vec_env``): its bounds are read from
+    the data entry's text (``'[-1. -1.]'``), which can be exact only for such round values."""
+    space = _plain_fields(data.get("action_space"), "action_space", path)
+    for bound, value in (("low", -1.0), ("high", 1.0)):
+        text = space.get(bound)
+        numbers: list[float] = []
+        if isinstance(text, str) and text.startswith("[") and text.endswith("]"):
+            try:
+                numbers = [float(x) for x in text[1:-1].split()]
+            except ValueError:
+                pass
+        if numbers != [value] * n:
+            raise ValueError(
+                f"{path}: action_space.{bound} is {_shown(text)}, expected {[value] * n}: a "
+                "learned policy acts in [-1, 1] per action (model.json's action_range maps it)"
+            )
+
+
+def _sb3_activation(
+    kwargs: Mapping[str, Any], kind: Mapping[str, Any], algo: str, path: Path
+) -> str:
+    """The hidden layers' activation the data entry's ``policy_kwargs`` give (``kwargs``,
+    its readable fields), after refusing any option that changes the actor beyond it."""
+    for key, value in kwargs.items():
+        if key in _SB3_INERT_KWARGS or key in ("net_arch", "activation_fn", ":type:"):
+            continue
+        if key == "features_extractor_class" and value == _FLATTEN_EXTRACTOR:
+            continue
+        if key in ("squash_output", "use_sde") and value is False:
+            continue
+        raise ValueError(
+            f"{path}: policy_kwargs {_shown(key)}={_shown(value)}: not an option this loader "
+            f"reads (the {algo} MLP actor on flat observations); if you trust the file, "
+            "LearnedPolicy.load_pickled loads it through SB3"
+        )
+    if "activation_fn" not in kwargs:
+        return str(kind["activation"])
+    activation = _SB3_ACTIVATIONS.get(str(kwargs["activation_fn"]))
+    if activation is None:
+        raise ValueError(
+            f"{path}: policy_kwargs activation_fn={_shown(kwargs['activation_fn'])} is not one of "
+            f"{sorted(_SB3_ACTIVATIONS)}"
+        )
+    return activation
+
+
+def _sb3_hidden_sizes(kwargs: Mapping[str, Any]) -> list[int] | None:
+    """The actor's hidden sizes ``policy_kwargs['net_arch']`` records (a list, or a dict's
+    ``pi``), or None where it records none in these forms."""
+    arch = kwargs.get("net_arch")
+    if isinstance(arch, Mapping):
+        arch = arch.get("pi")
+    if isinstance(arch, list) and all(isinstance(n, int) for n in arch):
+        return list(arch)
+    return None
+
+
+def _sb3_state(archive: zipfile.ZipFile, path: Path) -> dict[str, Any]:
+    """The zip's ``policy.pth`` as tensors (``torch.load(weights_only=True)``)."""
+    import torch
+
+    raw = _zip_entry(archive, "policy.pth", _MAX_SB3_POLICY_BYTES, path)
+    try:
+        state = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError, ValueError, pickle.UnpicklingError) as e:
+        raise ValueError(f"{path}: policy.pth is not readable as weights ({e})") from None
+    if not isinstance(state, Mapping) or not all(
+        isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()
+    ):
+        raise ValueError(f"{path}: policy.pth is not a state dict of tensors")
+    return dict(state)
+
+
+def read_sb3_actor(path: str | os.PathLike[str], algo: str = "ppo") -> SB3Actor:
+    """The deterministic actor of the SB3 model zip ``path`` saved by SB3's ``PPO``
+    (``algo="ppo"``, also PPO-Lagrangian's zips) or ``SAC`` (``"sac"``), read without
+    unpickling anything.
+
+    Only two entries are read: ``policy.pth`` with ``torch.load(weights_only=True)`` (tensors,
+    never code), and ``data`` as JSON, of which only the readable fields are used (never the
+    ``:serialized:`` cloudpickles SB3 stores beside them): the policy class's ``__module__``
+    and ``__init__`` (PPO's ``ActorCriticPolicy``, SAC's ``SACPolicy``), ``use_sde`` (false),
+    ``policy_kwargs`` (the activation, the ``net_arch`` compared with the weights, no other
+    feature extractor than a flatten), the observation and action spaces (1-D Boxes, the
+    action box ``[-1, 1]^n``). The actor's parameters must be exactly an MLP (the hidden
+    ``Linear`` layers at indices 0, 2, 4, ... with the activation between and after them, then
+    the head) within :data:`MAX_LAYER_UNITS` and :data:`MAX_PARAMETERS`, reading the
+    observation space's length. Anything else is a ``ValueError`` naming the file and what
+    was found. (``policy.pth`` is read whole, after its size is checked against
+    :data:`_MAX_SB3_POLICY_BYTES`; the actor's shapes are then checked before any array is
+    built from it.)
+    """
+    path = Path(path)
+    kind = _SB3_POLICIES.get(algo)
+    if kind is None:
+        raise ValueError(f"read_sb3_actor: algo must be one of {list(_SB3_POLICIES)}, got {algo!r}")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            raw = _zip_entry(archive, "data", _MAX_SB3_DATA_BYTES, path)
+            state = _sb3_state(archive, path)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError) as e:
+        raise ValueError(f"{path}: not a readable SB3 model zip: {e}") from None
+    try:
+        data = json.loads(raw)
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: its data entry is not JSON: {e}") from None
+    except RecursionError:
+        raise ValueError(f"{path}: its data entry is not JSON: nested too deep") from None
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{path}: its data entry is not a JSON object")
+    policy_class = _plain_fields(data.get("policy_class"), "policy_class", path)
+    init = str(policy_class.get("__init__", ""))
+    if policy_class.get("__module__") != kind["module"] or not init.startswith(
+        f"<function {kind['class']}.__init__ "
+    ):
+        raise ValueError(
+            f"{path}: its policy class is not SB3's {kind['module']}.{kind['class']} (the "
+            f"data entry says module {_shown(policy_class.get('__module__'))}, {_shown(init)}): "
+            "this loader reads that MLP policy; if you trust the file, "
+            "LearnedPolicy.load_pickled loads it through SB3"
+        )
+    if data.get("use_sde") is not False:
+        raise ValueError(
+            f"{path}: use_sde is {_shown(data.get('use_sde'))}: this loader reads the diagonal "
+            "Gaussian actor (use_sde false)"
+        )
+    kwargs = _plain_fields(data.get("policy_kwargs", {}), "policy_kwargs", path)
+    activation = _sb3_activation(kwargs, kind, algo, path)
+    n_obs = _sb3_space(data, "observation_space", path)
+    n_act = _sb3_space(data, "action_space", path)
+    _sb3_action_bounds(data, n_act, path)
+    layers = _sb3_layers(state, kind, path)
+    _check_mlp_shapes(
+        [(w, tuple(state[w].shape), b, tuple(state[b].shape)) for w, b in layers], str(path)
+    )
+    shapes = [tuple(state[w].shape) for w, _ in layers]
+    hidden = [shape[0] for shape in shapes[:-1]]
+    recorded = _sb3_hidden_sizes(kwargs)
+    if recorded is not None and recorded != hidden:
+        raise ValueError(
+            f"{path}: policy_kwargs net_arch gives hidden layers {recorded}, the weights {hidden}"
+        )
+    if shapes[0][1] != n_obs or shapes[-1][0] != n_act:
+        raise ValueError(
+            f"{path}: the weights map {shapes[0][1]} -> {shapes[-1][0]}, the spaces "
+            f"{n_obs} -> {n_act}"
+        )
+    for name, ndim in kind["std"].items():
+        shape = tuple(state[name].shape)
+        if len(shape) != ndim or shape[0] != n_act:
+            raise ValueError(
+                f"{path}: {name} has shape {shape}: not the diagonal Gaussian of {n_act} "
+                "actions this loader reads"
+            )
+    last = len(layers) - 1
+    try:
+        forward = MLPForward(
+            [
+                (
+                    _weights(state[w]),
+                    _weights(state[b]),
+                    activation if k < last else ("tanh" if kind["squash"] else "identity"),
+                )
+                for k, (w, b) in enumerate(layers)
+            ]
+        )
+    except (TypeError, ValueError, RuntimeError) as e:
+        raise ValueError(f"{path}: the actor's weights are not usable: {e}") from None
+    return SB3Actor(
+        forward,
+        -np.ones(n_act, dtype=np.float32),
+        np.ones(n_act, dtype=np.float32),
+        squash_output=bool(kind["squash"]),
+        algo=algo,
+    )
+
+
+def _sb3_layers(
+    state: Mapping[str, Any], kind: Mapping[str, Any], path: Path
+) -> list[tuple[str, str]]:
+    """The ``(weight, bias)`` names of the actor's layers in ``state``, hidden then head;
+    ``ValueError`` for a parameter that is not one of an MLP actor, its log-std or the parts
+    it does not use (value network, critics)."""
+    hidden_prefix = f"{kind['hidden']}."
+    pattern = re.compile(re.escape(hidden_prefix) + r"(0|[1-9][0-9]{0,5})\.(?:weight|bias)")
+    indices = sorted(
+        {int(match.group(1)) for match in map(pattern.fullmatch, state) if match is not None}
+    )
+    layers = [(f"{hidden_prefix}{i}.weight", f"{hidden_prefix}{i}.bias") for i in indices]
+    layers.append((f"{kind['head']}.weight", f"{kind['head']}.bias"))
+    actor = {name for pair in layers for name in pair} | set(kind["std"])
+    missing = sorted(actor - set(state))
+    unknown = sorted(
+        key for key in state if key not in actor and not key.startswith(kind["unused"])
+    )
+    if indices != list(range(0, 2 * len(indices), 2)) or missing or unknown:
+        raise ValueError(
+            f"{path}: policy.pth is not the MLP actor this loader reads ("
+            + "; ".join(
+                ([f"missing {missing[:4]}"] if missing else [])
+                + ([f"unexpected {unknown[:4]}"] if unknown else [])
+                + (
+                    [f"hidden layers at {indices}, not 0, 2, 4, ..."]
+                    if indices != list(range(0, 2 * len(indices), 2))
+                    else []
+                )
+            )
+            + "); if you trust the file, LearnedPolicy.load_pickled loads it through SB3"
+        )
+    return layers
+
+
+def _weights(tensor: Any) -> NDArray[np.float32]:
+    """A tensor of the state dict as float32 (what :func:`training.forward.sb3_forward` reads
+    of the SB3 module's parameter: the same values)."""
+    if not tensor.is_floating_point():
+        raise TypeError(f"a {tensor.dtype} tensor, not floating point")
+    return np.array(tensor.detach().cpu().numpy(), dtype=np.float32)
+
+
 #: ``model.json`` files already warned about (a ``format_version`` 1 file has no zip hash).
 _WARNED_UNCHECKED: set[Path] = set()
 
 
 def _input_size(model: Any) -> int | None:
-    """The observation length a model reads (SB3: its observation space; an MLPActor: its
-    input), or None when it does not say."""
-    if isinstance(model, MLPActor):
+    """The observation length a model reads (SB3: its observation space; an MLPActor or an
+    SB3Actor: its input), or None when it does not say."""
+    if isinstance(model, MLPActor | SB3Actor):
         return model.input_dim
     shape = getattr(getattr(model, "observation_space", None), "shape", None)
     return int(shape[0]) if shape else None
@@ -582,12 +1138,21 @@ def fast_actor(model: Any, clip: bool = True) -> FastActor | None:
     Gaussian head, a Box action space and a plain MLP (:func:`training.forward.sb3_forward`;
     the mean clipped to the action space as ``predict(obs, deterministic=True)`` does, or with
     ``clip=False`` the mean itself: a residual policy adds it to its law's action before
-    clipping), or an :class:`MLPActor` (its output, unclipped as its ``predict``).
+    clipping), an :class:`SB3Actor` read from a PPO zip (the same forward and clip, from the
+    same weights: the same actions to the bit; a SAC one goes through its ``predict``), or an
+    :class:`MLPActor` (its output, unclipped as its ``predict``).
 
     It agrees with ``predict`` within float32 rounding, not to the bit: it sums in float64 in a
     fixed order so that each row is the same whatever the batch (:mod:`training.forward`)."""
     if isinstance(model, MLPActor):
         return FastActor(model.forward)
+    if isinstance(model, SB3Actor):
+        if model.squash_output:
+            return None
+        if not clip:
+            return FastActor(model.forward)
+        box = model.action_space
+        return FastActor(model.forward, box.low.astype(np.float32), box.high.astype(np.float32))
     from stable_baselines3.common.distributions import DiagGaussianDistribution
     from stable_baselines3.common.policies import ActorCriticPolicy
 
@@ -653,15 +1218,17 @@ def _check_zip(path: Path, meta: Mapping[str, Any], version: int, meta_file: Pat
             f"{where} predates zip hashes (format_version {version}): cannot check "
             f"that {path.name} belongs to it",
             UserWarning,
-            stacklevel=3,  # the caller of LearnedPolicy.load
+            stacklevel=4,  # the caller of LearnedPolicy.load (or load_pickled)
         )
 
 
 def _load_model(
-    path: Path, meta: Mapping[str, Any], meta_file: Path, device: str
-) -> tuple[BaseAlgorithm | MLPActor, tuple[Any, Any]]:
+    path: Path, meta: Mapping[str, Any], meta_file: Path, device: str, pickled: bool = False
+) -> tuple[BaseAlgorithm | MLPActor | SB3Actor, tuple[Any, Any]]:
     """The model of ``path`` by ``meta``'s ``engine`` (SB3, or an exported RLlib actor) and
-    its input and output sizes (None where a space has no shape)."""
+    its input and output sizes (None where a space has no shape). An SB3 zip is read
+    weights-only (:func:`read_sb3_actor`) unless ``pickled``: then through SB3's loader, which
+    unpickles the zip's objects (:meth:`LearnedPolicy.load_pickled`)."""
     engine = str(meta.get("engine", "sb3")).lower()
     if engine == "rllib":
         actor = meta.get("actor") or {}
@@ -675,7 +1242,10 @@ def _load_model(
             raise ValueError(
                 f"{meta_file}: unknown algo {algo!r}, expected one of {list(ALGORITHMS)}"
             )
-        model = ALGORITHMS[algo].load(path, device=device)
+        if not pickled:
+            sb3 = read_sb3_actor(path, "sac" if ALGORITHMS[algo] is SAC else "ppo")
+            return sb3, (sb3.input_dim, sb3.output_dim)
+        model = ALGORITHMS[algo].load(path, device=device)  # unpickles: asked for by name
         obs_shape = getattr(model.observation_space, "shape", None) or (None,)
         act_shape = getattr(model.action_space, "shape", None) or (None,)
         return model, (obs_shape[0], act_shape[0])
@@ -721,12 +1291,14 @@ class LearnedPolicy:
     ``platoon_env.make(scenario, control_period=policy.control_period)``, unless you mean to
     test it at another one; :meth:`check_env` says whether an env suits the model.
 
-    .. warning::
-        :meth:`load` unpickles code from the model zip: load only files you trust.
+    :meth:`load` reads a model without unpickling anything (an SB3 zip's weights only);
+    :meth:`load_pickled` gives the full SB3 object and unpickles the zip: only for files you
+    trust.
 
     Args:
-        model: the SB3 model (its action space ``[-1, 1]^2`` if ``action_range`` is given), or
-            an :class:`MLPActor` (an RLlib-trained policy).
+        model: the SB3 model (its action space ``[-1, 1]^2`` if ``action_range`` is given), an
+            :class:`SB3Actor` (an SB3 model's actor read from its weights, what :meth:`load`
+            gives) or an :class:`MLPActor` (an RLlib-trained policy).
         action_range: physical range of the normalised action, or None (a model that outputs
             physical actions; :meth:`load` never gives None, see :func:`parse_action_range`).
         obs_scale: the observation divisor used in training, or None (raw observations).
@@ -834,17 +1406,46 @@ class LearnedPolicy:
     @classmethod
     def load(cls, path: str | os.PathLike[str], device: str = "cpu") -> LearnedPolicy:
         """Load ``DIR/model.zip`` (or ``DIR``) and the ``model.json`` beside it, by its
-        ``engine``: an SB3 model, or an RLlib actor exported as arrays (:class:`MLPActor`).
+        ``engine``: an SB3 PPO or SAC model, read weights-only as an :class:`SB3Actor`, or an
+        RLlib actor exported as arrays (:class:`MLPActor`). Nothing is unpickled: an SB3 zip's
+        ``policy.pth`` is read with ``torch.load(weights_only=True)`` and its ``data`` entry as
+        JSON whose cloudpickled fields are never decoded (:func:`read_sb3_actor`); a crafted
+        zip cannot run code here. The actions are those of the SB3 object (the same
+        :class:`~training.forward.MLPForward` as through SB3 for PPO, so the same to the bit).
 
         Refuses (``ValueError`` with the reason) a zip whose SHA-256 is not the one its JSON
         records, a missing, null or malformed ``action_range``, a malformed normalisation or
         control period, and a model that does not map 7 (task-aware: 13) observations to 2
         actions, or whose recorded layout or normalisation has another length; a missing
         ``model.json`` is a ``FileNotFoundError``. A ``format_version`` 1 file (no zip hash)
-        loads with a ``UserWarning`` (once per file). See the module doc.
+        loads with a ``UserWarning`` (once per file). An SB3 zip whose actor is not the plain
+        MLP :func:`read_sb3_actor` reads (another policy class, a feature extractor, gSDE, an
+        activation other than Tanh or ReLU) is refused, naming
+        :meth:`load_pickled`; an exported actor whose ``.npy`` headers declare layers that do
+        not chain or exceed :data:`MAX_LAYER_UNITS` / :data:`MAX_PARAMETERS` is refused before
+        its data is read. See the module doc.
 
-        .. warning:: For SB3 this unpickles code from the zip: load only files you trust.
+        ``device`` is not used (the actor computes on the CPU with NumPy); it is kept for
+        callers written for SB3's loader.
         """
+        return cls._load(path, device, pickled=False)
+
+    @classmethod
+    def load_pickled(cls, path: str | os.PathLike[str], device: str = "cpu") -> LearnedPolicy:
+        """What :meth:`load` gives, with the full SB3 object as :attr:`model` (SB3's
+        ``PPO.load``/``SAC.load`` on ``device``): for SB3's own ``predict`` (sampling
+        included), its torch modules, or a model :func:`read_sb3_actor` does not read. The same
+        checks as :meth:`load` (hash, metadata, shapes) come first. An exported RLlib actor
+        loads as with :meth:`load` (no pickles).
+
+        .. warning:: This unpickles Python objects from the zip (SB3's ``data`` entry is
+           cloudpickled), which can execute arbitrary code: use it only on files you trust.
+           Nothing in the evaluators, the leaderboard or the examples calls it.
+        """
+        return cls._load(path, device, pickled=True)
+
+    @classmethod
+    def _load(cls, path: str | os.PathLike[str], device: str, *, pickled: bool) -> LearnedPolicy:
         path = Path(path)
         if path.is_dir():
             path = path / "model.zip"
@@ -855,7 +1456,7 @@ class LearnedPolicy:
         where = str(meta_file)
         _check_zip(path, meta, version, meta_file)
         _check_metadata(meta, where)
-        model, dims = _load_model(path, meta, meta_file, device)
+        model, dims = _load_model(path, meta, meta_file, device, pickled)
         n_obs, layout = _input_layout(meta, dims, meta_file)
         return cls(
             model,

@@ -16,6 +16,14 @@
 * :class:`Segment` — one invocation's share of a run: its commit, start time and wall time,
   and the timing over every segment before it (``segments`` in ``model.json``). Its
   :attr:`RunPlan.segment_index` keys the env seeds (:mod:`training.seeding`).
+* :func:`save_point` — **a saved point appears whole.** A model or checkpoint is several files
+  (``NAME.zip``, ``NAME.json`` and, for the fast engine, ``NAME.state.pt``); they are written
+  into a temporary folder beside them, then renamed into place, the JSON last, with SIGINT and
+  SIGTERM held until the last rename. A failed write (a full disk) leaves the previous point
+  as it was; only a ``kill -9`` between two renames can leave a zip beside a JSON that does
+  not record it, which :func:`incomplete_point` names: a resume leaves such a point out (the
+  newer complete one is continued) and ``platoon-sweep`` starts a run that has no complete
+  point over rather than failing it.
 """
 
 from __future__ import annotations
@@ -27,11 +35,14 @@ import json
 import os
 import platform
 import shutil
+import signal
 import socket
 import sys
+import tempfile
+import threading
 import time
 import types
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,7 +52,7 @@ import numpy as np
 
 import platoon_env
 from platoon_env.provenance import code_version
-from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping
+from platoon_env.scenarios.fingerprint import config_fingerprint, config_mapping, file_sha256
 from training.config import TrainConfig, check_scenario, config_differences
 from training.policies import zip_mismatch
 
@@ -59,12 +70,14 @@ __all__ = [
     "git_commit",
     "hold_run",
     "holds_run",
+    "incomplete_point",
     "library_versions",
     "open_run",
     "plan_run",
     "previous_segments",
     "report_interrupt",
     "run_status",
+    "save_point",
     "segment_metadata",
     "start_run",
     "timing_metadata",
@@ -441,6 +454,9 @@ def _saved_points(cfg: TrainConfig, out: Path) -> tuple[list[_Saved], list[str]]
     skipped: list[str] = []
     for name in ("model", "checkpoint"):
         zip_path, meta = out / f"{name}.zip", _read_json(out / f"{name}.json")
+        if meta is None and zip_path.is_file():
+            skipped.append(f"{name}.zip (no {name}.json beside it: a save cut off)")
+            continue
         if meta is None or not zip_path.is_file():
             continue
         reason = zip_mismatch(zip_path, meta)
@@ -481,7 +497,7 @@ def plan_run(cfg: TrainConfig, env: Any) -> RunPlan:
         found = ", ".join(p.name for p in present) or "nothing"
         raise RunError(
             f"argument --resume: nothing to resume in {out}: no checkpoint and no model "
-            f"(found: {found}){note}"
+            f"(found: {found}){note}; pass --force to start over"
         )
     fingerprint = config_fingerprint(env.source.config)
     scenario = config_mapping(env.source.config)
@@ -658,6 +674,88 @@ class Segment:
             commit=self.commit,
         )
         return {**self.commit, **timing_metadata([*self.plan.segments, segment], timesteps)}
+
+
+# ------------------------------------------------------------------------------------------------
+# Saved points: written whole, checked whole
+# ------------------------------------------------------------------------------------------------
+#: The signals :func:`save_point` holds while it moves a point's files into place.
+HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextmanager
+def held_signals() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM for the duration: one that arrives is delivered (to the handler
+    it had, e.g. ``KeyboardInterrupt``, or the default: termination) when the block ends. Only
+    the main thread can set handlers; elsewhere, and for a signal whose handler Python did not
+    set, nothing is held."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+
+    def hold(signum: int, frame: Any) -> None:
+        received.append(signum)
+
+    previous: dict[signal.Signals, Any] = {}
+    try:
+        for signum in HELD_SIGNALS:
+            handler = signal.getsignal(signum)
+            if handler is None:
+                continue
+            previous[signum] = handler
+            signal.signal(signum, hold)
+        yield
+    finally:
+        for held, handler in previous.items():
+            signal.signal(held, handler)
+        for pending in dict.fromkeys(received):
+            signal.raise_signal(pending)
+
+
+def save_point(path: Path, save: Callable[[Path], Any]) -> Path:
+    """Write the saved point ``path`` (``DIR/NAME.zip``) whole: ``save(tmp)`` writes the zip
+    at ``tmp`` (same name, in a new temporary folder in ``DIR``) and whatever goes beside it
+    (``NAME.json``, ``NAME.state.pt``); the files are then renamed into ``DIR``, the JSON last.
+    SIGINT and SIGTERM are held from the first write to the last rename (:func:`held_signals`).
+    A failure leaves ``DIR`` as it was, its previous point included, and removes the
+    temporary folder. Returns ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with held_signals():
+        tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".save"))
+        try:
+            save(tmp / path.name)
+            for f in sorted(tmp.iterdir(), key=lambda f: (f.suffix == ".json", f.name)):
+                os.replace(f, path.parent / f.name)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return path
+
+
+def incomplete_point(out: Path, name: str) -> str | None:
+    """Why the saved point ``name`` (``"model"`` or ``"checkpoint"``) of ``out`` is not one
+    save, or None (its files belong together, or it has no zip): a zip without its JSON, a zip
+    or a learner state (``NAME.state.pt``, the fast engine's) other than the one the JSON
+    records: what a save cut off between its files (or an edit) leaves. A JSON that cannot be
+    read is not judged here: ``platoon-train --resume`` refuses it, naming it."""
+    zip_path, meta_file = out / f"{name}.zip", out / f"{name}.json"
+    if not zip_path.is_file():
+        return None
+    if not meta_file.is_file():
+        return f"{zip_path.name} without {meta_file.name}: a save cut off"
+    meta = _peek_json(meta_file)
+    if meta is None:
+        return None
+    reason = zip_mismatch(zip_path, meta)
+    if reason is not None:
+        return reason
+    recorded = meta.get("learner_state_sha256")
+    if recorded is not None:
+        state = out / f"{name}.state.pt"
+        if not state.is_file() or file_sha256(state) != recorded:
+            return f"{state.name} is not the learner state {meta_file.name} records: a save cut off"
+    return None
 
 
 def report_interrupt(timesteps: int) -> None:

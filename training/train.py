@@ -41,7 +41,8 @@ Every option is range-checked before anything is written (:func:`check_config`, 
 naming the option (exit status 2), e.g. ``--timesteps`` below 1, ``--gamma`` outside [0, 1], a
 ``--device`` that is not available, an action range beyond the scenario's actuator limits, a
 PPO ``--batch-size`` larger than its rollout or an empty ``--out``. Integer options take an
-integral number in exponent form too (``--timesteps 2e6``), as floats take ``5e-2``.
+integral number in exponent form too (``--timesteps 2e6``), as floats take ``5e-2``, read
+exactly (never through a float) and at most ``2**63 - 1`` in magnitude (:func:`integer`).
 
 The code: the options, their checks and the training env are :mod:`training.config`; what a
 run does in its folder (planning, the lock, segments) is :mod:`training.run`, shared with the
@@ -52,8 +53,10 @@ Outputs in ``--out DIR``:
 
 * ``model.zip`` + ``model.json`` — the final model and its description; see
   :mod:`training.policies`. Load with ``LearnedPolicy.load("DIR/model.zip")``.
-* ``checkpoint.zip`` + ``checkpoint.json`` — the latest periodic checkpoint, replaced atomically,
-  so an interrupted run keeps its last one. On Ctrl-C the model so far is saved as
+* ``checkpoint.zip`` + ``checkpoint.json`` — the latest periodic checkpoint, replaced whole (both
+  files written beside them first, then renamed into place, the JSON last, with SIGINT and
+  SIGTERM held meanwhile: :func:`training.run.save_point`), so an interrupted run keeps its
+  last one. On Ctrl-C the model so far is saved as
   ``model.zip`` (``"interrupted": true`` in ``model.json``) before exiting with status 130.
 * ``progress.csv`` — the learning curve, a row every ``--log-every`` timesteps: mean return,
   success rate and cost of the follower episodes that ended in the window
@@ -92,10 +95,12 @@ nothing written.
   ``--batched``/``--env-threads`` (same trajectories), ``--checkpoint-every``,
   ``--progress-bar``, ``--verbose``, ``--address``.
   It continues from the newer (more timesteps; a tie: ``model.zip``) of ``checkpoint.zip`` and
-  ``model.zip`` (the final or Ctrl-C model), each only if its JSON's ``zip_sha256`` matches. If
-  that already has ``--timesteps`` (a finished run), nothing is trained and nothing written:
-  it says so and exits 0. With neither a checkpoint nor a model to continue from, it is an
-  error. ``--resume --force`` together is an error.
+  ``model.zip`` (the final or Ctrl-C model), each only if its JSON's ``zip_sha256`` matches (a
+  zip without its JSON, or with a JSON of another save, is a save cut off by ``kill -9``: it is
+  left out, and named). If that already has ``--timesteps`` (a finished run), nothing is
+  trained and nothing written: it says so and exits 0. With neither a checkpoint nor a model to
+  continue from, it is an error (``platoon-sweep`` then starts the run over with ``--force``).
+  ``--resume --force`` together is an error.
 
 ``model.json`` (and ``checkpoint.json``) fields
 -----------------------------------------------
@@ -189,6 +194,7 @@ from training.run import (
     plan_run,
     previous_segments,
     report_interrupt,
+    save_point,
     segment_metadata,
     start_run,
     timing_metadata,
@@ -259,21 +265,39 @@ def _base_type(tp: Any) -> tuple[Any, bool]:
     return tp, False
 
 
+#: The largest magnitude of an integer option: int64's (numpy's, torch's and SQLite's).
+INT64_MAX = 2**63 - 1
+
+
 def integer(text: str) -> int:
     """The value of an integer option: an integer (``2000000``, ``2_000_000``) or an integral
-    number in exponent form, as YAML writes it (``2e6``, ``1.5e3``); anything else is an
-    ``argparse`` error naming the option."""
+    number in exponent form, as YAML writes it (``2e6``, ``1.5e3``), read exactly (never
+    through a float) and at most :data:`INT64_MAX` in magnitude (so ``1e400`` or a
+    5,000-digit number is refused at once, not computed); anything else is an ``argparse``
+    error naming the option."""
     try:
-        return int(text)
-    except ValueError:
-        pass
-    try:
-        value = Decimal(text.strip())  # exact: 1e23 is 10**23, not the nearest float's integer
-    except InvalidOperation:
-        value = Decimal("NaN")
-    if not value.is_finite() or value != value.to_integral_value():
-        raise argparse.ArgumentTypeError(f"expected an integer (e.g. 100000 or 1e5), got {text!r}")
-    return int(value)
+        value = int(text)
+    except ValueError:  # not an integer literal, or one of more digits than Python reads
+        try:
+            exact = Decimal(text.strip())  # exact: 1e23 is 10**23, not the nearest float's
+        except InvalidOperation:
+            exact = Decimal("NaN")
+        # adjusted(): the exponent of the leading digit, read without arithmetic (1e10000000
+        # is neither computed nor an overflow)
+        if exact.is_finite() and exact != 0 and exact.adjusted() > len(str(INT64_MAX)):
+            raise argparse.ArgumentTypeError(
+                f"expected an integer of magnitude at most 2**63 - 1, got {text!r}"
+            ) from None
+        if not exact.is_finite() or exact != exact.to_integral_value():
+            raise argparse.ArgumentTypeError(
+                f"expected an integer (e.g. 100000 or 1e5), got {text!r}"
+            ) from None
+        value = int(exact)
+    if abs(value) > INT64_MAX:
+        raise argparse.ArgumentTypeError(
+            f"expected an integer of magnitude at most 2**63 - 1, got {text!r}"
+        )
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -521,7 +545,8 @@ def run_metadata(
 # Callbacks
 # ------------------------------------------------------------------------------------------------
 class CheckpointCallback(BaseCallback):
-    """Every ``every`` timesteps, atomically replace ``DIR/checkpoint.zip`` (+ ``.json``)."""
+    """Every ``every`` timesteps, replace ``DIR/checkpoint.zip`` (+ ``.json``) whole
+    (:func:`training.run.save_point`)."""
 
     def __init__(self, path: Path, every: int, metadata: Callable[[], dict[str, Any]]) -> None:
         super().__init__()
@@ -538,7 +563,8 @@ class CheckpointCallback(BaseCallback):
     def _on_step(self) -> bool:
         if self.every > 0 and self.num_timesteps - self._last >= self.every:
             self._last = self.num_timesteps
-            save_model(self.model, self.path, self.metadata())
+            meta = self.metadata()
+            save_point(self.path, lambda tmp: save_model(self.model, tmp, meta))
         return True
 
 
@@ -650,7 +676,8 @@ def train(cfg: TrainConfig, plan: RunPlan | None = None) -> tuple[Path, bool]:
         except KeyboardInterrupt:
             interrupted = True
             report_interrupt(model.num_timesteps)
-        path = save_model(model, out / "model.zip", metadata(interrupted=interrupted))
+        meta = metadata(interrupted=interrupted)
+        path = save_point(out / "model.zip", lambda tmp: save_model(model, tmp, meta))
     return path, interrupted
 
 

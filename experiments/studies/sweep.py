@@ -11,12 +11,14 @@ Usage::
 A **configuration** (:data:`CONFIGS`) is a named set of ``platoon-train`` options; a run is a
 configuration and a seed, trained into ``RUNS/<config>/s<seed>`` (``--runs``, default
 ``runs/sweep``). Each run is one ``platoon-train`` process with ``--resume`` when its directory
-holds a model or checkpoint (``--force`` when it holds only the logs of a run killed before its
-first checkpoint), so an interrupted sweep continues where it stopped and a finished run is
-left as it is (``platoon-train``'s own rules: a run whose options changed is refused, naming
-the differences). ``--jobs`` runs train side by side (one core each: ``--torch-threads 1``).
-Each run's output goes to ``RUNS/<config>/s<seed>/train.log``; the sweep prints a line per run
-as it ends, and exits non-zero if one failed (the others are still trained).
+holds a model or checkpoint whose files belong together (``--force`` when it holds only the
+logs of a run killed before its first checkpoint, or only a save cut off between its zip and
+its JSON: the sweep says so, and the run starts over), so an interrupted sweep continues where
+it stopped and a finished run is left as it is (``platoon-train``'s own rules: a run whose
+options changed is refused, naming the differences). ``--jobs`` runs train side by side (one
+core each: ``--torch-threads 1``). Each run's output goes to ``RUNS/<config>/s<seed>/train.log``;
+the sweep prints a line per run as it ends, and exits non-zero if one failed (the others are
+still trained).
 
 ``--ship`` copies ``model.zip``, ``model.json`` and ``progress.csv`` of every finished run to
 ``models/<config>_s<seed>/`` (the cards are written by :mod:`experiments.studies.leaderboard`, which
@@ -48,6 +50,7 @@ from experiments.stamp import metadata_stamp, png_metadata
 from platoon_env.extras import MissingExtraError, require_extra
 
 __all__ = [
+    "cut_saves",
     "main",
     "option_differences",
     "run_args",
@@ -68,15 +71,39 @@ RESUMABLE = ("model.zip", "checkpoint.zip", "rllib_checkpoint")
 def run_args(config: Config, seed: int, out: Path) -> list[str]:
     """The ``platoon-train`` arguments of one run: ``--resume`` if ``out`` holds a model or a
     checkpoint to continue from; ``--force`` if it holds only the logs of a run killed before
-    its first checkpoint (nothing to continue from: it starts over); else neither."""
+    its first checkpoint, or only saved points cut off between their files (nothing to
+    continue from: it starts over, :func:`cut_saves` says why); else neither."""
     from training.train import RUN_FILES
 
     args = [*config.args, "--seed", str(seed), "--out", str(out), "--no-progress-bar"]
-    if any((out / f).exists() for f in RESUMABLE):
+    if _resumable(out):
         args.append("--resume")
     elif any((out / f).exists() for f in RUN_FILES):
         args.append("--force")
     return args
+
+
+def cut_saves(out: Path) -> list[str]:
+    """Why each saved point of ``out`` cannot be continued from: a zip without its JSON, or
+    one other than its JSON records (:func:`training.run.incomplete_point`: a save cut off by
+    ``kill -9`` between its files, or an edit)."""
+    from training.run import incomplete_point
+
+    found = ((n, incomplete_point(out, n)) for n in ("model", "checkpoint"))
+    return [f"{name}: {reason}" for name, reason in found if reason]
+
+
+def _resumable(out: Path) -> bool:
+    """Whether ``out`` holds a saved point ``platoon-train --resume`` can continue from: one
+    of :data:`RESUMABLE` whose files belong together (RLlib's ``rllib_checkpoint/`` goes with
+    ``checkpoint.zip``)."""
+    from training.run import incomplete_point
+
+    for f in RESUMABLE:
+        point = "checkpoint" if f == "rllib_checkpoint" else f.removesuffix(".zip")
+        if (out / f).exists() and incomplete_point(out, point) is None:
+            return True
+    return False
 
 
 #: The trainings running now (each ``_train`` registers its child), for :func:`stop_children`.
@@ -101,8 +128,15 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child before e
 def _train(config: Config, seed: int, out: Path) -> tuple[str, int, float]:
     out.mkdir(parents=True, exist_ok=True)
     args = run_args(config, seed, out)
+    name = f"{config.name} s{seed}"
+    cut = cut_saves(out)
+    if cut and "--force" in args:
+        note = f"{name}: nothing complete to resume ({'; '.join(cut)}); starting it over"
+        print(note, flush=True)
+        with (out / "train.log").open("a") as log:
+            log.write(note + "\n")
     cmd = [sys.executable, "-m", "training.train", *args, "--torch-threads", "1"]
-    return f"{config.name} s{seed}", *_run_child(cmd, out / "train.log")
+    return name, *_run_child(cmd, out / "train.log")
 
 
 def _run_child(cmd: Sequence[str], log_path: Path) -> tuple[int, float]:
