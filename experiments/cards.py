@@ -248,7 +248,9 @@ def card_markdown(board: Board, entry: Entry, run: int, summary: str = "") -> st
         ),
         "```",
         "",
-        "Loading `model.zip` unpickles code: load only model files you trust.",
+        "`LearnedPolicy.load` reads `model.zip`'s weights only (nothing is unpickled); "
+        "`LearnedPolicy.load_pickled` and SB3's own loader unpickle code: use them only on "
+        "files you trust.",
         "",
     ]
     return "\n".join(lines)
@@ -303,7 +305,13 @@ def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
             )
     lines += ["", "Configurations:", ""]
     lines += [f"- `{k}`: {v}" for k, v in summaries.items()]
-    lines += ["", "Loading `model.zip` unpickles code: load only model files you trust.", ""]
+    lines += [
+        "",
+        "`LearnedPolicy.load` reads `model.zip`'s weights only (nothing is unpickled); "
+        "`LearnedPolicy.load_pickled` and SB3's own loader unpickle code: use them only on "
+        "files you trust.",
+        "",
+    ]
     return "\n".join(lines)
 
 
