@@ -18,7 +18,7 @@ autoreset_mode=AutoresetMode.SAME_STEP)``: Gymnasium 1.4's ``make_vec`` refuses
 ``vector_kwargs`` for a vector entry point ("Custom vector environment can be passed arguments
 only through kwargs"), which takes keywords only; ``vector_kwargs={"autoreset_mode": ...}``
 works with ``vectorization_mode="sync"``, Gymnasium's ``SyncVectorEnv`` over
-``gymnasium.make(id)``. The default was ``SAME_STEP`` (until issue 45); it is ``NEXT_STEP``
+``gymnasium.make(id)``. The default was ``SAME_STEP`` before version 0.2.0; it is ``NEXT_STEP``
 so that ``gymnasium.make_vec(id, n)`` as it comes works under Gymnasium's vector wrappers:
 its observation wrappers refuse ``SAME_STEP`` (``TransformObservation`` and every
 ``VectorObservationWrapper``: "Expected autoreset_mode to be NEXT_STEP or DISABLED";
