@@ -25,6 +25,7 @@ from platoon_env.scenarios.schema import ScenarioError
 
 __all__ = [
     "ANALYTIC",
+    "ORACLE_SUMMARY_FORMAT",
     "PARTITIONED_SUITES",
     "SPLIT_SUITES",
     "SUITES",
@@ -36,6 +37,7 @@ __all__ = [
     "cells",
     "entries",
     "episode_seeds",
+    "load_oracle",
     "span",
     "tasks",
 ]
@@ -281,3 +283,42 @@ def build_board(
             runs.append(per_task)
         metrics[e.name] = runs
     return Board(list(board_entries), list(board_tasks), metrics, refused, missing)
+
+
+# ----------------------------------------------------------------------------------------------
+# The privileged oracle's results (written by the feasibility driver)
+# ----------------------------------------------------------------------------------------------
+#: The ``format`` of the oracle's summary file (``python -m experiments.studies.feasibility``
+#: writes it as ``feasibility.json``; the leaderboard marks the oracle from it).
+ORACLE_SUMMARY_FORMAT = "platoon_env feasibility summary 1"
+
+
+def load_oracle(path: Path) -> dict[str, tuple[int, int]]:
+    """The privileged oracle's ``(successes, episodes)`` per task label (``study_b/aruco``)
+    from a feasibility summary; a ``ValueError`` naming the file and the field otherwise."""
+    import json
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read the oracle's results ({exc})") from None
+    if not isinstance(data, dict) or data.get("format") != ORACLE_SUMMARY_FORMAT:
+        raise ValueError(f"{path}: not a feasibility summary (format {ORACLE_SUMMARY_FORMAT!r})")
+    tasks_ = data.get("tasks")
+    if not isinstance(tasks_, dict):
+        raise ValueError(f"{path}: its tasks must be a mapping")
+    out: dict[str, tuple[int, int]] = {}
+    for task, row in tasks_.items():
+        k = row.get("successes") if isinstance(row, dict) else None
+        n = row.get("episodes") if isinstance(row, dict) else None
+        if (
+            not isinstance(k, int)
+            or not isinstance(n, int)
+            or isinstance(k, bool)
+            or isinstance(n, bool)
+            or not 0 <= k <= n
+            or n < 1
+        ):
+            raise ValueError(f"{path}: tasks.{task} must hold successes <= episodes (>= 1)")
+        out[str(task)] = (k, n)
+    return out

@@ -100,3 +100,11 @@ def test_the_oracle_s_base_is_a_named_option() -> None:
     assert feasibility._oracle_param("samples=8") == ("samples", 8)
     with pytest.raises(Exception, match="base must be"):
         feasibility._oracle_param("base=nothing")
+
+
+def test_the_summary_file_is_what_the_board_reads(tmp_path: Path) -> None:
+    from experiments.board import load_oracle
+
+    feasibility.main([*QUICK, "--store", str(tmp_path / "s.sqlite"), "--out", str(tmp_path)])
+    assert load_oracle(tmp_path / "feasibility.json") == {"study_c/ideal": (0, 1)}
+    assert str(tmp_path) not in (tmp_path / "feasibility.json").read_text()  # portable

@@ -363,3 +363,66 @@ def test_comparisons_pair_episodes_by_seed_across_a_configuration_s_runs() -> No
     assert [(x.a, x.b, x.task) for x in lb.confirmatory(board)] == [
         ("m", "filtered_ppc", task.label)
     ]
+
+
+def test_the_oracle_is_marked_beside_the_entries_and_its_file_is_checked(tmp_path: Path) -> None:
+    import json
+
+    from experiments.board import ORACLE_SUMMARY_FORMAT, load_oracle
+
+    t = _tasks()
+    board = _board({"ppc": [{task: [_ep(True)] * 4 for task in t}]})
+    good = tmp_path / "f.json"
+    rows = {t[1].label: {"successes": 9, "episodes": 10, "seeds": list(range(10))}}
+    good.write_text(json.dumps({"format": ORACLE_SUMMARY_FORMAT, "tasks": rows}))
+    oracle = load_oracle(good)
+    assert oracle == {t[1].label: (9, 10)}
+    md = lb.task_table_markdown(board, oracle)
+    last = md.strip().split("\n")[-1]
+    assert last.startswith(f"| *{lb.ORACLE_LABEL}* | – | 9/10 [")
+    for text, match in [
+        ("{", "cannot read"),
+        ('{"format": "x", "tasks": {}}', "not a feasibility summary"),
+        (json.dumps({"format": ORACLE_SUMMARY_FORMAT, "tasks": []}), "tasks must be"),
+        (
+            json.dumps(
+                {"format": ORACLE_SUMMARY_FORMAT, "tasks": {"a": {"successes": 3, "episodes": 2}}}
+            ),
+            "tasks.a",
+        ),
+        (
+            json.dumps(
+                {
+                    "format": ORACLE_SUMMARY_FORMAT,
+                    "tasks": {"a": {"successes": True, "episodes": 2}},
+                }
+            ),
+            "tasks.a",
+        ),
+    ]:
+        bad = tmp_path / "bad.json"
+        bad.write_text(text)
+        with pytest.raises(ValueError, match=match):
+            load_oracle(bad)
+
+
+def test_the_forest_and_confirmatory_figures_fit_a_screen(tmp_path: Path) -> None:
+    """A board of 16 tasks and 14 entries: the forest plot (the oracle marked) and the
+    confirmatory grid are written, neither taller than 1,080 pixels."""
+    from PIL import Image
+
+    t = [lb.Task("paper", f"study_{i}", c.label, 4, c) for i in range(8) for c in (IDEAL, ARUCO)]
+    per_entry = {
+        **{f"law{i}": [{task: [_ep(i % 2 == 0)] * 4 for task in t}] for i in range(4)},
+        **{f"m{i}": [{task: [_ep(True), _ep(False)] * 2 for task in t}] for i in range(10)},
+    }
+    entries_ = [
+        lb.Entry(name, (PolicySpec.of("ppc", name),), name.startswith("m")) for name in per_entry
+    ]
+    board = lb.Board(entries_, t, per_entry)
+    forest = lb.plot_forest(board, tmp_path / "forest.png", {}, {t[0].label: (3, 4)})
+    grid = lb.plot_confirmatory(lb.confirmatory(board), tmp_path / "grid.png", {})
+    assert grid is not None and lb.plot_confirmatory([], tmp_path / "none.png", {}) is None
+    for path in (forest, grid):
+        with Image.open(path) as image:
+            assert image.size[1] <= 1080, (path.name, image.size)

@@ -20,7 +20,9 @@ privileged oracle (:mod:`baselines.oracle`, registry name ``oracle``) over seeds
   tasks and seeds (the registry's laws, run here through the same store).
 
 Each completed oracle episode's trajectory (every pose every ``WITNESS_PERIOD`` seconds) is
-stored with its row: a witness that the task is feasible for that seed.
+stored with its row: a witness that the task is feasible for that seed. The oracle's success per
+task is also written as data, ``feasibility.json`` in ``--out`` (and ``data/feasibility.json``
+beside ``--doc``), which the leaderboard reads to mark the privileged oracle beside its entries.
 
 Not yet done (docs/feasibility.md says so): a full-horizon trajectory optimisation for the seeds
 the oracle fails, which alone could certify a task infeasible; until then a failure says
@@ -39,6 +41,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from collections import Counter
 from collections.abc import Sequence
@@ -49,11 +52,12 @@ from typing import Any
 import numpy as np
 
 from baselines.oracle import BASE_LAWS, FEEDBACK, OracleParams
+from experiments.board import ORACLE_SUMMARY_FORMAT
 from experiments.cli import add_grid_options, count, failed_episodes, new_parser, number, open_store
 from experiments.grid import Cell, GridResult, run_grid
 from experiments.policies import REGISTRY, PolicySpec, analytic_policies, build_policy
 from experiments.report import markdown_table, provenance_markdown, wilson, write_text_atomic
-from experiments.stamp import metadata_stamp, png_metadata
+from experiments.stamp import metadata_stamp, png_metadata, portable_argv
 from platoon_env.config import ScenarioError
 from platoon_env.rollout import Episode, constraint_margins, episode_metrics
 from platoon_env.scenarios import load_config
@@ -239,6 +243,33 @@ def report(result: GridResult, tasks: Sequence[str], refused: dict[str, str]) ->
     return markdown_table(header, rows)
 
 
+def summary(result: GridResult, tasks: Sequence[str], stamp: dict[str, Any]) -> dict[str, Any]:
+    """The oracle's result per task as plain data (the leaderboard marks it, privileged, beside
+    the entries: ``platoon-leaderboard --oracle FILE``): ``{"format", "made", "tasks": {task:
+    {"successes", "episodes", "seeds"}}}`` over the oracle's finished episodes (read back by
+    :func:`experiments.board.load_oracle`)."""
+    out: dict[str, dict[str, Any]] = {}
+    for rc, rec in result.finished():
+        if rc.cell.policy.kind != "oracle" or rec.status != "done":
+            continue
+        task = _task_of(rc.cell)
+        if task not in tasks:
+            continue
+        row = out.setdefault(task, {"successes": 0, "episodes": 0, "seeds": []})
+        row["successes"] += int(bool(rec.metrics["success"]))
+        row["episodes"] += 1
+        row["seeds"].append(rc.cell.seed)
+    for row in out.values():
+        row["seeds"].sort()
+    made = {
+        "tool": stamp.get("tool"),
+        "time": stamp.get("time"),
+        "commit": stamp.get("commit"),
+        "argv": portable_argv(stamp.get("argv", [])),
+    }
+    return {"format": ORACLE_SUMMARY_FORMAT, "made": made, "tasks": dict(sorted(out.items()))}
+
+
 def _best_law(groups: dict[str, list[dict[str, Any]]]) -> str:
     scores = []
     for kind, rows in groups.items():
@@ -394,8 +425,12 @@ def main(argv: list[str] | None = None) -> str:
     page = _page(table, provenance, [p for p in paths if p is not None], args.seeds)
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out / "feasibility.md", page)
+    data = json.dumps(summary(result, tasks, stamp), indent=1, allow_nan=False) + "\n"
+    write_text_atomic(args.out / "feasibility.json", data)
     if args.doc is not None:
         write_text_atomic(args.doc, page)
+        (args.doc.parent / "data").mkdir(parents=True, exist_ok=True)
+        write_text_atomic(args.doc.parent / "data" / "feasibility.json", data)
     print(table)
     if failed_episodes(result):
         raise SystemExit(1)

@@ -88,6 +88,7 @@ from experiments.board import (
     build_board,
     cells,
     entries,
+    load_oracle,
     span,
     tasks,
 )
@@ -96,7 +97,7 @@ from experiments.cli import add_batch_option, add_models_option, add_workers_opt
 from experiments.grid import run_grid, store_file
 from experiments.policies import default_models_dir
 from experiments.report import markdown_table, provenance_markdown, write_text_atomic
-from experiments.significance import Comparison, compare_paired, mean_success, task_rate
+from experiments.significance import Comparison, compare_paired, mean_success, task_rate, wilson
 from experiments.stamp import metadata_stamp, png_metadata
 from experiments.stats import (
     Aggregate,
@@ -305,9 +306,11 @@ def task_outcome(board: Board, entry: str, task: Task) -> tuple[float, str] | No
     return float(np.mean([bool(m["success"]) for m in eps])), worst[0][0] if worst else ""
 
 
-def task_table_markdown(board: Board) -> str:
+def task_table_markdown(board: Board, oracle: Mapping[str, tuple[int, int]] | None = None) -> str:
     """Per policy and task: successes/episodes (runs pooled) with the 95 % Wilson interval, a
-    floor (⊥: none succeeded) or ceiling (⊤: all did) mark, and the most frequent failure."""
+    floor (⊥: none succeeded) or ceiling (⊤: all did) mark, and the most frequent failure; a
+    last row for the privileged oracle's ``(successes, episodes)`` per task label where
+    ``oracle`` has them (:func:`experiments.board.load_oracle`; outside every comparison)."""
     head = "| policy | " + " | ".join(t.label for t in board.tasks) + " |"
     lines = [head, "|---|" + "---|" * len(board.tasks)]
     for e in board.entries:
@@ -323,7 +326,14 @@ def task_table_markdown(board: Board) -> str:
             note = f" ({worst.replace('collision_', 'coll. ')})" if worst else ""
             cells_.append(f"{rate}{mark}{note}")
         lines.append(f"| {e.name} | " + " | ".join(cells_) + " |")
+    if oracle:
+        row = [str(task_rate(*oracle[t.label])) if t.label in oracle else "–" for t in board.tasks]
+        lines.append(f"| *{ORACLE_LABEL}* | " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
+
+
+#: How the privileged oracle is named in the board's tables and figures.
+ORACLE_LABEL = "oracle (privileged)"
 
 
 #: The normalised margins of the graded table (``platoon_env.rollout.episode_metrics``).
@@ -552,6 +562,73 @@ def plot_tasks(board: Board, out: Path, metadata: Mapping[str, str]) -> Path:
     return _save(fig, out, metadata)
 
 
+#: The tallest figure the board draws [inches] (at its 120 dpi: 1,080 pixels, one screen).
+MAX_FIGURE_HEIGHT = 9.0
+
+
+def plot_forest(
+    board: Board,
+    out: Path,
+    metadata: Mapping[str, str],
+    oracle: Mapping[str, tuple[int, int]] | None = None,
+) -> Path:
+    """Per task a panel of every entry's success (runs pooled) with its 95 % Wilson interval,
+    the privileged oracle marked (a red star) where ``oracle`` has the task; panels four to a
+    row, the figure at most :data:`MAX_FIGURE_HEIGHT` tall."""
+    plt = _pyplot()
+    names = [e.name for e in board.entries]
+    cols = min(4, max(1, len(board.tasks)))
+    rows = -(-len(board.tasks) // cols)
+    height = min(MAX_FIGURE_HEIGHT, rows * (0.13 * len(names) + 0.9) + 0.6)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, height), sharex=True, squeeze=False)
+    for ax, t in zip(axes.flat, board.tasks, strict=False):
+        for i, name in enumerate(names):
+            k, n = task_counts(board, name, t)
+            if n == 0:
+                continue
+            lo, hi = wilson(k, n)
+            ax.plot([lo, hi], [i, i], color="tab:blue", lw=1.2)
+            ax.plot(k / n, i, "o", color="tab:blue", ms=3.5)
+        if oracle and t.label in oracle:
+            k, n = oracle[t.label]
+            lo, hi = wilson(k, n)
+            ax.plot([lo, hi], [-1, -1], color="tab:red", lw=1.2)
+            ax.plot(k / n, -1, "*", color="tab:red", ms=8, label=ORACLE_LABEL)
+        ax.set_title(t.label, fontsize=8)
+        ax.set_yticks(range(-1, len(names)), [ORACLE_LABEL, *names], fontsize=6)
+        ax.set_ylim(len(names) - 0.5, -1.5)
+        ax.set_xlim(-0.02, 1.02)
+        ax.grid(axis="x", alpha=0.3)
+        ax.tick_params(axis="x", labelsize=7)
+    for ax in list(axes.flat)[len(board.tasks) :]:
+        ax.set_visible(False)
+    fig.supxlabel("success rate, 95 % Wilson interval (runs pooled)", fontsize=8)
+    return _save(fig, out, metadata)
+
+
+def plot_confirmatory(
+    confirmed: Sequence[Comparison], out: Path, metadata: Mapping[str, str]
+) -> Path | None:
+    """The confirmatory family as a compact grid: a row per learned configuration, a column per
+    law and task, each cell a win (green), a loss (red), n.s. or a tie at a bound (grey); None
+    for an empty family."""
+    if not confirmed:
+        return None
+    rows = list(dict.fromkeys(c.a for c in confirmed))
+    columns = list(dict.fromkeys(f"{c.b}\n{c.task}" for c in confirmed))
+    values = np.full((len(rows), len(columns)), math.nan)
+    text = [["" for _ in columns] for _ in rows]
+    for c in confirmed:
+        i, j = rows.index(c.a), columns.index(f"{c.b}\n{c.task}")
+        verdict = c.verdict
+        values[i, j] = 1.0 if verdict == c.a else 0.0 if verdict == c.b else 0.5
+        text[i][j] = "win" if verdict == c.a else "loss" if verdict == c.b else verdict
+    size = (0.9 * len(columns) + 2.5, min(MAX_FIGURE_HEIGHT, 0.35 * len(rows) + 1.8))
+    fig, ax, _ = _annotated_grid(values, text, rows, columns, size, vmin=0)
+    ax.set_title("Confirmatory family: each configuration against each law (Holm)", fontsize=9)
+    return _save(fig, out, metadata)
+
+
 def plot_profiles(board: Board, out: Path, metadata: Mapping[str, str]) -> Path:
     """Performance profiles per suite: the fraction of run × task success rates > τ."""
     taus = np.linspace(0, 1, 101)
@@ -696,6 +773,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="publish rows from several commits or an uncommitted tree (the board says so)",
     )
     p.add_argument("--no-cards", action="store_true", help="leave the model cards alone")
+    p.add_argument(
+        "--oracle",
+        type=Path,
+        default=None,
+        help="the privileged oracle's results to mark beside the entries, outside every "
+        "comparison (a feasibility.json of python -m experiments.studies.feasibility; "
+        "default: DOCS/data/feasibility.json when it exists)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p.parse_args(argv)
 
@@ -824,6 +909,8 @@ def _publish(
     found = comparisons(board)
     confirmed = confirmatory(board)
     goals = [goal(board, e, confirmed) for e in board.entries if e.learned]
+    oracle_file = args.oracle or args.docs / "data" / "feasibility.json"
+    oracle = load_oracle(oracle_file) if args.oracle or oracle_file.is_file() else {}
     improvements = improvement_markdown(board)
     goal_text = goal_markdown(goals)
     figures = args.docs / "figures"
@@ -832,9 +919,18 @@ def _publish(
     plot_tasks(board, figures / "leaderboard_tasks.png", meta)
     plot_profiles(board, figures / "leaderboard_profiles.png", meta)
     plot_separation(found, board.tasks, figures / "leaderboard_separation.png", meta)
+    plot_forest(board, figures / "leaderboard_forest.png", meta, oracle)
+    plot_confirmatory(confirmed, figures / "leaderboard_confirmatory.png", meta)
     table = table_markdown(rows)
     doc = leaderboard_markdown(
-        board, provenance, table, found, improvements, goal_text, confirmed=confirmed
+        board,
+        provenance,
+        table,
+        found,
+        improvements,
+        goal_text,
+        confirmed=confirmed,
+        oracle=oracle,
     )
     write_text_atomic(args.docs / "leaderboard.md", doc)
     if not args.no_cards:
@@ -857,10 +953,12 @@ def leaderboard_markdown(
     goal_text: str,
     *,
     confirmed: Sequence[Comparison] = (),
+    oracle: Mapping[str, tuple[int, int]] | None = None,
 ) -> str:
     """The text of ``docs/leaderboard.md``: the provenance, the suite table, the per-task
     tables, the comparisons (the confirmatory family ``confirmed`` and the exploratory
-    ``found``), the probability of improvement, the profiles and the goal."""
+    ``found``), the probability of improvement, the profiles and the goal; ``oracle``: the
+    privileged oracle's results per task, marked beside the entries and in no comparison."""
     seeds = "; ".join(_seeds_text(board.suite_tasks(s)[0], span(board.entries)) for s in SUITES)
     doc = [
         "# Leaderboard\n",
@@ -885,8 +983,16 @@ def leaderboard_markdown(
         "violation\n",
         "⊥: no episode succeeded (floor), ⊤: every episode did (ceiling): no interval inside the "
         "data separates two policies there.\n",
-        task_table_markdown(board),
+        task_table_markdown(board, oracle),
+        (
+            f"*{ORACLE_LABEL}*: the oracle of docs/feasibility.md, which plans on the true "
+            "state; a reference of what is achievable, in no comparison and no goal. `–`: "
+            "not run on that task.\n"
+            if oracle
+            else "The privileged oracle has not been run on these tasks (docs/feasibility.md).\n"
+        ),
         "![success per task](figures/leaderboard_tasks.png)\n",
+        "![success per task with intervals, the oracle marked](figures/leaderboard_forest.png)\n",
         "## Per task, graded: path done / smallest margin\n",
         "Success is binary; this table shows how far an unsolved task gets. First number: the "
         "mean fraction of the leader's path done before the first violation (1: the whole "
@@ -903,6 +1009,9 @@ def leaderboard_markdown(
         "difference interval is Newcombe's for paired proportions. The goal reads this "
         "family.\n",
         comparisons_markdown(confirmed, goal_tasks(board)),
+        "![the confirmatory family at a glance](figures/leaderboard_confirmatory.png)\n"
+        if confirmed
+        else "",
         "## Exploratory comparisons (who beats whom on which task)\n",
         "The family: every pair of policies on every task both ran, paired by seed as above "
         "(exact McNemar, Newcombe's paired interval), Holm-adjusted as one family apart from "
