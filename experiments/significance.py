@@ -264,24 +264,13 @@ class Comparison:
         return self.a if self.difference.value > 0 else self.b
 
 
-def compare(
-    rates: Mapping[str, Mapping[str, tuple[int, int]]], pairs: Sequence[tuple[str, str]]
-) -> list[Comparison]:
-    """Every pair of ``pairs`` on every task both have: ``rates[policy][task] = (successes,
-    episodes)`` (a learned configuration's seeds pooled). The family adjusted by Holm is the
-    whole returned list (the ties excepted: they are not tests)."""
-    raw: list[tuple[str, str, str, Interval, float, str]] = []
-    for a, b in pairs:
-        if a not in rates or b not in rates:
-            raise ValueError(f"unknown policy in pair {(a, b)}; known: {sorted(rates)}")
-        for task in rates[a]:
-            if task not in rates[b]:
-                continue
-            (k1, n1), (k2, n2) = rates[a][task], rates[b][task]
-            diff = newcombe_difference(k1, n1, k2, n2)
-            tie = "floor" if k1 == 0 and k2 == 0 else "ceiling" if k1 == n1 and k2 == n2 else ""
-            p = 1.0 if tie else float(fisher_exact([[k1, n1 - k1], [k2, n2 - k2]]).pvalue)
-            raw.append((task, a, b, diff, p, tie))
+#: One comparison before the family's correction: task, A, B, difference, p-value, tie.
+_Raw = tuple[str, str, str, Interval, float, str]
+
+
+def _holm_family(raw: Sequence[_Raw]) -> list[Comparison]:
+    """The comparisons ``raw`` as one family: the p-values of its tests (the ties are not
+    tests) Holm-adjusted together."""
     tested = [i for i, r in enumerate(raw) if not r[5]]
     adjusted = holm([raw[i][4] for i in tested]) if tested else []
     p_holm = [1.0] * len(raw)
@@ -293,6 +282,27 @@ def compare(
     ]
 
 
+def compare(
+    rates: Mapping[str, Mapping[str, tuple[int, int]]], pairs: Sequence[tuple[str, str]]
+) -> list[Comparison]:
+    """Every pair of ``pairs`` on every task both have: ``rates[policy][task] = (successes,
+    episodes)`` (a learned configuration's seeds pooled). The family adjusted by Holm is the
+    whole returned list (the ties excepted: they are not tests)."""
+    raw: list[_Raw] = []
+    for a, b in pairs:
+        if a not in rates or b not in rates:
+            raise ValueError(f"unknown policy in pair {(a, b)}; known: {sorted(rates)}")
+        for task in rates[a]:
+            if task not in rates[b]:
+                continue
+            (k1, n1), (k2, n2) = rates[a][task], rates[b][task]
+            diff = newcombe_difference(k1, n1, k2, n2)
+            tie = "floor" if k1 == 0 and k2 == 0 else "ceiling" if k1 == n1 and k2 == n2 else ""
+            p = 1.0 if tie else float(fisher_exact([[k1, n1 - k1], [k2, n2 - k2]]).pvalue)
+            raw.append((task, a, b, diff, p, tie))
+    return _holm_family(raw)
+
+
 def compare_paired(
     outcomes: Mapping[tuple[str, str], Mapping[str, Sequence[tuple[bool, bool]]]],
 ) -> list[Comparison]:
@@ -301,7 +311,7 @@ def compare_paired(
     Newcombe's paired interval (module doc); a pair where both are at the floor or both at the
     ceiling is a tie, not a test; the p-values of every test returned are Holm-adjusted
     together."""
-    raw: list[tuple[str, str, str, Interval, float, str]] = []
+    raw: list[_Raw] = []
     for (a, b), per_task in outcomes.items():
         for task, pairs in per_task.items():
             if not pairs:
@@ -316,12 +326,4 @@ def compare_paired(
             )
             p = 1.0 if tie else mcnemar_exact(only_a, only_b)
             raw.append((task, a, b, diff, p, tie))
-    tested = [i for i, r in enumerate(raw) if not r[5]]
-    adjusted = holm([raw[i][4] for i in tested]) if tested else []
-    p_holm = [1.0] * len(raw)
-    for i, q in zip(tested, adjusted, strict=True):
-        p_holm[i] = q
-    return [
-        Comparison(t, a, b, d, p, q, tie)
-        for (t, a, b, d, p, tie), q in zip(raw, p_holm, strict=True)
-    ]
+    return _holm_family(raw)
