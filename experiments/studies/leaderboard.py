@@ -369,8 +369,8 @@ def task_graded_markdown(board: Board) -> str:
 def paired_outcomes(board: Board, a: str, b: str, task: Task) -> list[tuple[bool, bool]]:
     """The pairs ``(a succeeded, b succeeded)`` of the episodes ``a`` and ``b`` played on
     ``task`` with the same seed (an episode's ``seed``; a board made without seeds: its place
-    in its run). A seed either plays more than once (runs that share seeds) pairs run by run,
-    or with the one episode of the other."""
+    in its run). A seed that several runs of both entries played pairs run by run; a seed one
+    entry played once pairs that episode with each of the other's on it."""
 
     def by_seed(entry: str) -> dict[int, list[bool]]:
         out: dict[int, list[bool]] = {}
