@@ -187,10 +187,12 @@ def provenance_markdown(store: Store, records: Iterable[EpisodeRecord], this_run
     if this_run in runs:
         lines.append(stamp_markdown(runs[this_run]["stamp"]))
     earlier = sorted(k for k in used if k != this_run)
+    # The code versions of the rows: this run's only where it wrote some (a table redrawn from
+    # rows of one earlier version is not mixed).
     commits = {
         str(runs[k]["stamp"].get("commit", "?"))[:12]
         + ("+" if runs[k]["stamp"].get("modified") else "")
-        for k in (*earlier, this_run)
+        for k in used
         if k in runs
     }
     lines.append(

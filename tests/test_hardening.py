@@ -373,3 +373,26 @@ def test_store_cli_lists_runs(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert f"run {run}: platoon-evaluate running, host {socket.gethostname()}" in out
     assert store_main([str(path), "--release", "99"]) == 2
     assert "no run 99" in capsys.readouterr().err
+
+
+def test_a_table_redrawn_from_one_earlier_version_is_not_called_mixed(tmp_path: Path) -> None:
+    """The mixed-code warning counts the code versions of the rows: a later run at another
+    commit that only redraws the tables (0 rows of its own) does not add its own."""
+    (rc,) = resolve_cells([Cell.of(PolicySpec.of("ppc"), "study_c", 0, SHORT)])
+    metrics = run_cell(rc).metrics
+    path = tmp_path / "s.sqlite"
+    with Store(path) as store:
+        store.register({rc.key.policy: ("ppc", {})}, {rc.key.scenario: {}}, {rc.key.overrides: {}})
+        first = store.begin_run("t", {"tool": "t", "commit": "a" * 40})
+        store.claim([rc.key], first, {rc.key: rc.names})
+        store.record(rc.key, first, "done", metrics=metrics, names=rc.names)
+        store.finish_run(first, "finished")
+        redraw = store.begin_run("t", {"tool": "t", "commit": "b" * 40})
+        text = provenance_markdown(store, store.episodes().values(), redraw)
+        assert "0 from this run" in text and "warning" not in text
+        second = store.begin_run("t", {"tool": "t", "commit": "c" * 40})
+        other = EpisodeKey(rc.key.policy, rc.key.scenario, rc.key.overrides, 1, rc.key.measure)
+        store.claim([other], second, {other: rc.names})
+        store.record(other, second, "done", metrics=metrics, names=rc.names)
+        text = provenance_markdown(store, store.episodes().values(), second)
+        assert "the rows come from 2 code versions (aaaaaaaaaaaa, cccccccccccc)" in text
