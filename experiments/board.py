@@ -10,6 +10,7 @@ this module, and it imports neither.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +26,7 @@ from platoon_env.scenarios.schema import ScenarioError
 
 __all__ = [
     "ANALYTIC",
+    "ORACLE_LABEL",
     "ORACLE_SUMMARY_FORMAT",
     "PARTITIONED_SUITES",
     "SPLIT_SUITES",
@@ -39,6 +41,8 @@ __all__ = [
     "episode_seeds",
     "load_oracle",
     "span",
+    "task_counts",
+    "task_outcome",
     "tasks",
 ]
 
@@ -285,9 +289,27 @@ def build_board(
     return Board(list(board_entries), list(board_tasks), metrics, refused, missing)
 
 
+def task_counts(board: Board, entry: str, task: Task) -> tuple[int, int]:
+    """(successes, episodes) of ``entry`` on ``task``, its runs' episodes pooled."""
+    eps = [m for run in board.metrics[entry] for m in run.get(task, [])]
+    return sum(bool(m["success"]) for m in eps), len(eps)
+
+
+def task_outcome(board: Board, entry: str, task: Task) -> tuple[float, str] | None:
+    """``entry``'s success rate on ``task`` over all its runs' episodes, and the most frequent
+    violation cause ("" if none); None without an episode (refused or not run)."""
+    eps = [m for run in board.metrics[entry] for m in run.get(task, [])]
+    if not eps:
+        return None
+    worst = Counter(m["violation"] for m in eps if m["violation"]).most_common(1)
+    return float(np.mean([bool(m["success"]) for m in eps])), worst[0][0] if worst else ""
+
+
 # ----------------------------------------------------------------------------------------------
 # The privileged oracle's results (written by the feasibility driver)
 # ----------------------------------------------------------------------------------------------
+#: How the privileged oracle is named in the board's tables and figures.
+ORACLE_LABEL = "oracle (privileged)"
 #: The ``format`` of the oracle's summary file (``python -m experiments.studies.feasibility``
 #: writes it as ``feasibility.json``; the leaderboard marks the oracle from it).
 ORACLE_SUMMARY_FORMAT = "platoon_env feasibility summary 1"
