@@ -108,6 +108,11 @@ def test_graded_metrics_of_a_synthetic_episode() -> None:
     assert episode_metrics(cut)["path_fraction"] == pytest.approx(8 * 0.25 / 20.0)
     # Arrived without a violation: the whole path.
     assert episode_metrics(replace(ep, leader_arrived=True))["path_fraction"] == 1.0
+    # constraint_margins names its constraints as MARGINS does, one (T, N) array each.
+    from platoon_env.rollout import MARGINS, constraint_margins
+
+    margins = constraint_margins(ep)
+    assert tuple(margins) == MARGINS and all(v.shape == (20, 1) for v in margins.values())
     # Not recorded (an Episode built without its constraints): NaN, not a number made up.
     assert np.isnan(episode_metrics(_episode(2.0))["min_margin_distance"])
 
