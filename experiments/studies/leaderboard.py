@@ -299,25 +299,23 @@ def task_table_markdown(board: Board, oracle: Mapping[str, tuple[int, int]] | No
     floor (⊥: none succeeded) or ceiling (⊤: all did) mark, and the most frequent failure; a
     last row for the privileged oracle's ``(successes, episodes)`` per task label where
     ``oracle`` has them (:func:`experiments.board.load_oracle`; outside every comparison)."""
-    head = "| policy | " + " | ".join(t.label for t in board.tasks) + " |"
-    lines = [head, "|---|" + "---|" * len(board.tasks)]
-    for e in board.entries:
-        cells_ = []
-        for t in board.tasks:
-            outcome = task_outcome(board, e.name, t)
-            if outcome is None:
-                cells_.append("refused" if (e.name, t) in board.refused else "–")
-                continue
-            rate = task_rate(*task_counts(board, e.name, t))
-            worst = outcome[1]
-            mark = " ⊥" if rate.floor else " ⊤" if rate.ceiling else ""
-            note = f" ({worst.replace('collision_', 'coll. ')})" if worst else ""
-            cells_.append(f"{rate}{mark}{note}")
-        lines.append(f"| {e.name} | " + " | ".join(cells_) + " |")
+    rows = [[e.name, *(_task_cell(board, e.name, t) for t in board.tasks)] for e in board.entries]
     if oracle:
-        row = [str(task_rate(*oracle[t.label])) if t.label in oracle else "–" for t in board.tasks]
-        lines.append(f"| *{ORACLE_LABEL}* | " + " | ".join(row) + " |")
-    return "\n".join(lines) + "\n"
+        rates = {label: str(task_rate(k, n)) for label, (k, n) in oracle.items()}
+        rows.append([f"*{ORACLE_LABEL}*", *(rates.get(t.label, "–") for t in board.tasks)])
+    return markdown_table(["policy", *(t.label for t in board.tasks)], rows) + "\n"
+
+
+def _task_cell(board: Board, entry: str, task: Task) -> str:
+    """One cell of :func:`task_table_markdown`."""
+    outcome = task_outcome(board, entry, task)
+    if outcome is None:
+        return "refused" if (entry, task) in board.refused else "–"
+    rate = task_rate(*task_counts(board, entry, task))
+    worst = outcome[1]
+    mark = " ⊥" if rate.floor else " ⊤" if rate.ceiling else ""
+    note = f" ({worst.replace('collision_', 'coll. ')})" if worst else ""
+    return f"{rate}{mark}{note}"
 
 
 #: The normalised margins of the graded table (``platoon_env.rollout.episode_metrics``).
@@ -339,15 +337,13 @@ def task_graded(board: Board, entry: str, task: Task) -> tuple[float, float] | N
 def task_graded_markdown(board: Board) -> str:
     """Per policy and task: the mean fraction of the leader's path done before the first
     violation, and the median smallest distance or bearing margin (:func:`task_graded`)."""
-    head = "| policy | " + " | ".join(t.label for t in board.tasks) + " |"
-    lines = [head, "|---|" + "---|" * len(board.tasks)]
-    for e in board.entries:
-        cells_ = []
-        for t in board.tasks:
-            graded = task_graded(board, e.name, t)
-            cells_.append("–" if graded is None else f"{_f(graded[0], 2)} / {_f(graded[1], 2)}")
-        lines.append(f"| {e.name} | " + " | ".join(cells_) + " |")
-    return "\n".join(lines) + "\n"
+
+    def cell(entry: str, task: Task) -> str:
+        graded = task_graded(board, entry, task)
+        return "–" if graded is None else f"{_f(graded[0], 2)} / {_f(graded[1], 2)}"
+
+    rows = [[e.name, *(cell(e.name, t) for t in board.tasks)] for e in board.entries]
+    return markdown_table(["policy", *(t.label for t in board.tasks)], rows) + "\n"
 
 
 def paired_outcomes(board: Board, a: str, b: str, task: Task) -> list[tuple[bool, bool]]:
