@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.oracle import BASE_LAWS, FEEDBACK, OracleParams
+from baselines.oracle import OracleParams
 from experiments.board import ORACLE_SUMMARY_FORMAT
 from experiments.cli import add_grid_options, count, failed_episodes, new_parser, number, open_store
 from experiments.grid import Cell, GridResult, run_grid
@@ -355,10 +355,10 @@ def _oracle_param(text: str) -> tuple[str, float | int | str]:
             f"--oracle-param {text!r}: expected KEY=VALUE, KEY one of {', '.join(sorted(names))}"
         )
     if key == "base":
-        if value != FEEDBACK and value not in BASE_LAWS:
-            raise argparse.ArgumentTypeError(
-                f"--oracle-param base must be {FEEDBACK} or one of {', '.join(sorted(BASE_LAWS))}"
-            )
+        try:
+            OracleParams(base=value)  # its own check of the name
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(f"--oracle-param {exc}") from None
         return key, value
     x = number(value)
     default = getattr(OracleParams(), key)
