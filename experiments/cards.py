@@ -40,6 +40,14 @@ __all__ = [
 ]
 
 
+#: What every card says about loading its model (``docs/security.md``).
+LOADING_NOTE = (
+    "`LearnedPolicy.load` reads `model.zip`'s weights only (nothing is unpickled); "
+    "`LearnedPolicy.load_pickled` and SB3's own loader unpickle code: use them only on "
+    "files you trust."
+)
+
+
 def training_cores(cfg: Mapping[str, Any]) -> int:
     """The CPU cores a recorded training run occupied, from its ``model.json`` ``config``.
 
@@ -248,9 +256,7 @@ def card_markdown(board: Board, entry: Entry, run: int, summary: str = "") -> st
         ),
         "```",
         "",
-        "`LearnedPolicy.load` reads `model.zip`'s weights only (nothing is unpickled); "
-        "`LearnedPolicy.load_pickled` and SB3's own loader unpickle code: use them only on "
-        "files you trust.",
+        LOADING_NOTE,
         "",
     ]
     return "\n".join(lines)
@@ -307,9 +313,7 @@ def index_markdown(board: Board, summaries: Mapping[str, str]) -> str:
     lines += [f"- `{k}`: {v}" for k, v in summaries.items()]
     lines += [
         "",
-        "`LearnedPolicy.load` reads `model.zip`'s weights only (nothing is unpickled); "
-        "`LearnedPolicy.load_pickled` and SB3's own loader unpickle code: use them only on "
-        "files you trust.",
+        LOADING_NOTE,
         "",
     ]
     return "\n".join(lines)
