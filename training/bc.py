@@ -377,18 +377,21 @@ def _clone(
             on_iteration(entry)
 
     net = net.cpu()
-    path = _save_clone(
-        bc,
-        ppo,
-        out,
-        core,
-        spec,
-        net,
-        aggregate.samples_seen,
-        history,
-        started=started,
-        clock=clock,
-        commit=commit,
+    path = save_point(
+        out / "model.zip",
+        lambda tmp: _write_clone(
+            bc,
+            ppo,
+            tmp,
+            core,
+            spec,
+            net,
+            aggregate.samples_seen,
+            history,
+            started=started,
+            clock=clock,
+            commit=commit,
+        ),
     )
     return BCRun(path, history, net)
 
@@ -450,42 +453,6 @@ def _regress(
     return loss_sum / max(loss_n, 1)
 
 
-def _save_clone(
-    bc: BCConfig,
-    ppo: FastPPOConfig,
-    out: Path,
-    core: BatchedPlatoon,
-    spec: SlotSpec,
-    net: ActorCritic,
-    samples_seen: int,
-    history: list[dict[str, Any]],
-    *,
-    started: str,
-    clock: float,
-    commit: dict[str, Any],
-) -> Path:
-    """Save the clone (``net`` on the CPU) as an ordinary SB3 ``PPO`` zip of the actor (the
-    critic is untrained) with its ``model.json`` and ``model.state.pt`` in ``out``; ``started``,
-    ``clock`` (``perf_counter`` at the start) and ``commit`` are the run's."""
-
-    def write(tmp: Path) -> Path:
-        return _write_clone(
-            bc,
-            ppo,
-            tmp,
-            core,
-            spec,
-            net,
-            samples_seen,
-            history,
-            started=started,
-            clock=clock,
-            commit=commit,
-        )
-
-    return save_point(out / "model.zip", write)
-
-
 def _write_clone(
     bc: BCConfig,
     ppo: FastPPOConfig,
@@ -500,8 +467,11 @@ def _write_clone(
     clock: float,
     commit: dict[str, Any],
 ) -> Path:
-    """:func:`_save_clone`'s files, written as ``path`` (``model.zip``), ``model.json`` and
-    ``model.state.pt`` in ``path``'s folder."""
+    """Write the clone (``net`` on the CPU) as an ordinary SB3 ``PPO`` zip of the actor (the
+    critic is untrained) at ``path`` (``model.zip``), with its ``model.json`` and
+    ``model.state.pt`` beside it; ``started``, ``clock`` (``perf_counter`` at the start) and
+    ``commit`` are the run's. The caller writes it through :func:`training.run.save_point`, so
+    that the three files appear whole."""
     B, N = core.batch_size, core.n_followers
     state_file = path.with_suffix(".state.pt")
     torch.save({"network": net.state_dict()}, state_file)
