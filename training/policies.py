@@ -412,7 +412,24 @@ def save_exported_policy(
     return path
 
 
-class MLPActor:
+class _ActorNetwork:
+    """What the actors read from a file share: their network :attr:`forward` (a
+    :class:`~training.forward.MLPForward`) and its input and output lengths."""
+
+    forward: MLPForward
+
+    @property
+    def input_dim(self) -> int:
+        """Length of an observation."""
+        return self.forward.input_dim
+
+    @property
+    def output_dim(self) -> int:
+        """Length of an action."""
+        return self.forward.output_dim
+
+
+class MLPActor(_ActorNetwork):
     """A deterministic MLP actor from plain arrays: ``y = W_L tanh(... tanh(W_0 x + b_0) ...)
     + b_L`` (no activation after the last layer), with SB3's ``predict`` signature.
 
@@ -430,16 +447,6 @@ class MLPActor:
             [(w, b, "tanh" if k < last else "identity") for k, (w, b) in enumerate(layers)]
         )
         self.layers = layers
-
-    @property
-    def input_dim(self) -> int:
-        """Length of an observation."""
-        return self.forward.input_dim
-
-    @property
-    def output_dim(self) -> int:
-        """Length of an action."""
-        return self.forward.output_dim
 
     @classmethod
     def from_arrays(cls, arrays: Mapping[str, NDArray[Any]]) -> MLPActor:
@@ -599,7 +606,7 @@ def _check_mlp_shapes(
         previous, previous_out = w_name, w_shape[0]
 
 
-class SB3Actor:
+class SB3Actor(_ActorNetwork):
     """The deterministic actor of a Stable-Baselines3 PPO or SAC model read from its weights
     alone (:func:`read_sb3_actor`; nothing unpickled), with SB3's ``predict`` signature.
 
@@ -643,16 +650,6 @@ class SB3Actor:
         self.observation_space = spaces.Box(
             -np.inf, np.inf, shape=(forward.input_dim,), dtype=np.float32
         )
-
-    @property
-    def input_dim(self) -> int:
-        """Length of an observation."""
-        return self.forward.input_dim
-
-    @property
-    def output_dim(self) -> int:
-        """Length of an action."""
-        return self.forward.output_dim
 
     def predict(
         self, observation: NDArray[Any], deterministic: bool = True
@@ -992,7 +989,7 @@ _WARNED_UNCHECKED: set[Path] = set()
 def _input_size(model: Any) -> int | None:
     """The observation length a model reads (SB3: its observation space; an MLPActor or an
     SB3Actor: its input), or None when it does not say."""
-    if isinstance(model, MLPActor | SB3Actor):
+    if isinstance(model, _ActorNetwork):
         return model.input_dim
     shape = getattr(getattr(model, "observation_space", None), "shape", None)
     return int(shape[0]) if shape else None
@@ -1243,7 +1240,7 @@ def _load_model(
                 f"{meta_file}: unknown algo {algo!r}, expected one of {list(ALGORITHMS)}"
             )
         if not pickled:
-            sb3 = read_sb3_actor(path, "sac" if ALGORITHMS[algo] is SAC else "ppo")
+            sb3 = read_sb3_actor(path, TRAINING_ALGORITHMS[algo].sb3_class)
             return sb3, (sb3.input_dim, sb3.output_dim)
         model = ALGORITHMS[algo].load(path, device=device)  # unpickles: asked for by name
         obs_shape = getattr(model.observation_space, "shape", None) or (None,)
