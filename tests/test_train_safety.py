@@ -668,3 +668,22 @@ def test_out_that_is_a_file_is_an_argparse_error(
     err = refused(capsys, [*TINY, "--out", str(out)])
     assert "argument --out" in err and "not a directory" in err
     assert out.read_text() == "not a directory"
+
+
+def test_a_zombie_holds_no_run() -> None:
+    """A killed process its parent has not reaped yet (a zombie) runs no more: a run it held is
+    not "running" (the sweep's killed trainings, until someone reaps them)."""
+    import socket
+
+    from training.run import Holder
+
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    deadline = time.monotonic() + 30
+    while Path(f"/proc/{child.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
+        assert time.monotonic() < deadline, "the child never became a zombie"
+        time.sleep(0.05)
+    try:
+        assert Holder(socket.gethostname(), child.pid, "t", ()).alive() is False
+        assert Holder(socket.gethostname(), os.getpid(), "t", ()).alive() is True
+    finally:
+        child.wait()

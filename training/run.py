@@ -135,7 +135,9 @@ class Holder:
         return self.host == socket.gethostname()
 
     def alive(self) -> bool | None:
-        """Whether its pid still runs here (None: another host, not checkable from here)."""
+        """Whether its pid still runs here (None: another host, not checkable from here). A
+        zombie (a killed process its parent has not reaped yet, e.g. a training whose sweep was
+        killed) runs no more: it holds nothing."""
         if not self.local:
             return None
         try:
@@ -144,7 +146,11 @@ class Holder:
             return False
         except PermissionError:  # another user's process
             return True
-        return True
+        try:  # Linux: the state field after the command's closing parenthesis
+            stat = Path(f"/proc/{self.pid}/stat").read_text()
+        except OSError:
+            return True
+        return stat[stat.rfind(")") + 2 : stat.rfind(")") + 3] != "Z"
 
     def __str__(self) -> str:
         return f"pid {self.pid} on {self.host}, started {self.started_at}"
